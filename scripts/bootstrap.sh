@@ -1,0 +1,49 @@
+# Sourced by run.sh and test.sh: make .venv (Python 3.11) and install the package with the
+# extras named in $TS_EXTRAS, once per change of pyproject.toml.
+set -euo pipefail
+root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+venv="$root/.venv"
+
+find_python() {
+  for cand in "${PYTHON:-}" python3.11 python3; do
+    [ -n "$cand" ] || continue
+    if command -v "$cand" >/dev/null 2>&1 && \
+       "$cand" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))' 2>/dev/null; then
+      echo "$cand"; return 0
+    fi
+  done
+  echo "taichi_sim needs Python 3.11 (taichi 1.7.4 wheels); set PYTHON=/path/to/python3.11" >&2
+  return 1
+}
+
+if [ ! -x "$venv/bin/python" ]; then
+  py="$(find_python)"
+  echo "[setup] creating $venv with $py" >&2
+  "$py" -m venv "$venv"
+fi
+
+stamp="$venv/.installed-${TS_EXTRAS:-base}"
+want="$(cat "$root/pyproject.toml" | sha256sum | cut -c1-16)"
+if [ "$(cat "$stamp" 2>/dev/null || true)" != "$want" ]; then
+  echo "[setup] installing taichi_sim${TS_EXTRAS:+[$TS_EXTRAS]} into .venv (first run only)" >&2
+  "$venv/bin/python" -m pip install --quiet --disable-pip-version-check \
+    -e "$root${TS_EXTRAS:+[$TS_EXTRAS]}" >&2
+  echo "$want" > "$stamp"
+fi
+
+# Software Vulkan (Mesa lavapipe) so GGUI can render offscreen on machines without a GPU.
+ensure_vulkan() {
+  if ls /usr/share/vulkan/icd.d/lvp_icd*.json >/dev/null 2>&1 || \
+     ls /usr/share/vulkan/icd.d/nvidia_icd*.json >/dev/null 2>&1 || \
+     ls /etc/vulkan/icd.d/*.json >/dev/null 2>&1; then
+    return 0
+  fi
+  if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
+    echo "[setup] installing mesa-vulkan-drivers (software Vulkan for GGUI)" >&2
+    DEBIAN_FRONTEND=noninteractive apt-get update -qq >&2 || true
+    DEBIAN_FRONTEND=noninteractive apt-get install -y -qq mesa-vulkan-drivers libvulkan1 >&2 || \
+      echo "[setup] could not install mesa-vulkan-drivers; rendering tests will be skipped" >&2
+  else
+    echo "[setup] no Vulkan driver found; install Debian's mesa-vulkan-drivers for rendering" >&2
+  fi
+}

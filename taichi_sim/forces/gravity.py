@@ -1,0 +1,42 @@
+
+import numpy as np
+import taichi as ti
+
+from .. import runtime
+from .base import ForceTerm
+
+
+@ti.data_oriented
+class Gravity(ForceTerm):
+    """Uniform gravity: force m_i * g on every particle; potential energy -m_i g . x_i.
+
+    ``g`` (m/s^2, a 3-vector, e.g. (0, -9.8, 0)) lives in a 0-D field, so it may change while a
+    simulation runs without recompiling.
+    """
+
+    name = "gravity"
+
+    def __init__(self, g, mass_field):
+        self.g = ti.Vector.field(3, runtime.real(), shape=())
+        self.mass = mass_field
+        self.set(g)
+
+    def set(self, g) -> None:
+        self.g[None] = np.asarray(g, dtype=float).reshape(3).tolist()
+
+    def get(self) -> np.ndarray:
+        return np.asarray(self.g[None].to_numpy(), dtype=float)
+
+    @ti.func
+    def force(self, i, y, mass_i):
+        return mass_i * self.g[None]
+
+    def energy(self, y) -> float:
+        return float(self._energy(y))
+
+    @ti.kernel
+    def _energy(self, y: ti.template()) -> float:
+        total = 0.0
+        for i in y.x:
+            total -= self.mass[i] * self.g[None].dot(y.x[i])
+        return total

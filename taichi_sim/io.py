@@ -1,0 +1,80 @@
+"""The self-describing .npz a run writes (schema documented in README.md)."""
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from .errors import ConfigError
+from .run import RunResult
+from .scene.scene import Scene
+
+SCHEMA_VERSION = 1
+
+
+def check_output_path(path: str | os.PathLike, suffix: str = ".npz") -> Path:
+    """Fail early (ConfigError) when ``path`` cannot be written, before any work is done."""
+    path = Path(path)
+    if path.suffix != suffix:
+        raise ConfigError(f"output path {str(path)!r} must end in {suffix}")
+    parent = path.parent if str(path.parent) else Path(".")
+    if path.is_dir():
+        raise ConfigError(f"output path {str(path)!r} is a directory")
+    if not parent.is_dir():
+        raise ConfigError(f"cannot write {str(path)!r}: directory {str(parent)!r} does not exist")
+    if not os.access(parent, os.W_OK) or (path.exists() and not os.access(path, os.W_OK)):
+        raise ConfigError(f"cannot write {str(path)!r}: permission denied")
+    return path
+
+
+def run_arrays(scene: Scene, result: RunResult, *, integrator: str, dt: float) -> dict[str, np.ndarray]:
+    """Everything needed to rebuild the ODE and check the result, as numpy arrays."""
+    x, v = scene.state.to_numpy()
+    x0, v0 = scene.x0, scene.v0
+    if v is None:
+        # A first-order system has no velocity state; store dx/dt so v keeps its meaning.
+        v, v0 = _first_order_velocity(scene, x), _first_order_velocity(scene, x0)
+    data = {
+        "schema_version": np.int64(SCHEMA_VERSION),
+        "scene": np.str_(scene.name),
+        "system_order": np.int64(2 if scene.system.second_order else 1),
+        "x0": np.asarray(x0, np.float64), "v0": np.asarray(v0, np.float64),
+        "x": np.asarray(x, np.float64), "v": np.asarray(v, np.float64),
+        "t": np.float64(result.t), "steps": np.int64(result.steps),
+        "accepted_steps": np.int64(result.steps), "rejected_steps": np.int64(result.rejected_steps),
+        "f_evals": np.int64(result.f_evals), "integrator": np.str_(integrator),
+        "dt": np.float64(dt), "status": np.str_(result.status.value),
+        "message": np.str_(result.message), "seed": np.int64(scene.seed),
+        "energy": result.energy, "energy_t": result.energy_t,
+    }
+    for name, value in scene.arrays.items():
+        data[name] = np.asarray(value)
+    for name, value in scene.params.items():
+        data[f"param_{name}"] = np.asarray(value)
+    return data
+
+
+def _first_order_velocity(scene: Scene, x: np.ndarray) -> np.ndarray:
+    scratch = scene.system.make_state()
+    scratch.from_numpy(x)
+    out = scene.system.make_state()
+    scene.system.eval_f(scratch, 0.0, out)
+    return out.x.to_numpy().astype(np.float64)
+
+
+def save_npz(path: str | os.PathLike, arrays: dict[str, np.ndarray]) -> Path:
+    """Write ``arrays`` to ``path`` atomically: a temporary file beside it, then a rename, so a
+    failure never leaves a partial file."""
+    path = check_output_path(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent or ".")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            np.savez_compressed(f, **arrays)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return path

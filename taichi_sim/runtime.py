@@ -1,0 +1,73 @@
+"""Taichi runtime set-up: architecture and floating-point precision.
+
+``import taichi_sim`` never calls ``ti.init``; :func:`init` does, explicitly. Calling it again
+re-initialises Taichi, which frees every field allocated before (scenes built earlier become
+unusable).
+"""
+from __future__ import annotations
+
+import numpy as np
+import taichi as ti
+
+from .errors import ConfigError
+
+ARCHS = ("cpu", "gpu")
+PRECISIONS = ("f32", "f64")
+
+_current: dict = {"arch": None, "precision": None}
+
+
+def init(arch: str = "cpu", precision: str = "f64", *, debug: bool = False,
+         offline_cache: bool = True, cpu_max_num_threads: int | None = None) -> None:
+    """Initialise Taichi for taichi_sim.
+
+    Args:
+        arch: ``"cpu"`` (LLVM x64/arm64) or ``"gpu"`` (CUDA, Vulkan or Metal, whichever Taichi
+            finds first; it falls back to the CPU when no GPU is present).
+        precision: ``"f32"`` or ``"f64"``; the dtype of every state, parameter and scratch field.
+        debug: Taichi debug mode (bounds checks; slow).
+        offline_cache: keep compiled kernels on disk so the next process starts fast.
+        cpu_max_num_threads: limit the CPU thread pool (default: all cores).
+    """
+    if arch not in ARCHS:
+        raise ConfigError(f"arch must be one of {', '.join(ARCHS)}, got {arch!r}")
+    if precision not in PRECISIONS:
+        raise ConfigError(f"precision must be one of {', '.join(PRECISIONS)}, got {precision!r}")
+    kwargs = dict(arch=ti.cpu if arch == "cpu" else ti.gpu,
+                  default_fp=ti.f64 if precision == "f64" else ti.f32,
+                  default_ip=ti.i32, debug=debug, offline_cache=offline_cache,
+                  log_level=ti.WARN)
+    if cpu_max_num_threads is not None:
+        kwargs["cpu_max_num_threads"] = int(cpu_max_num_threads)
+    ti.init(**kwargs)
+    _current.update(arch=arch, precision=precision)
+
+
+def is_initialized() -> bool:
+    return _current["precision"] is not None
+
+
+def precision() -> str:
+    """The precision passed to the last :func:`init` (``"f32"`` or ``"f64"``)."""
+    _require_init()
+    return _current["precision"]
+
+
+def arch() -> str:
+    _require_init()
+    return _current["arch"]
+
+
+def real():
+    """The Taichi float dtype of the current precision."""
+    return ti.f64 if precision() == "f64" else ti.f32
+
+
+def np_real():
+    """The numpy float dtype of the current precision."""
+    return np.float64 if precision() == "f64" else np.float32
+
+
+def _require_init() -> None:
+    if _current["precision"] is None:
+        raise RuntimeError("call taichi_sim.init(arch=..., precision=...) before building scenes")

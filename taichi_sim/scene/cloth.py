@@ -1,0 +1,53 @@
+"""Cloth grid topology, built with numpy (no Python loops over particles or springs)."""
+from __future__ import annotations
+
+import numpy as np
+
+STRUCTURAL, SHEAR, FLEX = 0, 1, 2
+
+
+def grid_index(nx: int, ny: int) -> np.ndarray:
+    """(nx, ny) array of particle ids: particle (i, j) has id i * ny + j."""
+    return np.arange(nx * ny, dtype=np.int64).reshape(nx, ny)
+
+
+def spring_counts(nx: int, ny: int) -> dict[int, int]:
+    """Closed-form spring counts per kind for an nx x ny grid (DESIGN.md section 4)."""
+    return {
+        STRUCTURAL: (nx - 1) * ny + nx * (ny - 1),
+        SHEAR: 2 * max(nx - 1, 0) * max(ny - 1, 0),
+        FLEX: max(nx - 2, 0) * ny + nx * max(ny - 2, 0),
+    }
+
+
+def grid_springs(nx: int, ny: int, *, structural: bool = True, shear: bool = True,
+                 flex: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """Springs of an nx x ny cloth grid.
+
+    Structural springs join horizontal and vertical neighbours, shear springs both diagonals of
+    every cell, flex springs particles two apart horizontally and vertically.
+
+    Returns:
+        ends: (S, 2) int64 particle ids.
+        kind: (S,) int8, 0 structural, 1 shear, 2 flex.
+    """
+    idx = grid_index(nx, ny)
+    pairs: list[tuple[np.ndarray, np.ndarray, int]] = []
+    if structural:
+        pairs += [(idx[:-1, :], idx[1:, :], STRUCTURAL), (idx[:, :-1], idx[:, 1:], STRUCTURAL)]
+    if shear:
+        pairs += [(idx[:-1, :-1], idx[1:, 1:], SHEAR), (idx[1:, :-1], idx[:-1, 1:], SHEAR)]
+    if flex:
+        pairs += [(idx[:-2, :], idx[2:, :], FLEX), (idx[:, :-2], idx[:, 2:], FLEX)]
+    if not pairs:
+        return np.zeros((0, 2), np.int64), np.zeros(0, np.int8)
+    ends = np.concatenate([np.stack([a.ravel(), b.ravel()], axis=1) for a, b, _ in pairs])
+    kind = np.concatenate([np.full(a.size, k, np.int8) for a, _, k in pairs])
+    return ends, kind
+
+
+def grid_positions(nx: int, ny: int, size_x: float, size_y: float, origin, u_axis, v_axis) -> np.ndarray:
+    """(nx*ny, 3) positions: origin + (i / (nx-1)) size_x u_axis + (j / (ny-1)) size_y v_axis."""
+    s = np.linspace(0.0, size_x, nx)[:, None, None] * np.asarray(u_axis, float)
+    t = np.linspace(0.0, size_y, ny)[None, :, None] * np.asarray(v_axis, float)
+    return (np.asarray(origin, float) + s + t).reshape(nx * ny, 3)

@@ -1,0 +1,71 @@
+"""Simulation state: Taichi fields owned by the caller (a Scene or an integrator's scratch)."""
+
+import numpy as np
+import taichi as ti
+
+from . import runtime
+
+
+@ti.data_oriented
+class State:
+    """Positions and, for second-order systems, velocities of ``particle_count`` particles.
+
+    Attributes:
+        x: ``ti.Vector.field(3)`` of shape (n,), positions in m (or the ODE variable).
+        v: same shape, velocities in m/s; ``None`` for a first-order system.
+        second_order: whether ``v`` exists (a Python bool, read with ``ti.static``).
+    """
+
+    def __init__(self, particle_count: int, second_order: bool):
+        if particle_count < 1:
+            raise ValueError(f"particle_count must be >= 1, got {particle_count}")
+        self.particle_count = int(particle_count)
+        self.second_order = bool(second_order)
+        dtype = runtime.real()
+        self.x = ti.Vector.field(3, dtype, shape=self.particle_count)
+        self.v = ti.Vector.field(3, dtype, shape=self.particle_count) if second_order else None
+
+    def like(self) -> "State":
+        """A new, zeroed state of the same shape."""
+        return State(self.particle_count, self.second_order)
+
+    def to_numpy(self) -> tuple[np.ndarray, np.ndarray | None]:
+        """(x, v) as float arrays of shape (n, 3); v is None for a first-order state."""
+        return self.x.to_numpy(), (self.v.to_numpy() if self.second_order else None)
+
+    def from_numpy(self, x: np.ndarray, v: np.ndarray | None = None) -> None:
+        dtype = runtime.np_real()
+        self.x.from_numpy(np.ascontiguousarray(x, dtype=dtype).reshape(self.particle_count, 3))
+        if self.second_order:
+            v = np.zeros((self.particle_count, 3)) if v is None else v
+            self.v.from_numpy(np.ascontiguousarray(v, dtype=dtype).reshape(self.particle_count, 3))
+
+    @ti.kernel
+    def copy_from(self, other: ti.template()):
+        for i in self.x:
+            self.x[i] = other.x[i]
+            if ti.static(self.second_order):
+                self.v[i] = other.v[i]
+
+    @ti.kernel
+    def nonfinite_count(self) -> ti.i32:
+        """Number of particles whose position or velocity has a NaN or infinite component."""
+        bad = 0
+        for i in self.x:
+            if not finite(self.x[i]):
+                bad += 1
+            elif ti.static(self.second_order):
+                if not finite(self.v[i]):
+                    bad += 1
+        return bad
+
+
+@ti.func
+def finite(u):
+    """True when every component of the 3-vector ``u`` is finite."""
+    ok = True
+    for k in ti.static(range(3)):
+        if ti.math.isnan(u[k]) or ti.math.isinf(u[k]):
+            ok = False
+    return ok
+

@@ -1,0 +1,39 @@
+"""The circle ODE: dx/dt = -y, dy/dt = x, dz/dt = 0 (exact solution: rotation at 1 rad/s)."""
+
+import taichi as ti
+
+from ..state import State
+from .base import System
+
+
+@ti.data_oriented
+class CircleSystem(System):
+    """First-order system: each of ``particle_count`` points rotates about the z axis.
+
+    The invariant ``energy`` is 0.5 * (x^2 + y^2 + z^2) summed over points (it is conserved by the
+    exact flow, so its drift shows an integrator's error).
+    """
+
+    second_order = False
+
+    def __init__(self, particle_count: int = 1):
+        self.particle_count = int(particle_count)
+
+    def eval_f(self, y: State, t: float, out: State) -> None:
+        self._eval_f(y, out)
+
+    @ti.kernel
+    def _eval_f(self, y: ti.template(), out: ti.template()):
+        for i in y.x:
+            p = y.x[i]
+            out.x[i] = ti.Vector([-p[1], p[0], 0.0])
+
+    def energy(self, y: State) -> float:
+        return float(self._half_norm2(y))
+
+    @ti.kernel
+    def _half_norm2(self, y: ti.template()) -> float:
+        total = 0.0
+        for i in y.x:
+            total += 0.5 * y.x[i].norm_sqr()
+        return total
