@@ -9,12 +9,16 @@ Typical use::
 
 ``import taichi_sim`` does not initialise Taichi; :func:`init` does.
 """
-from .errors import ConfigError
-from .integrators import INTEGRATORS, Integrator, Status, StepReport, create_integrator
-from .run import RunResult, run
-from .runtime import init
-from .scene import SCENES, Scene, SceneBuilder, build_scene
-from .state import State
+import os
+
+os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "0")  # keep stdout for our own output
+
+from .errors import ConfigError  # noqa: E402
+from .integrators import INTEGRATORS, Integrator, Status, StepReport, create_integrator  # noqa: E402
+from .run import RunResult, run  # noqa: E402
+from .runtime import init  # noqa: E402
+from .scene import SCENES, Scene, SceneBuilder, build_scene  # noqa: E402
+from .state import State  # noqa: E402
 
 __version__ = "0.1.0"
 

@@ -61,6 +61,12 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--arch", choices=("cpu", "gpu"), default="cpu")
     sim.add_argument("--set", dest="assignments", action="append", type=_assignment, default=[],
                      metavar="NAME=VALUE", help="scene parameter (repeatable); see `taichi-sim list`")
+    sim.add_argument("--rtol", type=_positive_float, help="relative tolerance (adaptive methods)")
+    sim.add_argument("--atol", type=_positive_float, help="absolute tolerance (adaptive methods)")
+    sim.add_argument("--linear-solver", choices=("cg", "direct"),
+                     help="linear solver of the implicit methods (default cg)")
+    sim.add_argument("--newton-iterations", type=_positive_int,
+                     help="Newton iterations per implicit step")
     sim.add_argument("--seed", type=int, default=0, help="random seed for scenes with randomness")
     sim.add_argument("--energy-every", type=int, default=None, metavar="K",
                      help="sample energy every K steps (0: never; default: every step up to 2000 "
@@ -90,15 +96,18 @@ def cmd_list(args) -> int:
 
 def cmd_simulate(args) -> int:
     from . import io, runtime
-    from .integrators import integrator_class
+    from .integrators import create_integrator, integrator_class
     from .run import check_run_args, run
     from .scene import build_scene, scene_preset
 
     preset = scene_preset(args.scene)
     integrator_name = args.integrator or preset.default_integrator
     integrator_cls = integrator_class(integrator_name)
-    dt = args.dt if args.dt is not None else preset.default_dt
-    check_run_args(dt, args.steps, args.t_end)
+    adaptive = integrator_cls.adaptive
+    dt = args.dt if args.dt is not None or adaptive else preset.default_dt
+    check_run_args(dt, args.steps, args.t_end, adaptive=adaptive)
+    options = {name: getattr(args, name) for name in ("rtol", "atol", "linear_solver", "newton_iterations")
+               if getattr(args, name) is not None}
     if args.energy_every is not None and args.energy_every < 0:
         raise ConfigError(f"--energy-every must be >= 0, got {args.energy_every}")
     params = dict(args.assignments)
@@ -106,15 +115,17 @@ def cmd_simulate(args) -> int:
 
     runtime.init(arch=args.arch, precision=args.precision)
     scene = build_scene(args.scene, params, seed=args.seed)
-    integrator = integrator_cls(scene.system)
+    integrator = create_integrator(integrator_name, scene.system, **options)
     result = run(scene, integrator, dt=dt, steps=args.steps, t_end=args.t_end,
                  energy_every=args.energy_every, progress=None if not args.quiet else False)
-    path = io.save_npz(args.out, io.run_arrays(scene, result, integrator=integrator_name, dt=dt))
+    path = io.save_npz(args.out, io.run_arrays(scene, result, integrator=integrator, dt=dt))
     if result.message:
         print(f"taichi-sim: {result.message}", file=sys.stderr)
     if not args.quiet:
-        print(f"{scene.name}: {result.steps} steps of {integrator_name} to t = {result.t:.6g} s, "
-              f"{result.f_evals} f-evals, {result.wall_time:.3f} s, status {result.status.value} -> {path}")
+        rejected = f" ({result.rejected_steps} rejected)" if result.rejected_steps else ""
+        print(f"{scene.name}: {result.steps} steps{rejected} of {integrator_name} to t = {result.t:.6g} s, "
+              f"{result.f_evals} f-evals, {result.wall_time:.3f} s on {runtime.backend()}, "
+              f"status {result.status.value} -> {path}")
     return 0 if result.status.value == "ok" else 1
 
 

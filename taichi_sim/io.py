@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import ConfigError
+from .integrators import Integrator
 from .run import RunResult
 from .scene.scene import Scene
 
@@ -29,7 +30,7 @@ def check_output_path(path: str | os.PathLike, suffix: str = ".npz") -> Path:
     return path
 
 
-def run_arrays(scene: Scene, result: RunResult, *, integrator: str, dt: float) -> dict[str, np.ndarray]:
+def run_arrays(scene: Scene, result: RunResult, *, integrator: Integrator, dt: float | None) -> dict[str, np.ndarray]:
     """Everything needed to rebuild the ODE and check the result, as numpy arrays."""
     x, v = scene.state.to_numpy()
     x0, v0 = scene.x0, scene.v0
@@ -44,11 +45,14 @@ def run_arrays(scene: Scene, result: RunResult, *, integrator: str, dt: float) -
         "x": np.asarray(x, np.float64), "v": np.asarray(v, np.float64),
         "t": np.float64(result.t), "steps": np.int64(result.steps),
         "accepted_steps": np.int64(result.steps), "rejected_steps": np.int64(result.rejected_steps),
-        "f_evals": np.int64(result.f_evals), "integrator": np.str_(integrator),
-        "dt": np.float64(dt), "status": np.str_(result.status.value),
+        "f_evals": np.int64(result.f_evals), "integrator": np.str_(integrator.name),
+        "dt": np.float64(np.nan if dt is None else dt), "status": np.str_(result.status.value),
         "message": np.str_(result.message), "seed": np.int64(scene.seed),
         "energy": result.energy, "energy_t": result.energy_t,
     }
+    if integrator.implicit:
+        data["linear_iterations"] = np.int64(result.linear_iterations)
+        data["linear_residual"] = np.float64(result.linear_residual)
     for name, value in scene.arrays.items():
         data[name] = np.asarray(value)
     for name, value in scene.params.items():

@@ -19,8 +19,11 @@ class RunResult:
 
     Attributes:
         status: OK, or why the run stopped early (DIVERGED, NOT_CONVERGED, STEP_TOO_SMALL).
-        steps: accepted steps taken; t: simulated time reached (s).
-        f_evals: evaluations of f in total; rejected_steps: steps an adaptive method retried.
+        steps: accepted steps; rejected_steps: steps an adaptive method retried.
+        t: simulated time reached (s).
+        f_evals: evaluations of f in total.
+        linear_iterations: linear-solver iterations in total (implicit methods).
+        linear_residual: relative residual of the last linear solve (implicit methods).
         energy, energy_t: the energy trace (J) and its sample times (s); empty when the system
             has no energy or sampling was off.
         message: a one-line explanation when status is not OK.
@@ -32,16 +35,16 @@ class RunResult:
     t: float
     f_evals: int
     rejected_steps: int
+    linear_iterations: int
+    linear_residual: float
     energy: np.ndarray
     energy_t: np.ndarray
     message: str
     wall_time: float
 
 
-def planned_steps(dt: float, steps: int | None, t_end: float | None) -> int:
-    """Number of fixed steps to reach ``t_end`` (the last one shortened to land on it)."""
-    if steps is not None:
-        return steps
+def planned_steps(dt: float, t_end: float) -> int:
+    """Number of fixed steps of ``dt`` to reach ``t_end`` (the last one shortened to land on it)."""
     return max(1, math.ceil(t_end / dt - 1e-9))
 
 
@@ -50,72 +53,104 @@ def default_energy_every(step_count: int) -> int:
     return 1 if step_count <= 2000 else math.ceil(step_count / 2000)
 
 
-def check_run_args(dt: float, steps: int | None, t_end: float | None) -> None:
-    if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0):
+def check_run_args(dt: float | None, steps: int | None, t_end: float | None, *,
+                   adaptive: bool = False) -> None:
+    """Raise ConfigError for a step size, step count or end time that cannot be run."""
+    if dt is None:
+        if not adaptive:
+            raise ConfigError("dt is required for a fixed-step integrator")
+    elif isinstance(dt, bool) or not isinstance(dt, (int, float)) or not (math.isfinite(dt) and dt > 0):
         raise ConfigError(f"dt must be a finite number > 0, got {dt}")
     if (steps is None) == (t_end is None):
         raise ConfigError("give exactly one of steps or t_end")
-    if steps is not None and (not isinstance(steps, int) or steps < 1):
+    if steps is not None and (isinstance(steps, bool) or not isinstance(steps, int) or steps < 1):
         raise ConfigError(f"steps must be an integer >= 1, got {steps}")
     if t_end is not None and not (math.isfinite(t_end) and t_end > 0):
         raise ConfigError(f"t_end must be a finite number > 0, got {t_end}")
 
 
-def run(scene: Scene, integrator: Integrator | str, *, dt: float, steps: int | None = None,
+def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: int | None = None,
         t_end: float | None = None, energy_every: int | None = None,
         progress: bool | None = False) -> RunResult:
-    """Advance ``scene.state`` from t = 0 by ``steps`` steps of ``dt`` s, or up to ``t_end`` s.
+    """Advance ``scene.state`` from t = 0 by ``steps`` accepted steps, or up to ``t_end`` s.
 
     Args:
         integrator: an integrator bound to ``scene.system``, or a registry name.
-        energy_every: sample the energy every this many steps (0: never; None: every step for
-            short runs, about 2000 samples for long ones). The first and last states are
-            always sampled.
+        dt: the step (s) of a fixed-step method; for an adaptive one the first step (None: the
+            method chooses it).
+        energy_every: sample the energy every this many accepted steps (0: never; None: every
+            step for short runs, about 2000 samples for long ones). The first and last states
+            are always sampled.
         progress: show a progress bar on stderr (None: only when stderr is a terminal).
 
-    The run stops at the first step whose status is not OK; the result says which step and time.
+    With ``t_end`` the last step is shortened to land exactly on it. The run stops at the
+    first step whose status is not OK; the result's message says at which step and time.
     """
-    check_run_args(dt, steps, t_end)
     if isinstance(integrator, str):
         integrator = create_integrator(integrator, scene.system)
-    n_steps = planned_steps(dt, steps, t_end)
-    every = default_energy_every(n_steps) if energy_every is None else int(energy_every)
+    adaptive = integrator.adaptive
+    check_run_args(dt, steps, t_end, adaptive=adaptive)
+    if adaptive:
+        h = dt if dt is not None else integrator.initial_step(scene.state, 0.0, t_end)
+        expected = steps  # unknown for an adaptive run to t_end
+    else:
+        h = dt
+        expected = steps if steps is not None else planned_steps(dt, t_end)
+    every = (default_energy_every(expected or 1000) if energy_every is None else int(energy_every))
     has_energy = every > 0 and scene.energy() is not None
 
     energy, energy_t = [], []
-
-    def sample(t_now: float) -> None:
-        energy.append(scene.energy())
-        energy_t.append(t_now)
-
     if has_energy:
-        sample(0.0)
+        energy.append(scene.energy())
+        energy_t.append(0.0)
     status, message = Status.OK, ""
-    f_evals = rejected = done = 0
+    f_evals = rejected = done = linear_iterations = 0
+    linear_residual = 0.0
     t = 0.0
     start = time.perf_counter()
-    bar = tqdm(total=n_steps, unit="step", disable=(None if progress is None else not progress),
-               leave=False, mininterval=0.5)
+    if t_end is not None and expected is None:
+        bar = tqdm(total=t_end, unit="s", disable=None if progress is None else not progress,
+                   leave=False, mininterval=0.5, bar_format="{l_bar}{bar}| {n:.3g}/{total:.3g} s")
+    else:
+        bar = tqdm(total=expected, unit="step", disable=None if progress is None else not progress,
+                   leave=False, mininterval=0.5)
     with bar:
-        while done < n_steps:
-            h = dt if t_end is None else min(dt, t_end - t)
+        while (steps is not None and done < steps) or (steps is None and t < t_end):
+            last = False
+            if t_end is not None and t + h >= t_end * (1 - 1e-12):
+                h, last = t_end - t, True
             report = integrator.step(scene.state, t, h)
             f_evals += report.f_evals
+            linear_iterations += report.linear_iterations
+            if integrator.implicit:
+                linear_residual = report.linear_residual
             if report.status is not Status.OK:
                 status = report.status
+                detail = f" ({report.message})" if report.message else ""
                 message = (f"{status.value} at step {done + 1} (t = {t + h:.6g} s) with "
-                           f"{integrator.name}, dt = {dt:g}: lower the step or pick a more stable integrator")
+                           f"{integrator.name}, h = {h:.3g} s{detail}: lower the step or pick a "
+                           f"more stable integrator")
                 break
             if not report.accepted:
                 rejected += 1
+                h = report.next_h
                 continue
             done += 1
-            t = done * dt if t_end is None or done < n_steps else t_end
-            scene.after_step(t, h)
-            if has_energy and (done % every == 0 or done == n_steps):
-                sample(t)
-            bar.update(1)
+            if last:
+                t = t_end
+            elif adaptive:
+                t += report.h
+            else:
+                t = done * dt  # no round-off drift over many fixed steps
+            scene.after_step(t, report.h)
+            if has_energy and (done % every == 0 or last or done == steps):
+                energy.append(scene.energy())
+                energy_t.append(t)
+            bar.update(report.h if (t_end is not None and expected is None) else 1)
+            if adaptive:
+                h = report.next_h
     wall = time.perf_counter() - start
     return RunResult(status=status, steps=done, t=t, f_evals=f_evals, rejected_steps=rejected,
+                     linear_iterations=linear_iterations, linear_residual=linear_residual,
                      energy=np.asarray(energy, float), energy_t=np.asarray(energy_t, float),
                      message=message, wall_time=wall)

@@ -6,15 +6,22 @@ unusable).
 """
 from __future__ import annotations
 
-import numpy as np
-import taichi as ti
+import contextlib
+import io
+import os
+import sys
+
+os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "0")  # keep stdout for our own output
+
+import numpy as np  # noqa: E402
+import taichi as ti  # noqa: E402
 
 from .errors import ConfigError
 
 ARCHS = ("cpu", "gpu")
 PRECISIONS = ("f32", "f64")
 
-_current: dict = {"arch": None, "precision": None}
+_current: dict = {"arch": None, "precision": None, "backend": None}
 
 
 def init(arch: str = "cpu", precision: str = "f64", *, debug: bool = False,
@@ -39,8 +46,12 @@ def init(arch: str = "cpu", precision: str = "f64", *, debug: bool = False,
                   log_level=ti.WARN)
     if cpu_max_num_threads is not None:
         kwargs["cpu_max_num_threads"] = int(cpu_max_num_threads)
-    ti.init(**kwargs)
-    _current.update(arch=arch, precision=precision)
+    with contextlib.redirect_stdout(io.StringIO()):  # ti.init prints "Starting on arch=..."
+        ti.init(**kwargs)
+    chosen = ti.lang.impl.current_cfg().arch
+    if arch == "gpu" and chosen in (ti.x64, ti.arm64):
+        print("taichi_sim: no GPU backend available, running on the CPU", file=sys.stderr)
+    _current.update(arch=arch, precision=precision, backend=str(chosen).split(".")[-1])
 
 
 def is_initialized() -> bool:
@@ -54,8 +65,15 @@ def precision() -> str:
 
 
 def arch() -> str:
+    """The arch asked for (``"cpu"`` or ``"gpu"``)."""
     _require_init()
     return _current["arch"]
+
+
+def backend() -> str:
+    """The Taichi backend actually running (``"x64"``, ``"cuda"``, ``"vulkan"``, ...)."""
+    _require_init()
+    return _current["backend"]
 
 
 def real():

@@ -1,6 +1,8 @@
 """Integrators behind one contract, looked up by name."""
 from __future__ import annotations
 
+import inspect
+
 from ..errors import ConfigError
 from .base import Integrator, Status, StepReport
 from .explicit_rk import RK4, Euler, ExplicitRK, Midpoint, Trapezoid
@@ -20,8 +22,19 @@ def integrator_class(name: str) -> type[Integrator]:
 
 
 def create_integrator(name: str, system, **options) -> Integrator:
-    """Bind the integrator called ``name`` to ``system`` (allocates its scratch once)."""
-    return integrator_class(name)(system, **options)
+    """Bind the integrator called ``name`` to ``system`` (allocates its scratch once).
+
+    ``options`` are the method's keyword-only settings (e.g. ``rtol`` for rk45); an option the
+    method does not take raises ConfigError.
+    """
+    cls = integrator_class(name)
+    accepted = {p.name for p in inspect.signature(cls.__init__).parameters.values()
+                if p.kind is inspect.Parameter.KEYWORD_ONLY}
+    unknown = sorted(set(options) - accepted)
+    if unknown:
+        raise ConfigError(f"integrator {name!r} takes no option {unknown[0]!r}"
+                          + (f" (it takes: {', '.join(sorted(accepted))})" if accepted else ""))
+    return cls(system, **options)
 
 
 __all__ = ["INTEGRATORS", "Integrator", "Status", "StepReport", "ButcherTableau", "ExplicitRK",

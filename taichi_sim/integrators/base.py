@@ -29,6 +29,9 @@ class StepReport:
         next_h: the step the method proposes next (s); fixed-step methods echo ``h``.
         f_evals: evaluations of the system's f during the call.
         status: :class:`Status`; anything but OK means the state must not be trusted.
+        linear_iterations: iterations of the linear solver (implicit methods), else 0.
+        linear_residual: the final relative residual of the last linear solve (implicit methods).
+        message: detail for a status other than OK (e.g. the residual that missed tolerance).
     """
 
     accepted: bool
@@ -36,6 +39,9 @@ class StepReport:
     next_h: float
     f_evals: int
     status: Status = Status.OK
+    linear_iterations: int = 0
+    linear_residual: float = 0.0
+    message: str = ""
 
 
 class Integrator(ABC):
@@ -43,19 +49,27 @@ class Integrator(ABC):
 
     Scratch (stage buffers) is allocated once in ``__init__``; ``step`` allocates nothing.
     Class attributes: ``name`` (the registry name), ``order`` (global order of accuracy),
-    ``requires_second_order`` (only for systems with velocities), ``adaptive``.
+    ``requires_second_order`` (only for systems with velocities), ``adaptive`` (the step size
+    is proposed by the method: ``step`` may reject, and ``initial_step`` picks the first one),
+    ``implicit`` (reports linear-solver work).
+    Options (tolerances, solver choices) are keyword-only constructor arguments.
     """
 
     name: str = ""
     order: int = 0
     requires_second_order: bool = False
     adaptive: bool = False
+    implicit: bool = False
     description: str = ""
 
     def __init__(self, system: System):
         if self.requires_second_order and not system.second_order:
             raise ConfigError(f"integrator {self.name!r} needs a second-order (particle) system")
         self.system = system
+
+    def initial_step(self, state: State, t: float, t_end: float | None) -> float:
+        """First step size (s) for an adaptive method when the user gives none."""
+        raise NotImplementedError(f"{self.name} needs an explicit step size")
 
     @abstractmethod
     def step(self, state: State, t: float, h: float) -> StepReport:
