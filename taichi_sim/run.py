@@ -144,7 +144,14 @@ def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: 
                 t = done * dt  # no round-off drift over many fixed steps
             scene.after_step(t, report.h)
             if has_energy and (done % every == 0 or last or done == steps):
-                energy.append(scene.energy())
+                e = scene.energy()
+                if not math.isfinite(e):  # the state is finite but its squares overflow
+                    status = Status.DIVERGED
+                    message = (f"diverged at step {done} (t = {t:.6g} s) with {integrator.name}, "
+                               f"h = {report.h:.3g} s (energy overflowed): lower the step or pick "
+                               f"a more stable integrator")
+                    break
+                energy.append(e)
                 energy_t.append(t)
             bar.update(report.h if (t_end is not None and expected is None) else 1)
             if adaptive:

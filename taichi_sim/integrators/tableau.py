@@ -13,10 +13,14 @@ class ButcherTableau:
 
     Args:
         a: strictly lower-triangular stage matrix as rows (row i has i entries).
-        b: weights (len s).
+        b: weights (len s) of the propagated solution.
         c: nodes (len s).
-        order: the order the method is claimed to have; checked against the order conditions.
+        order: the order the method is claimed to have; checked against the order conditions
+            (which are coded up to order 4, so a fifth-order claim is checked to order 4).
         citation: where the coefficients come from.
+        b_hat: weights of an embedded solution y_hat = y + h sum b_hat_i k_i (adaptive pairs only);
+            y_new - y_hat estimates the local error.
+        embedded_order: the order of ``b_hat`` (given exactly when ``b_hat`` is).
     """
 
     a: tuple
@@ -24,6 +28,8 @@ class ButcherTableau:
     c: tuple
     order: int
     citation: str = ""
+    b_hat: tuple | None = None
+    embedded_order: int | None = None
 
     def __post_init__(self):
         s = len(self.b)
@@ -37,8 +43,21 @@ class ButcherTableau:
         if abs(sum(self.b) - 1.0) > 1e-14:
             raise ValueError(f"tableau: weights sum to {sum(self.b)}, not 1")
         met = self.conditions_met()
-        if met < self.order:
+        if met < min(self.order, 4):
             raise ValueError(f"tableau: declared order {self.order} but only order {met} conditions hold")
+        if (self.b_hat is None) != (self.embedded_order is None):
+            raise ValueError("tableau: b_hat and embedded_order go together")
+        if self.b_hat is not None:
+            if len(self.b_hat) != s:
+                raise ValueError("tableau: b_hat must have one weight per stage")
+            if abs(sum(self.b_hat) - 1.0) > 1e-14:
+                raise ValueError(f"tableau: embedded weights sum to {sum(self.b_hat)}, not 1")
+            if tuple(self.b_hat) == tuple(self.b):
+                raise ValueError("tableau: b_hat equals b, so the error estimate would be zero")
+            met_hat = self.conditions_met(weights=self.b_hat)
+            if met_hat < min(self.embedded_order, 4):
+                raise ValueError(f"tableau: declared embedded order {self.embedded_order} but only "
+                                 f"order {met_hat} conditions hold for b_hat")
 
     @property
     def stage_count(self) -> int:
@@ -51,9 +70,18 @@ class ButcherTableau:
             A[i, :i] = row
         return A
 
-    def conditions_met(self, tol: float = 1e-12) -> int:
-        """Highest order p <= 4 whose order conditions (for rooted trees up to p) all hold."""
-        A, b, c = self.matrix(), np.asarray(self.b, float), np.asarray(self.c, float)
+    @property
+    def fsal(self) -> bool:
+        """First Same As Last: the last stage is f at the new solution (last row of a equals b,
+        c = 1), so it is the next step's first stage."""
+        return (self.stage_count > 1 and tuple(self.a[-1]) == tuple(self.b[:-1])
+                and self.b[-1] == 0.0 and self.c[-1] == 1.0)
+
+    def conditions_met(self, tol: float = 1e-12, weights: tuple | None = None) -> int:
+        """Highest order p <= 4 whose order conditions (for rooted trees up to p) all hold, for
+        ``weights`` (default ``b``; pass ``b_hat`` to check the embedded solution)."""
+        A, c = self.matrix(), np.asarray(self.c, float)
+        b = np.asarray(self.b if weights is None else weights, float)
         conditions = {
             1: [(b.sum(), 1)],
             2: [(b @ c, Fraction(1, 2))],
@@ -80,3 +108,37 @@ TRAPEZOID = ButcherTableau(a=((), (1.0,)), b=(0.5, 0.5), c=(0.0, 1.0), order=2,
 RK4 = ButcherTableau(a=((), (0.5,), (0.0, 0.5), (0.0, 0.0, 1.0)),
                      b=(1 / 6, 1 / 3, 1 / 3, 1 / 6), c=(0.0, 0.5, 0.5, 1.0), order=4,
                      citation="Kutta (1901), the classical fourth-order Runge-Kutta method")
+
+# Embedded pairs for adaptive stepping. Dormand-Prince propagates its fifth-order solution (local
+# extrapolation) and its last stage is f at the new solution (FSAL).
+DORMAND_PRINCE = ButcherTableau(
+    a=((),
+       (1 / 5,),
+       (3 / 40, 9 / 40),
+       (44 / 45, -56 / 15, 32 / 9),
+       (19372 / 6561, -25360 / 2187, 64448 / 6561, -212 / 729),
+       (9017 / 3168, -355 / 33, 46732 / 5247, 49 / 176, -5103 / 18656),
+       (35 / 384, 0.0, 500 / 1113, 125 / 192, -2187 / 6784, 11 / 84)),
+    b=(35 / 384, 0.0, 500 / 1113, 125 / 192, -2187 / 6784, 11 / 84, 0.0),
+    c=(0.0, 1 / 5, 3 / 10, 4 / 5, 8 / 9, 1.0, 1.0),
+    order=5,
+    b_hat=(5179 / 57600, 0.0, 7571 / 16695, 393 / 640, -92097 / 339200, 187 / 2100, 1 / 40),
+    embedded_order=4,
+    citation="Dormand & Prince (1980), A family of embedded Runge-Kutta formulae, "
+             "J. Comput. Appl. Math. 6(1):19-26 (RK5(4)7M)")
+# Fehlberg propagates the fourth-order solution, as he proposed; the fifth-order one only
+# estimates its error.
+FEHLBERG = ButcherTableau(
+    a=((),
+       (1 / 4,),
+       (3 / 32, 9 / 32),
+       (1932 / 2197, -7200 / 2197, 7296 / 2197),
+       (439 / 216, -8.0, 3680 / 513, -845 / 4104),
+       (-8 / 27, 2.0, -3544 / 2565, 1859 / 4104, -11 / 40)),
+    b=(25 / 216, 0.0, 1408 / 2565, 2197 / 4104, -1 / 5, 0.0),
+    c=(0.0, 1 / 4, 3 / 8, 12 / 13, 1.0, 1 / 2),
+    order=4,
+    b_hat=(16 / 135, 0.0, 6656 / 12825, 28561 / 56430, -9 / 50, 2 / 55),
+    embedded_order=5,
+    citation="Fehlberg (1969), Low-order classical Runge-Kutta formulas with stepsize control "
+             "and their application to some heat transfer problems, NASA TR R-315 (RKF4(5))")
