@@ -87,7 +87,7 @@ def cmd_list(args) -> int:
         for p in preset.params:
             default = str(p.default).lower() if isinstance(p.default, bool) else p.default
             unit = f" {p.unit}" if p.unit else ""
-            print(f"    {p.name:<16} {str(default) + unit:<14} {p.meaning}")
+            print(f"    {p.name:<20} {str(default) + unit:<14} {p.meaning}")
     print("\nIntegrators:")
     for cls in INTEGRATORS.values():
         print(f"  {cls.name:<18} order {cls.order}  {cls.description}")

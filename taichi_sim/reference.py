@@ -49,14 +49,20 @@ def particle_rhs(data: Mapping[str, np.ndarray]) -> Callable[[float, np.ndarray]
 
 
 def particle_energy(data: Mapping[str, np.ndarray], x: np.ndarray, v: np.ndarray) -> float:
-    """Kinetic + gravitational + spring energy (J) of positions x and velocities v, (n, 3)."""
+    """Kinetic + gravitational + spring energy (J) of positions x and velocities v, (n, 3).
+
+    Pinned particles, which never move, are left out of the gravitational term (a constant).
+    Broken springs (``alive`` false, when present) store no energy.
+    """
     mass = np.asarray(data["mass"], float)
+    free = ~np.asarray(data["pinned"], bool)
     energy = 0.5 * np.sum(mass * np.sum(v * v, axis=1))
-    energy -= np.sum(mass * (x @ np.asarray(data["gravity"], float)))
+    energy -= np.sum((mass * (x @ np.asarray(data["gravity"], float)))[free])
     if "springs" in data and len(data["springs"]) > 0:
         ends = np.asarray(data["springs"], int)
         stretch = np.linalg.norm(x[ends[:, 0]] - x[ends[:, 1]], axis=1) - data["rest_length"]
-        energy += 0.5 * np.sum(data["stiffness"] * stretch**2)
+        intact = np.asarray(data["alive"], bool) if "alive" in data else True
+        energy += 0.5 * np.sum((data["stiffness"] * stretch**2)[intact])
     return float(energy)
 
 

@@ -5,13 +5,30 @@ from __future__ import annotations
 class ForceTerm:
     """One additive force term.
 
-    A term is ``@ti.data_oriented`` and provides a ``@ti.func force(self, i, y, mass_i)`` that
-    returns the force (N, a 3-vector) on particle ``i`` of state ``y``. The particle system sums
+    A term is ``@ti.data_oriented`` and provides a ``@ti.func force(self, i, y, mass_i, t)`` that
+    returns the force (N, a 3-vector) on particle ``i`` of state ``y`` at time ``t`` (s). The particle system sums
     its terms inside ONE kernel, with ``ti.static`` iteration, so a term that a scene does not
     add costs nothing.
     """
 
     name = "force"
+
+    has_jacobian = False
+    """Whether the term provides the force Jacobians the implicit integrators use, as two
+    ``@ti.func``: ``jacobian_product(i, y, p, a, b, t)``, the 3-vector
+    a (df/dv p)_i + b (df/dx p)_i (N) for a (n,) vec3 field ``p`` that is zero on pinned
+    particles, and ``jacobian_diagonal_block(i, y, a, b, t)``, the 3x3 matrix
+    a df_i/dv_i + b df_i/dx_i. Both are evaluated at state ``y``; ``a`` and ``b`` are scalars
+    (an implicit step of size tau uses a = tau, b = tau**2)."""
+
+    couples_particles = False
+    """Whether the force on one particle depends on others (springs). Such a term also provides
+    ``@ti.func add_coupling_blocks(i, y, a, b, t, weight, free, builder)``: for every other free
+    particle j it couples to (``free[j] != 0``), add ``weight`` times the 3x3 block
+    a df_i/dv_j + b df_i/dx_j to rows 3i..3i+2, columns 3j..3j+2 of a
+    ``ti.types.sparse_matrix_builder()``, and ``coupling_block_capacity``, the most blocks it
+    adds over all particles, and ``topology_version``, an int bumped whenever the set of
+    blocks it adds changes (a direct solver re-analyses the sparsity pattern then)."""
 
     def energy(self, y) -> float | None:
         """Potential energy (J) of this term at state ``y``, or None if the term is dissipative."""

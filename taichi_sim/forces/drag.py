@@ -11,6 +11,7 @@ class Drag(ForceTerm):
     """Viscous drag -k_drag * v_i (k_drag in N s/m, a 0-D field so it can change at run time)."""
 
     name = "drag"
+    has_jacobian = True  # df_i/dv_i = -k_drag I; nothing depends on x or on other particles
 
     def __init__(self, k_drag: float):
         self.k = ti.field(runtime.real(), shape=())
@@ -23,5 +24,13 @@ class Drag(ForceTerm):
         return float(self.k[None])
 
     @ti.func
-    def force(self, i, y, mass_i):
+    def force(self, i, y, mass_i, t):
         return -self.k[None] * y.v[i]
+
+    @ti.func
+    def jacobian_product(self, i, y, p, a, b, t):
+        return -a * self.k[None] * p[i]
+
+    @ti.func
+    def jacobian_diagonal_block(self, i, y, a, b, t):
+        return -a * self.k[None] * ti.Matrix.identity(y.x.dtype, 3)

@@ -8,17 +8,20 @@ from .base import ForceTerm
 
 @ti.data_oriented
 class Gravity(ForceTerm):
-    """Uniform gravity: force m_i * g on every particle; potential energy -m_i g . x_i.
+    """Uniform gravity: force m_i * g on every particle; potential energy -m_i g . x_i summed
+    over the particles that move (pinned or inactive ones would add a constant).
 
     ``g`` (m/s^2, a 3-vector, e.g. (0, -9.8, 0)) lives in a 0-D field, so it may change while a
     simulation runs without recompiling.
     """
 
     name = "gravity"
+    has_jacobian = True  # a constant force: both Jacobians are zero
 
-    def __init__(self, g, mass_field):
+    def __init__(self, g, mass_field, free_field):
         self.g = ti.Vector.field(3, runtime.real(), shape=())
         self.mass = mass_field
+        self.free = free_field
         self.set(g)
 
     def set(self, g) -> None:
@@ -28,8 +31,16 @@ class Gravity(ForceTerm):
         return np.asarray(self.g[None].to_numpy(), dtype=float)
 
     @ti.func
-    def force(self, i, y, mass_i):
+    def force(self, i, y, mass_i, t):
         return mass_i * self.g[None]
+
+    @ti.func
+    def jacobian_product(self, i, y, p, a, b, t):
+        return ti.Vector.zero(y.x.dtype, 3)
+
+    @ti.func
+    def jacobian_diagonal_block(self, i, y, a, b, t):
+        return ti.Matrix.zero(y.x.dtype, 3, 3)
 
     def energy(self, y) -> float:
         return float(self._energy(y))
@@ -38,5 +49,6 @@ class Gravity(ForceTerm):
     def _energy(self, y: ti.template()) -> float:
         total = 0.0
         for i in y.x:
-            total -= self.mass[i] * self.g[None].dot(y.x[i])
+            if self.free[i]:
+                total -= self.mass[i] * self.g[None].dot(y.x[i])
         return total

@@ -8,21 +8,30 @@ from .base import ForceTerm
 SPRING_KINDS = ("structural", "shear", "flex")
 
 
+def incidence_of(particle_count: int, elements: np.ndarray):
+    """CSR incidence of elements (springs (S, 2), triangles (T, 3)) on particles.
+
+    Returns (offsets (n+1,), element_ids, slots): particle i belongs to the elements
+    ``element_ids[offsets[i]:offsets[i+1]]``, as vertex ``slots[...]`` of each.
+    """
+    count, arity = elements.shape
+    owner = elements.T.ravel()
+    element = np.tile(np.arange(count), arity)
+    slot = np.repeat(np.arange(arity), count)
+    order = np.argsort(owner, kind="stable")
+    offsets = np.zeros(particle_count + 1, dtype=np.int32)
+    np.cumsum(np.bincount(owner, minlength=particle_count), out=offsets[1:])
+    return offsets, element[order].astype(np.int32), slot[order].astype(np.int32)
+
+
 def incidence(particle_count: int, ends: np.ndarray):
     """CSR incidence of springs on particles.
 
     Returns (offsets (n+1,), spring_ids (2S,), others (2S,)): particle i's springs are
     ``spring_ids[offsets[i]:offsets[i+1]]``, joining it to ``others[...]``.
     """
-    S = len(ends)
-    owner = np.concatenate([ends[:, 0], ends[:, 1]])
-    other = np.concatenate([ends[:, 1], ends[:, 0]])
-    sid = np.concatenate([np.arange(S), np.arange(S)])
-    order = np.argsort(owner, kind="stable")
-    counts = np.bincount(owner, minlength=particle_count)
-    offsets = np.zeros(particle_count + 1, dtype=np.int32)
-    np.cumsum(counts, out=offsets[1:])
-    return offsets, sid[order].astype(np.int32), other[order].astype(np.int32)
+    offsets, sid, slot = incidence_of(particle_count, ends)
+    return offsets, sid, ends[sid, 1 - slot].astype(np.int32)
 
 
 @ti.data_oriented
@@ -43,11 +52,16 @@ class Springs(ForceTerm):
         ends: (S, 2) int particle indices.
         rest_length, stiffness, damping: (S,) floats.
         kind: (S,) int, 0 structural, 1 shear, 2 flex (metadata for cloth; any value allowed).
+        tear_strain: None (springs never break), or (S,) strain thresholds: after each accepted
+            step, :meth:`tear` breaks every live spring whose strain |d|/r - 1 exceeds its
+            threshold (``inf`` = unbreakable). Broken springs exert no force, for good.
     """
 
     name = "springs"
+    has_jacobian = True
+    couples_particles = True
 
-    def __init__(self, particle_count, ends, rest_length, stiffness, damping, kind):
+    def __init__(self, particle_count, ends, rest_length, stiffness, damping, kind, tear_strain=None):
         ends = np.asarray(ends, dtype=np.int32).reshape(-1, 2)
         self.spring_count = S = len(ends)
         if S == 0:
@@ -69,6 +83,15 @@ class Springs(ForceTerm):
         self.offsets.from_numpy(offsets)
         self.incident.from_numpy(sid)
         self.other.from_numpy(other)
+        self.tearable = tear_strain is not None
+        # Bumped whenever the set of live springs changes (a direct solver re-analyses then).
+        self.topology_version = 0
+        if self.tearable:
+            self.alive = ti.field(ti.i32, shape=S)
+            self.alive.fill(1)
+            self.tear_strain = ti.field(real, shape=S)
+            self.tear_strain.from_numpy(np.broadcast_to(
+                np.asarray(tear_strain, dtype=runtime.np_real()), (S,)).copy())
 
     def set_parameters(self, *, rest_length=None, stiffness=None, damping=None) -> None:
         """Replace per-spring values (arrays of shape (S,) or scalars). Dashpots must have been
@@ -84,7 +107,9 @@ class Springs(ForceTerm):
 
     def arrays(self) -> dict:
         """Spring data as numpy arrays (the npz schema's spring keys)."""
-        return {
+        tearing = {"alive": self.alive.to_numpy().astype(bool),
+                   "tear_strain": self.tear_strain.to_numpy().astype(np.float64)} if self.tearable else {}
+        return tearing | {
             "springs": self.ends_np.astype(np.int64),
             "rest_length": self.rest.to_numpy().astype(np.float64),
             "stiffness": self.stiffness.to_numpy().astype(np.float64),
@@ -93,10 +118,19 @@ class Springs(ForceTerm):
         }
 
     @ti.func
-    def force(self, i, y, mass_i):
+    def is_alive(self, s):
+        alive = True
+        if ti.static(self.tearable):
+            alive = self.alive[s] != 0
+        return alive
+
+    @ti.func
+    def force(self, i, y, mass_i, t):
         f = ti.Vector.zero(y.x.dtype, 3)
         for e in range(self.offsets[i], self.offsets[i + 1]):
             s = self.incident[e]
+            if not self.is_alive(s):
+                continue
             j = self.other[e]
             d = y.x[i] - y.x[j]
             length = d.norm()
@@ -107,6 +141,92 @@ class Springs(ForceTerm):
                     f -= self.damping[s] * (y.v[i] - y.v[j]).dot(u) * u
         return f
 
+    @ti.func
+    def force_magnitude(self, i, y, mass_i, t):
+        """Sum over i's live springs of the magnitude of each one's force on i (N).
+
+        The net force is a sum of these pieces, so its rounding error is relative to this sum,
+        not to the net force (which is ~0 at equilibrium): convergence tests scale by it."""
+        total = ti.cast(0.0, y.x.dtype)
+        for e in range(self.offsets[i], self.offsets[i + 1]):
+            s = self.incident[e]
+            if self.is_alive(s):
+                j = self.other[e]
+                d = y.x[i] - y.x[j]
+                length = d.norm()
+                if length > 0.0:
+                    total += self.stiffness[s] * ti.abs(length - self.rest[s])
+                    if ti.static(self.damped):
+                        total += self.damping[s] * ti.abs((y.v[i] - y.v[j]).dot(d / length))
+        return total
+
+    @property
+    def coupling_block_capacity(self) -> int:
+        """Off-diagonal 3x3 blocks :meth:`add_coupling_blocks` adds at most: two per spring."""
+        return 2 * self.spring_count
+
+    @ti.func
+    def _jacobian_block(self, s, i, j, y, a, b):
+        """a dF/dv_i + b dF/dx_i (3x3) for the force F of spring s on its end i (other end j).
+
+        Stiffness: dF/dx_i = -k (u u^T + max(0, 1 - r/|d|) (I - u u^T)), u = d/|d|. The exact
+        transverse factor 1 - r/|d| is negative for a compressed spring, which makes the block
+        indefinite and M - a df/dv - b df/dx possibly indefinite too; clamping it at 0
+        (Choi & Ko 2002) keeps each spring's block negative semi-definite, so that matrix stays
+        symmetric positive definite and CG and Cholesky apply. The clamp only changes the
+        Jacobian, never the force: a Newton iteration with it is a quasi-Newton iteration that
+        still converges to the exact implicit solution.
+        Dashpot: dF/dv_i = -c u u^T. The dashpot force also depends on positions (through u);
+        that part is not symmetric and is left out, as Baraff & Witkin (1998) do.
+        Since F depends on i and j only through x_i - x_j and v_i - v_j, the blocks with respect
+        to j are the negatives of these. A zero-length spring exerts no force: zero block.
+        """
+        block = ti.Matrix.zero(y.x.dtype, 3, 3)
+        d = y.x[i] - y.x[j]
+        length = d.norm()
+        if length > 0.0:
+            u = d / length
+            uu = u.outer_product(u)
+            transverse = ti.max(1.0 - self.rest[s] / length, 0.0)
+            block = -b * self.stiffness[s] * (uu + transverse * (ti.Matrix.identity(y.x.dtype, 3) - uu))
+            if ti.static(self.damped):
+                block -= a * self.damping[s] * uu
+        return block
+
+    @ti.func
+    def jacobian_product(self, i, y, p, a, b, t):
+        """a (df/dv p)_i + b (df/dx p)_i (N): a gather over i's springs, like :meth:`force`."""
+        out = ti.Vector.zero(y.x.dtype, 3)
+        for e in range(self.offsets[i], self.offsets[i + 1]):
+            s = self.incident[e]
+            if self.is_alive(s):
+                j = self.other[e]
+                out += self._jacobian_block(s, i, j, y, a, b) @ (p[i] - p[j])
+        return out
+
+    @ti.func
+    def jacobian_diagonal_block(self, i, y, a, b, t):
+        block = ti.Matrix.zero(y.x.dtype, 3, 3)
+        for e in range(self.offsets[i], self.offsets[i + 1]):
+            s = self.incident[e]
+            if self.is_alive(s):
+                block += self._jacobian_block(s, i, self.other[e], y, a, b)
+        return block
+
+    @ti.func
+    def add_coupling_blocks(self, i, y, a, b, t, weight, free, builder: ti.template()):
+        """Add ``weight`` (a df_i/dv_j + b df_i/dx_j) for each live spring (i, j) with j free.
+
+        Every live spring adds its blocks whatever its state (zero blocks included), so the
+        sparsity pattern changes only with ``topology_version``."""
+        for e in range(self.offsets[i], self.offsets[i + 1]):
+            s = self.incident[e]
+            j = self.other[e]
+            if self.is_alive(s) and free[j]:
+                block = -weight * self._jacobian_block(s, i, j, y, a, b)
+                for r, c in ti.static(ti.ndrange(3, 3)):
+                    builder[3 * i + r, 3 * j + c] += block[r, c]
+
     def energy(self, y) -> float:
         return float(self._energy(y))
 
@@ -114,8 +234,32 @@ class Springs(ForceTerm):
     def _energy(self, y: ti.template()) -> float:
         total = 0.0
         for s in range(self.spring_count):
-            e = self.ends[s]
-            stretch = (y.x[e[0]] - y.x[e[1]]).norm() - self.rest[s]
-            total += 0.5 * self.stiffness[s] * stretch * stretch
+            if self.is_alive(s):
+                e = self.ends[s]
+                stretch = (y.x[e[0]] - y.x[e[1]]).norm() - self.rest[s]
+                total += 0.5 * self.stiffness[s] * stretch * stretch
         return total
+
+    def tear(self, y) -> int:
+        """Break every live spring strained beyond its threshold at ``y``; returns how many broke."""
+        torn = int(self._tear(y)) if self.tearable else 0
+        if torn:
+            self.topology_version += 1
+        return torn
+
+    @ti.kernel
+    def _tear(self, y: ti.template()) -> ti.i32:
+        torn = 0
+        for s in range(self.spring_count):
+            if self.alive[s]:
+                e = self.ends[s]
+                strain = (y.x[e[0]] - y.x[e[1]]).norm() / self.rest[s] - 1.0
+                if strain > self.tear_strain[s]:
+                    self.alive[s] = 0
+                    torn += 1
+        return torn
+
+    def alive_count(self) -> int:
+        """Springs still intact."""
+        return int(self.alive.to_numpy().sum()) if self.tearable else self.spring_count
 

@@ -4,13 +4,16 @@ from __future__ import annotations
 import inspect
 
 from ..errors import ConfigError
+from .adaptive import DormandPrince45, EmbeddedRK, Fehlberg45
 from .base import Integrator, Status, StepReport
 from .explicit_rk import RK4, Euler, ExplicitRK, Midpoint, Trapezoid
+from .implicit import ImplicitEuler, ImplicitMidpoint, LinearSolverStats
 from .symplectic import SymplecticEuler
 from .tableau import ButcherTableau
 
 INTEGRATORS: dict[str, type[Integrator]] = {
-    cls.name: cls for cls in (Euler, Trapezoid, Midpoint, RK4, SymplecticEuler)
+    cls.name: cls for cls in (Euler, Trapezoid, Midpoint, RK4, SymplecticEuler, DormandPrince45, Fehlberg45,
+                              ImplicitEuler, ImplicitMidpoint)
 }
 
 
@@ -39,4 +42,5 @@ def create_integrator(name: str, system, **options) -> Integrator:
 
 __all__ = ["INTEGRATORS", "Integrator", "Status", "StepReport", "ButcherTableau", "ExplicitRK",
            "Euler", "Midpoint", "Trapezoid", "RK4", "SymplecticEuler", "create_integrator",
-           "integrator_class"]
+           "integrator_class", "EmbeddedRK", "DormandPrince45", "Fehlberg45", "ImplicitEuler",
+           "ImplicitMidpoint", "LinearSolverStats"]

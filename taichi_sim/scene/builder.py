@@ -5,8 +5,11 @@ from typing import Any
 
 import numpy as np
 
-from ..forces import Drag, Gravity, Springs
+from ..forces import Drag, GrabSpring, Gravity, Springs, Wind
+from ..mesh import TriangleMesh
 from ..systems.particles import ParticleSystem
+from .events import Emitter, EmitterSpec, PlaneCollider, SphereColliders, SpherePath, Tearing
+from .grab import Grabber
 from .scene import Scene
 
 
@@ -25,6 +28,13 @@ class SceneBuilder:
         self._springs: list[tuple] = []
         self._gravity: np.ndarray | None = None
         self._drag: float | None = None
+        self._triangles: list[np.ndarray] = []
+        self._wind: dict | None = None
+        self._spheres: list[tuple] = []
+        self._plane: tuple | None = None
+        self._tear_strain = None
+        self._emitter: tuple | None = None
+        self._grab: tuple | None = None
         self._count = 0
 
     @property
@@ -56,6 +66,17 @@ class SceneBuilder:
         self._count += k
         return ids
 
+    def displace(self, dx) -> None:
+        """Move every particle added so far by ``dx`` ((n, 3) m), e.g. seeded noise on a grid.
+        Rest lengths of springs already added keep their values; pinned particles stay put."""
+        dx = np.asarray(dx, float).reshape(self._count, 3)
+        start = 0
+        for k, x in enumerate(self._x):
+            stop = start + len(x)
+            moved = dx[start:stop] * ~self._pinned[k][:, None]
+            self._x[k] = x + moved
+            start = stop
+
     def add_springs(self, ends, *, stiffness, damping=0.0, kind=0, rest_length=None) -> None:
         """Add springs joining ``ends`` ((S, 2) particle ids).
 
@@ -83,6 +104,12 @@ class SceneBuilder:
         kind = np.broadcast_to(np.asarray(kind, np.int8), (S,)).copy()
         self._springs.append((ends, rest_length, stiffness, damping, kind))
 
+    def add_triangles(self, triangles) -> None:
+        """Surface triangles ((T, 3) particle ids, counter-clockwise from the front): the cloth
+        mesh that wind acts on, that tearing opens and that the renderer draws."""
+        triangles = np.asarray(triangles, np.int64).reshape(-1, 3)
+        self._triangles.append(triangles)
+
     def set_gravity(self, g) -> None:
         """Gravity: a magnitude (m/s^2, pointing -y) or a 3-vector."""
         g = np.asarray(g, dtype=float)
@@ -94,38 +121,120 @@ class SceneBuilder:
             raise ValueError("drag must be >= 0")
         self._drag = float(k_drag)
 
+    def set_wind(self, **wind) -> None:
+        """Aerodynamic wind on the triangles (see :class:`taichi_sim.forces.Wind` for the keyword
+        arguments: speed, heading, gust, gust_frequency, drag_coefficient, seed, enabled)."""
+        self._wind = wind
+
+    def add_sphere(self, path: SpherePath, radius: float, friction: float = 0.0) -> None:
+        """A sphere collider of ``radius`` (m) moving along ``path``."""
+        if radius <= 0:
+            raise ValueError("sphere_radius must be > 0")
+        self._spheres.append((path, float(radius), float(friction)))
+
+    def set_plane(self, point, normal, restitution: float, friction: float = 0.0) -> None:
+        """A ground plane through ``point`` with upward ``normal``; restitution in [0, 1]."""
+        if not 0.0 <= restitution <= 1.0:
+            raise ValueError("restitution must be in [0, 1]")
+        self._plane = (point, normal, float(restitution), float(friction))
+
+    def set_tearing(self, tear_strain) -> None:
+        """Springs break past this strain: a scalar or one value per spring (in the order added)."""
+        self._tear_strain = tear_strain
+
+    def set_emitter(self, spec: EmitterSpec, particle_mass: float) -> None:
+        """A sprinkler: adds ``spec.capacity`` inactive particles of ``particle_mass`` (kg) that
+        the emitter launches."""
+        if self._emitter is not None:
+            raise ValueError("a scene has at most one emitter")
+        ids = self.add_particles(np.broadcast_to(np.asarray(spec.position, float), (spec.capacity, 3)),
+                                 particle_mass)
+        self._emitter = (spec, int(ids[0]))
+
+    def enable_grab(self, stiffness: float, damping: float) -> None:
+        """Let a user pull a particle with a stiff spring (see :class:`~taichi_sim.scene.grab.Grabber`)."""
+        self._grab = (float(stiffness), float(damping))
+
     def finalize(self, *, name: str, params: dict[str, Any], default_dt: float,
                  default_integrator: str, seed: int = 0) -> Scene:
-        """Allocate every field and return the Scene."""
+        """Allocate every field and return the Scene (only what was asked for)."""
         if self._count == 0:
             raise ValueError("a scene needs at least one particle")
         x0, v0 = self.positions(), np.concatenate(self._v)
         mass, pinned = np.concatenate(self._mass), np.concatenate(self._pinned)
+        active = np.ones(self._count, bool)
+        if self._emitter is not None:
+            spec, first = self._emitter
+            active[first:first + spec.capacity] = False
 
-        features: dict[str, Any] = {"particles": self._count, "pinned": int(pinned.sum())}
+        system = ParticleSystem(mass, pinned, active=active)
+        features: dict[str, Any] = {"particles": self._count, "pinned": int(pinned.sum()),
+                                    "gravity": False, "drag": False, "springs": 0, "dashpots": False,
+                                    "wind": False, "spheres": 0, "plane": False, "tearing": False,
+                                    "emitter": 0, "grab": False, "triangles": 0}
         arrays: dict[str, np.ndarray] = {
             "mass": mass, "pinned": pinned,
             "gravity": np.zeros(3) if self._gravity is None else self._gravity,
             "drag": np.float64(self._drag or 0.0),
         }
-        system = ParticleSystem(mass, pinned)
+        post_step: list = []
         if self._gravity is not None and np.any(self._gravity != 0):
-            system.add_term(Gravity(self._gravity, system.mass))
+            system.add_term(Gravity(self._gravity, system.mass, system.free))
+            features["gravity"] = True
         if self._drag:
             system.add_term(Drag(self._drag))
+            features["drag"] = True
+        springs = None
         if self._springs:
             ends, rest, k, c, kind = (np.concatenate(parts) for parts in zip(*self._springs))
-            springs = Springs(self._count, ends, rest, k, c, kind)
+            tear = None
+            if self._tear_strain is not None:
+                tear = np.broadcast_to(np.asarray(self._tear_strain, float), (len(ends),))
+            springs = Springs(self._count, ends, rest, k, c, kind, tear_strain=tear)
             system.add_term(springs)
-            arrays.update(springs.arrays())
-            features["springs"] = springs.spring_count
-            features["dashpots"] = springs.damped
-        features["gravity"] = system.term("gravity") is not None
-        features["drag"] = system.term("drag") is not None
+            features.update(springs=springs.spring_count, dashpots=springs.damped,
+                            tearing=springs.tearable)
+        mesh = None
+        if self._triangles:
+            mesh = TriangleMesh(self._count, np.concatenate(self._triangles), springs)
+            features["triangles"] = mesh.triangle_count
+        if self._wind is not None:
+            if mesh is None:
+                raise ValueError("wind acts on triangles: add_triangles first")
+            system.add_term(Wind(mesh, **self._wind))
+            features["wind"] = True
+        grabber = None
+        if self._grab is not None:
+            grab_term = GrabSpring(*self._grab)
+            system.add_term(grab_term)
+            features["grab"] = True
+        spheres = plane = emitter = None
+        if self._spheres:
+            paths, radii, frictions = zip(*self._spheres)
+            spheres = SphereColliders(list(paths), list(radii), list(frictions), system.free)
+            post_step.append(spheres)
+            features["spheres"] = spheres.count
+            arrays["sphere_radius"] = np.asarray(radii, float)
+        if self._plane is not None:
+            plane = PlaneCollider(*self._plane, free=system.free)
+            post_step.append(plane)
+            features["plane"] = True
+            arrays["plane_point"], arrays["plane_normal"] = plane.point_np, plane.normal_np
+        if springs is not None and springs.tearable:
+            post_step.append(Tearing(springs))
+        if self._emitter is not None:
+            spec, first = self._emitter
+            emitter = Emitter(spec, first, system.free, seed)
+            post_step.append(emitter)
+            features["emitter"] = spec.capacity
 
         state = system.make_state()
         scene = Scene(name=name, system=system, state=state, x0=x0, v0=v0, params=params,
-                      features=features, arrays=arrays, default_dt=default_dt,
-                      default_integrator=default_integrator, seed=seed)
+                      features=features, static_arrays=arrays, default_dt=default_dt,
+                      default_integrator=default_integrator, seed=seed, post_step=post_step,
+                      springs=springs, mesh=mesh, spheres=spheres, plane=plane, emitter=emitter)
+        if self._grab is not None:
+            grabber = Grabber(scene, grab_term)
+            scene.grabber = grabber
         scene.reset()
         return scene

@@ -51,3 +51,13 @@ def grid_positions(nx: int, ny: int, size_x: float, size_y: float, origin, u_axi
     s = np.linspace(0.0, size_x, nx)[:, None, None] * np.asarray(u_axis, float)
     t = np.linspace(0.0, size_y, ny)[None, :, None] * np.asarray(v_axis, float)
     return (np.asarray(origin, float) + s + t).reshape(nx * ny, 3)
+
+
+def grid_triangles(nx: int, ny: int) -> np.ndarray:
+    """(2 (nx-1)(ny-1), 3) triangles, two per cell along the (i, j)-(i+1, j+1) diagonal (a shear
+    spring), wound so that their normals point along u x v of :func:`grid_positions`."""
+    idx = grid_index(nx, ny)
+    a, b, c, d = idx[:-1, :-1], idx[1:, :-1], idx[:-1, 1:], idx[1:, 1:]
+    first = np.stack([a, b, d], axis=-1).reshape(-1, 3)
+    second = np.stack([a, d, c], axis=-1).reshape(-1, 3)
+    return np.concatenate([first, second])

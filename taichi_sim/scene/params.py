@@ -20,6 +20,7 @@ class Param:
         minimum: smallest allowed value (numbers only).
         exclusive: whether ``minimum`` itself is excluded (e.g. mass > 0).
         choices: allowed values (strings only).
+        allow_infinite: whether ``inf`` is a valid value (e.g. an unbreakable tearing threshold).
     """
 
     name: str
@@ -29,6 +30,7 @@ class Param:
     minimum: float | None = None
     exclusive: bool = False
     choices: tuple = ()
+    allow_infinite: bool = False
 
     @property
     def kind(self) -> type:
@@ -61,7 +63,7 @@ class Param:
             value = int(value)
         if not isinstance(value, kind) or (kind is int and isinstance(value, bool)):
             raise ConfigError(f"parameter {self.name}: expected {kind.__name__}, got {value!r}")
-        if kind is float and not math.isfinite(value):
+        if kind is float and not math.isfinite(value) and not (self.allow_infinite and value == math.inf):
             raise ConfigError(f"parameter {self.name}: must be finite, got {value}")
         if self.minimum is not None and kind in (int, float):
             if value < self.minimum or (self.exclusive and value == self.minimum):

@@ -1,6 +1,4 @@
-"""A Scene: a system, the state it owns, and how to describe both."""
-from __future__ import annotations
-
+"""A Scene: a system, the state it owns, its post-step events, and how to describe them."""
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -12,7 +10,7 @@ from ..systems.base import System
 
 @dataclass
 class Scene:
-    """What a preset builds: a system, its state, and metadata.
+    """What a preset builds: a system, its state, post-step events and metadata.
 
     Attributes:
         name: the preset name.
@@ -21,11 +19,15 @@ class Scene:
         x0, v0: initial positions and velocities, (n, 3) float64 numpy arrays (v0 is None for a
             first-order system).
         params: the resolved parameter values.
-        features: what the scene models, e.g. {"gravity": True, "springs": 1200}; a feature that
-            is absent allocated nothing.
-        arrays: time-invariant model data for the npz (mass, pinned, springs, ...).
+        features: what the scene models, e.g. {"gravity": True, "springs": 1200, "wind": False};
+            a feature that is absent (False / 0) allocated no field and compiled no kernel.
+        static_arrays: model data fixed at build time (mass, pinned, gravity, drag, ...); see
+            :attr:`arrays` for everything.
         default_dt, default_integrator: what ``simulate`` uses when not told.
         seed: the random seed the scene was built with.
+        post_step: events applied after every accepted step, in order (colliders, tearing,
+            emitter).
+        springs, mesh, spheres, plane, emitter, grabber: the optional parts, or None.
     """
 
     name: str
@@ -35,25 +37,48 @@ class Scene:
     v0: np.ndarray | None
     params: dict[str, Any]
     features: dict[str, Any]
-    arrays: dict[str, np.ndarray]
+    static_arrays: dict[str, np.ndarray]
     default_dt: float
     default_integrator: str
     seed: int = 0
     post_step: list = field(default_factory=list)
+    springs: Any = None
+    mesh: Any = None
+    spheres: Any = None
+    plane: Any = None
+    emitter: Any = None
+    grabber: Any = None
 
     @property
     def particle_count(self) -> int:
         return self.system.particle_count
 
     def reset(self) -> None:
-        """Back to the initial state."""
+        """Back to the initial state (the model's optional parts keep their changes: torn
+        springs stay torn; rebuild the scene for a fresh one)."""
         self.state.from_numpy(self.x0, self.v0)
+        if self.spheres is not None:
+            self.spheres.move_to(0.0)
 
     def energy(self) -> float | None:
         """Total energy (J) of the current state, or None when the system defines none."""
         return self.system.energy(self.state)
 
     def after_step(self, t: float, h: float) -> None:
-        """Apply post-step events (collisions, tearing, emission) after an accepted step."""
+        """Apply post-step events (collisions, tearing, emission) after an accepted step that
+        ended at time ``t`` (s) and was ``h`` (s) long."""
         for event in self.post_step:
             event(self.state, t, h)
+
+    @property
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The npz's model keys as they are now (numpy copies): the static arrays plus what
+        may change during a run (springs, live springs, sphere centres, emitter ages)."""
+        out = dict(self.static_arrays)
+        if self.springs is not None:
+            out.update(self.springs.arrays())
+        if self.spheres is not None:
+            out["sphere_center"] = self.spheres.centers()
+        if self.emitter is not None:
+            out.update(self.emitter.arrays())
+        return out

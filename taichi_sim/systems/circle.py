@@ -15,6 +15,7 @@ class CircleSystem(System):
     """
 
     second_order = False
+    has_jacobian_product = True
 
     def __init__(self, particle_count: int = 1):
         self.particle_count = int(particle_count)
@@ -27,6 +28,10 @@ class CircleSystem(System):
         for i in y.x:
             p = y.x[i]
             out.x[i] = ti.Vector([-p[1], p[0], 0.0])
+
+    def jacobian_product(self, y: State, t: float, w: State, out: State) -> None:
+        # f(y) = S y is linear (S the rotation generator about z): its Jacobian is S itself.
+        self._eval_f(w, out)
 
     def energy(self, y: State) -> float:
         return float(self._half_norm2(y))

@@ -19,13 +19,16 @@ class ParticleSystem(System):
     Args:
         mass: (n,) particle masses in kg, all > 0.
         pinned: (n,) bool.
+        active: (n,) bool, default all: an inactive particle (a dead sprinkler slot) is frozen
+            like a pinned one until an event activates it (``free`` field).
         terms: force terms (see :class:`taichi_sim.forces.ForceTerm`); more may be added with
             :meth:`add_term` before the first evaluation (one kernel sums them, compiled then).
     """
 
     second_order = True
 
-    def __init__(self, mass: np.ndarray, pinned: np.ndarray, terms: list[ForceTerm] = ()):
+    def __init__(self, mass: np.ndarray, pinned: np.ndarray, terms: list[ForceTerm] = (),
+                 active: np.ndarray | None = None):
         mass = np.asarray(mass, dtype=float).reshape(-1)
         pinned = np.asarray(pinned, dtype=bool).reshape(-1)
         if len(mass) != len(pinned):
@@ -39,7 +42,8 @@ class ParticleSystem(System):
         self.mass = ti.field(runtime.real(), shape=n)
         self.free = ti.field(ti.i32, shape=n)
         self.mass.from_numpy(mass.astype(runtime.np_real()))
-        self.free.from_numpy((~pinned).astype(np.int32))
+        moving = ~pinned if active is None else (~pinned & np.asarray(active, bool).reshape(n))
+        self.free.from_numpy(moving.astype(np.int32))
 
     def add_term(self, term: ForceTerm) -> None:
         """Add a force term; only before the first eval_f (its kernel is compiled then)."""
@@ -50,33 +54,34 @@ class ParticleSystem(System):
         return next((t for t in self.terms if t.name == name), None)
 
     def eval_f(self, y: State, t: float, out: State) -> None:
-        self._eval_f(y, out)
+        self._eval_f(y, out, t)
 
     @ti.kernel
-    def _eval_f(self, y: ti.template(), out: ti.template()):
+    def _eval_f(self, y: ti.template(), out: ti.template(), t: float):
         for i in y.x:
             if self.free[i]:
                 m = self.mass[i]
                 f = ti.Vector.zero(y.x.dtype, 3)
                 for term in ti.static(self.terms):
-                    f += term.force(i, y, m)
+                    f += term.force(i, y, m, t)
                 out.x[i] = y.v[i]
                 out.v[i] = f / m
             else:
                 out.x[i] = ti.Vector.zero(y.x.dtype, 3)
                 out.v[i] = ti.Vector.zero(y.x.dtype, 3)
 
-    def forces(self, y: State, out: ti.Field) -> None:
-        """Net force (N) on every particle at ``y`` into a (n,) vec3 field; zero when pinned."""
-        self._forces(y, out)
+    def forces(self, y: State, out: ti.Field, t: float = 0.0) -> None:
+        """Net force (N) on every particle at ``y`` and time ``t`` (s) into a (n,) vec3 field;
+        zero when pinned."""
+        self._forces(y, out, t)
 
     @ti.kernel
-    def _forces(self, y: ti.template(), out: ti.template()):
+    def _forces(self, y: ti.template(), out: ti.template(), t: float):
         for i in y.x:
             f = ti.Vector.zero(y.x.dtype, 3)
             if self.free[i]:
                 for term in ti.static(self.terms):
-                    f += term.force(i, y, self.mass[i])
+                    f += term.force(i, y, self.mass[i], t)
             out[i] = f
 
     def kinetic_energy(self, y: State) -> float:
@@ -97,3 +102,92 @@ class ParticleSystem(System):
             if e is not None:
                 total += e
         return total
+
+    # The force-Jacobian API of the implicit integrators. A is the matrix of an implicit step,
+    # A = M - a df/dv - b df/dx (a = tau, b = tau**2 for a step of size tau), restricted to the
+    # free particles: a pinned particle's row and column are those of the identity, so it is
+    # filtered out of the solve exactly (no penalty) and its unknown comes out exactly zero.
+
+    @property
+    def supports_jacobian(self) -> bool:
+        """Whether every force term provides its Jacobians (:attr:`ForceTerm.has_jacobian`)."""
+        return all(term.has_jacobian for term in self.terms)
+
+    @property
+    def jacobian_pattern_version(self) -> int:
+        """Changes whenever the sparsity pattern of A changes (springs added or torn)."""
+        return sum(getattr(term, "topology_version", 0) for term in self.terms if term.couples_particles)
+
+    @property
+    def system_matrix_triplet_capacity(self) -> int:
+        """Most entries :meth:`assemble_system_matrix` adds: 9 per particle and per coupling."""
+        couplings = sum(term.coupling_block_capacity for term in self.terms if term.couples_particles)
+        return 9 * (self.particle_count + couplings)
+
+    @ti.func
+    def force_jacobian_product(self, i, y, p, a, b, t):
+        """a (df/dv p)_i + b (df/dx p)_i (N) at state ``y`` and time ``t`` (s); zero for a pinned
+        particle. ``p``: (n,) vec3 field, zero on pinned particles."""
+        out = ti.Vector.zero(y.x.dtype, 3)
+        if self.free[i]:
+            for term in ti.static(self.terms):
+                out += term.jacobian_product(i, y, p, a, b, t)
+        return out
+
+    @ti.func
+    def system_matrix_row(self, i, y, p, a, b, t):
+        """(A p)_i (N s for a = tau s, b = tau**2 s**2, p in m/s); zero for a pinned particle.
+        ``p``: (n,) vec3 field, zero on pinned particles."""
+        out = ti.Vector.zero(y.x.dtype, 3)
+        if self.free[i]:
+            out = self.mass[i] * p[i] - self.force_jacobian_product(i, y, p, a, b, t)
+        return out
+
+    @ti.func
+    def system_matrix_diagonal_block(self, i, y, a, b, t):
+        """A_ii (3x3): m_i I - a df_i/dv_i - b df_i/dx_i, or the identity for a pinned particle."""
+        block = ti.Matrix.identity(y.x.dtype, 3)
+        if self.free[i]:
+            block *= self.mass[i]
+            for term in ti.static(self.terms):
+                block -= term.jacobian_diagonal_block(i, y, a, b, t)
+        return block
+
+    @ti.func
+    def force_and_scale(self, i, y, t):
+        """(net force on particle i (N, 3-vector), the sum of the magnitudes of the pieces it
+        adds up (N)): the scale its rounding error is relative to. Both zero when pinned."""
+        f = ti.Vector.zero(y.x.dtype, 3)
+        scale = ti.cast(0.0, y.x.dtype)
+        if self.free[i]:
+            m = self.mass[i]
+            for term in ti.static(self.terms):
+                piece = term.force(i, y, m, t)
+                f += piece
+                if ti.static(hasattr(term, "force_magnitude")):
+                    scale += term.force_magnitude(i, y, m, t)
+                else:
+                    scale += piece.norm()
+        return f, scale
+
+    def assemble_system_matrix(self, y: State, a: float, b: float, t: float,
+                               builder: ti.linalg.SparseMatrixBuilder) -> None:
+        """Add A (3n x 3n, row and column 3i + k for component k of particle i) at state ``y``
+        and time ``t`` into ``builder`` (capacity :attr:`system_matrix_triplet_capacity`).
+
+        The entries added depend only on the pinned set and :attr:`jacobian_pattern_version`,
+        never on the state (zeros are added as entries), so a factorisation's symbolic
+        analysis stays valid until the version changes."""
+        self._assemble_system_matrix(y, a, b, t, builder)
+
+    @ti.kernel
+    def _assemble_system_matrix(self, y: ti.template(), a: float, b: float, t: float,
+                                builder: ti.types.sparse_matrix_builder()):
+        for i in range(self.particle_count):
+            block = self.system_matrix_diagonal_block(i, y, a, b, t)
+            for r, c in ti.static(ti.ndrange(3, 3)):
+                builder[3 * i + r, 3 * i + c] += block[r, c]
+            if self.free[i]:
+                for term in ti.static(self.terms):
+                    if ti.static(term.couples_particles):
+                        term.add_coupling_blocks(i, y, a, b, t, -1.0, self.free, builder)

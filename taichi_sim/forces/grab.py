@@ -1,0 +1,43 @@
+import numpy as np
+import taichi as ti
+
+from .. import runtime
+from .base import ForceTerm
+
+
+@ti.data_oriented
+class GrabSpring(ForceTerm):
+    """A stiff zero-length spring pulling one grabbed particle toward a target point.
+
+    Force on the grabbed particle: ``stiffness * (target - x) - damping * v`` (N); nothing on the
+    others, and nothing when no particle is grabbed (``particle`` = -1). All values are 0-D
+    fields, changed by :class:`taichi_sim.scene.grab.Grabber` while the simulation runs.
+    The pull is a smooth force inside f, so every integrator (and adaptive error control)
+    handles it; the target moves only between steps.
+    """
+
+    name = "grab"
+
+    def __init__(self, stiffness: float, damping: float):
+        real = runtime.real()
+        self.particle = ti.field(ti.i32, shape=())
+        self.target = ti.Vector.field(3, real, shape=())
+        self.stiffness = ti.field(real, shape=())
+        self.damping = ti.field(real, shape=())
+        self.particle[None] = -1
+        self.stiffness[None] = float(stiffness)
+        self.damping[None] = float(damping)
+
+    def hold(self, particle: int, target) -> None:
+        self.particle[None] = int(particle)
+        self.target[None] = np.asarray(target, float).reshape(3).tolist()
+
+    def release(self) -> None:
+        self.particle[None] = -1
+
+    @ti.func
+    def force(self, i, y, mass_i, t):
+        f = ti.Vector.zero(y.x.dtype, 3)
+        if i == self.particle[None]:
+            f = self.stiffness[None] * (self.target[None] - y.x[i]) - self.damping[None] * y.v[i]
+        return f

@@ -1,0 +1,823 @@
+"""Implicit integrators: backward Euler (Baraff-Witkin) and the implicit midpoint rule.
+
+Both methods solve one implicit stage and extrapolate from it. With tau = theta h, the stage
+is the state Y with
+
+    Y = y0 + tau f(Y, t + tau),        then  y1 = y0 + (Y - y0) / theta.
+
+theta = 1 is backward Euler (y1 = Y); theta = 1/2 is the implicit midpoint rule (Y is the
+midpoint state, y1 = 2 Y - y0), which conserves every quadratic invariant: the energy of linear
+springs, the radius of the circle ODE.
+
+The stage equations are solved by Newton's method in one of two ways, picked by the system's
+capability flags (never by its class):
+
+* ``system.supports_jacobian`` (particle systems whose force terms all provide Jacobians): the
+  velocity form of Baraff & Witkin (1998). With X = x0 + tau V, the unknown is V and the residual
+  is g(V) = M (V - v0) - tau f(X, V); each Newton iteration solves A dV = -g with
+  A = M - tau df/dv - tau^2 df/dx, symmetric positive definite thanks to the spring Jacobians'
+  compression clamp (see :class:`taichi_sim.forces.Springs`). The first iteration linearises f
+  about the current state (x0, v0) instead of (x0 + tau v0, v0), which gives Baraff & Witkin's
+  step exactly: A dV = tau (f0 + tau df/dx v0). Pinned particles are filtered out of the solve
+  (identity rows) and keep their position bit for bit. A is applied matrix-free for conjugate
+  gradients, or assembled for a sparse Cholesky factorisation.
+* otherwise (the circle ODE, or any system without that API): Newton-Krylov on the whole state,
+  with the residual g(Y) = Y - y0 - tau f(Y) and GMRES on (I - tau df/dy) dY = -g. The
+  Jacobian-vector products come from ``system.jacobian_product`` when the system has one
+  (``has_jacobian_product``; the circle's Jacobian is the constant rotation generator), else
+  from forward differences of ``eval_f`` with the step of Pernice & Walker (1998, NITSOL).
+
+``newton_iterations=1`` is the linearly implicit method: one Newton step from the current state,
+taken as the answer (for backward Euler with spring Jacobians, Baraff & Witkin's method). More
+iterations continue Newton until the TRUE nonlinear residual (the real f, not the linearised
+model) is below ``newton_tolerance``; with the clamped spring Jacobians this is a quasi-Newton
+iteration that converges to the exact implicit solution. Hitting an iteration cap is
+Status.NOT_CONVERGED (the residual is in the report's message and ``linear_residual``); a
+non-finite result is Status.DIVERGED. A step that fails leaves the state as it was, except that a
+non-finite final extrapolation is written (and reported DIVERGED).
+"""
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import taichi as ti
+
+from .. import runtime
+from ..errors import ConfigError
+from ..state import State, finite
+from ..systems.base import System
+from .base import Integrator, Status, StepReport
+
+LINEAR_SOLVERS = ("cg", "direct")
+GMRES_RESTART = 20  # Krylov vectors kept before GMRES restarts (memory: this many states)
+ARMIJO_SLOPE = 1e-4  # sufficient decrease of the residual norm a line-search step must achieve
+MAX_BACKTRACKS = 10  # step halvings before the line search gives up (smallest step 2^-10)
+
+
+def default_tolerance() -> float:
+    """Default relative tolerance of the linear and Newton solves: 1e-8 in f64, 1e-5 in f32
+    (a few hundred times the f32 rounding unit, which sums over many springs approach)."""
+    return 1e-8 if runtime.precision() == "f64" else 1e-5
+
+
+@dataclass
+class LinearSolverStats:
+    """Work done by an implicit integrator's linear solver since it was created.
+
+    Attributes:
+        solver: what ran: ``"pcg"`` (matrix-free conjugate gradients with a block-Jacobi
+            preconditioner), ``"cholesky"`` (sparse direct LL^T, Taichi's SparseSolver) or
+            ``"gmres"`` (matrix-free Newton-Krylov, for systems without the Jacobian API).
+        solves: linear systems solved.
+        iterations: Krylov iterations in total (a direct solve counts as one).
+        analyze_count: symbolic analyses of the sparsity pattern (direct solver only).
+        factorize_count: numeric factorisations (direct solver only).
+        analyze_seconds, factorize_seconds: wall time spent in them (s).
+        solve_seconds: wall time in linear solves in total, assembly, analysis and factorisation
+            included (s).
+    """
+
+    solver: str
+    solves: int = 0
+    iterations: int = 0
+    analyze_count: int = 0
+    factorize_count: int = 0
+    analyze_seconds: float = 0.0
+    factorize_seconds: float = 0.0
+    solve_seconds: float = 0.0
+
+
+@dataclass(frozen=True)
+class _LinearOutcome:
+    iterations: int
+    residual: float  # relative: |rhs - A dY| / |rhs|
+    converged: bool
+    f_evals: int = 0
+    message: str = ""
+
+
+class _ImplicitStageMethod(Integrator):
+    """Shared Newton driver of :class:`ImplicitEuler` and :class:`ImplicitMidpoint`.
+
+    Subclasses set ``stage_fraction`` (theta) and ``default_newton_iterations``.
+
+    Options (keyword-only):
+        linear_solver: ``"cg"`` (matrix-free Krylov: preconditioned CG on the symmetric positive
+            definite particle system, GMRES for a system without spring Jacobians) or
+            ``"direct"`` (sparse Cholesky; needs spring Jacobians and a CPU backend). The
+            direct solver analyses the sparsity pattern once and only refactorises while
+            ``system.jacobian_pattern_version`` stays the same; see :meth:`invalidate_pattern`.
+        newton_iterations: Newton iterations per step, >= 1 (1: the linearly implicit method,
+            unchecked; more: iterate to ``newton_tolerance``, NOT_CONVERGED if not reached).
+        newton_tolerance: bound on the relative nonlinear residual |g| / |s|, where s adds up
+            the magnitudes of the terms of g (momentum, each force piece; for a first-order
+            system |Y| + |y0| + tau |f|), i.e. the residual relative to what it is computed
+            from. Default :func:`default_tolerance`.
+        cg_tolerance: bound on the relative residual |rhs - A dY| / |rhs| of each linear solve
+            (CG or GMRES). Default :func:`default_tolerance`.
+        cg_max_iterations: Krylov iterations allowed per linear solve (default 1000).
+    """
+
+    stage_fraction: float
+    default_newton_iterations: int
+    implicit = True
+
+    def __init__(self, system: System, *, linear_solver: str = "cg", newton_iterations: int | None = None,
+                 newton_tolerance: float | None = None, cg_tolerance: float | None = None,
+                 cg_max_iterations: int = 1000):
+        super().__init__(system)
+        if linear_solver not in LINEAR_SOLVERS:
+            raise ConfigError(f"linear_solver must be one of {', '.join(LINEAR_SOLVERS)}, got {linear_solver!r}")
+        self.linear_solver = linear_solver
+        self.newton_iterations = _positive_int("newton_iterations", self.default_newton_iterations
+                                               if newton_iterations is None else newton_iterations)
+        self.cg_max_iterations = _positive_int("cg_max_iterations", cg_max_iterations)
+        self.newton_tolerance = _tolerance("newton_tolerance", newton_tolerance)
+        self.cg_tolerance = _tolerance("cg_tolerance", cg_tolerance)
+        if system.supports_jacobian:
+            self._stage = _VelocityNewton(system, self.stage_fraction, linear_solver)
+        elif linear_solver == "direct":
+            raise ConfigError(f"linear_solver 'direct' needs a system with spring Jacobians; "
+                              f"{type(system).__name__} has none (use 'cg')")
+        else:
+            self._stage = _NewtonKrylov(system, self.stage_fraction, min(GMRES_RESTART, self.cg_max_iterations))
+        self.stats: LinearSolverStats = self._stage.stats
+
+    def invalidate_pattern(self) -> None:
+        """Make the direct solver re-analyse the sparsity pattern at its next solve (call it
+        after changing which particles couple without bumping a term's ``topology_version``)."""
+        self._stage.invalidate_pattern()
+
+    def step(self, state: State, t: float, h: float) -> StepReport:
+        tau = self.stage_fraction * h
+        t_stage = t + tau
+        stage, stats = self._stage, self.stats
+        linearised = self.newton_iterations == 1
+        f_evals, residual_norm = stage.begin(state, t_stage, tau, linearised)
+        iterations, linear_residual = 0, 0.0
+
+        def failed(status: Status, message: str) -> StepReport:
+            return StepReport(accepted=False, h=0.0, next_h=h, f_evals=f_evals, status=status,
+                              linear_iterations=iterations, linear_residual=linear_residual,
+                              message=message)
+
+        converged = linearised
+        relative_residual = math.nan
+        for newton in range(1, self.newton_iterations + 1):
+            start = time.perf_counter()
+            outcome = stage.solve(tau, t_stage, self.cg_tolerance, self.cg_max_iterations)
+            stats.solve_seconds += time.perf_counter() - start
+            stats.solves += 1
+            stats.iterations += outcome.iterations
+            f_evals += outcome.f_evals
+            iterations += outcome.iterations
+            linear_residual = outcome.residual
+            if not math.isfinite(outcome.residual):
+                return failed(Status.DIVERGED, f"{stats.solver} produced a non-finite residual")
+            if not outcome.converged:
+                return failed(Status.NOT_CONVERGED, outcome.message)
+            if linearised:
+                if stage.advance(state, tau, 1.0) > 0:
+                    return failed(Status.DIVERGED, "non-finite state")
+                break
+            # Backtracking line search on the residual norm (Armijo): far from the solution a full
+            # Newton step can overshoot (stiff springs rotating), and the clamped Jacobian makes
+            # this a quasi-Newton iteration; halving keeps it globally convergent in practice.
+            fraction = 1.0
+            stage.advance(state, tau, fraction)
+            new_norm, scale = stage.residual(state, t_stage, tau)
+            f_evals += 1
+            backtracks = 0
+            while not new_norm <= (1.0 - ARMIJO_SLOPE * fraction) * residual_norm and backtracks < MAX_BACKTRACKS:
+                stage.advance(state, tau, -0.5 * fraction)
+                fraction *= 0.5
+                new_norm, scale = stage.residual(state, t_stage, tau)
+                f_evals += 1
+                backtracks += 1
+            if not math.isfinite(new_norm):
+                return failed(Status.DIVERGED, f"non-finite nonlinear residual at Newton iteration {newton}")
+            relative_residual = new_norm / scale if scale > 0 else new_norm
+            if relative_residual <= self.newton_tolerance:
+                converged = True
+                break
+            if not new_norm < residual_norm:
+                return failed(Status.NOT_CONVERGED, f"Newton iteration {newton}: the line search found no "
+                              f"decrease of the residual (relative residual {relative_residual:.3g} > "
+                              f"newton_tolerance={self.newton_tolerance:.3g})")
+            residual_norm = new_norm
+        if not converged:
+            return failed(Status.NOT_CONVERGED,
+                          f"Newton reached newton_iterations={self.newton_iterations} with relative "
+                          f"residual {relative_residual:.3g} > newton_tolerance={self.newton_tolerance:.3g}")
+        if stage.commit(state, h) > 0:
+            return StepReport(accepted=True, h=h, next_h=h, f_evals=f_evals, status=Status.DIVERGED,
+                              linear_iterations=iterations, linear_residual=linear_residual,
+                              message="non-finite state")
+        return StepReport(accepted=True, h=h, next_h=h, f_evals=f_evals, linear_iterations=iterations,
+                          linear_residual=linear_residual)
+
+
+class ImplicitEuler(_ImplicitStageMethod):
+    """Backward Euler: y1 = y0 + h f(y1, t + h). First order, L-stable: it damps every
+    oscillation (the circle's radius shrinks by (1 + h^2)^(-1/2) per step), so it stays stable
+    at any step size and stiffness.
+
+    By default (``newton_iterations=1``) one Newton step, linearised about the current state:
+    for a particle system, Baraff & Witkin (1998), "Large steps in cloth simulation",
+    (M - h df/dv - h^2 df/dx) dv = h (f0 + h df/dx v0). More iterations give the exact backward
+    Euler solution. Options: see :class:`_ImplicitStageMethod`.
+    """
+
+    name = "implicit_euler"
+    order = 1
+    description = "backward Euler (Baraff-Witkin linearised step; exact with newton_iterations > 1)"
+    stage_fraction = 1.0
+    default_newton_iterations = 1
+
+
+class ImplicitMidpoint(_ImplicitStageMethod):
+    """Implicit midpoint rule: y1 = y0 + h f((y0 + y1) / 2, t + h / 2). Second order, A-stable
+    and symmetric; it conserves quadratic invariants exactly (the energy of linear springs, the
+    circle's radius) up to the solver tolerances, neither damping nor growing oscillations.
+
+    Solved by Newton iterations (default up to 10, to ``newton_tolerance``) on the midpoint
+    stage, a backward Euler stage of size h/2. Options: see :class:`_ImplicitStageMethod`.
+    """
+
+    name = "implicit_midpoint"
+    order = 2
+    description = "implicit midpoint rule (Newton iterations; conserves quadratic invariants)"
+    stage_fraction = 0.5
+    default_newton_iterations = 10
+
+
+def _positive_int(name: str, value) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+        raise ConfigError(f"{name} must be an integer >= 1, got {value!r}")
+    return int(value)
+
+
+def _tolerance(name: str, value) -> float:
+    if value is None:
+        return default_tolerance()
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 < value < 1:
+        raise ConfigError(f"{name} must be a number in (0, 1), got {value!r}")
+    return float(value)
+
+
+@ti.data_oriented
+class _VelocityNewton:
+    """The implicit stage of a particle system in velocity form (see the module docstring).
+
+    Scratch: the Newton iterate ``point`` (X, V), the force at it (N), the right-hand side
+    (momentum, N s) and the Newton update dV (m/s), each (n,) vec3, plus the linear solver's.
+    """
+
+    def __init__(self, system: System, theta: float, linear_solver: str):
+        self.system = system
+        self.theta = theta
+        n, real = system.particle_count, runtime.real()
+        self.point = system.make_state()
+        self.force = ti.Vector.field(3, real, shape=n)
+        self.rhs = ti.Vector.field(3, real, shape=n)
+        self.delta = ti.Vector.field(3, real, shape=n)
+        if linear_solver == "direct":
+            self.linear = _SparseCholesky(system, self.point, self.rhs, self.delta)
+        else:
+            self.linear = _BlockJacobiCG(system, self.point, self.rhs, self.delta)
+        self.stats = LinearSolverStats(solver=self.linear.name)
+
+    def invalidate_pattern(self) -> None:
+        self.linear.invalidate_pattern()
+
+    def begin(self, y0: State, t: float, tau: float, linearised: bool) -> tuple[int, float]:
+        """Start Newton; returns (f evaluations, |g| at the start point or nan).
+
+        Linearised (one step, Baraff & Witkin): at (x0, v0), with the right-hand side of f
+        linearised there. Otherwise at the consistent point V = v0, X = x0 + tau v0, with the
+        true residual.
+        """
+        self._begin(y0, 0.0 if linearised else tau)
+        if linearised:
+            self.system.forces(self.point, self.force, t)
+            self._linearised_rhs(tau, t)
+            return 1, math.nan
+        residual_norm, _ = self.residual(y0, t, tau)
+        return 1, residual_norm
+
+    def solve(self, tau: float, t: float, tolerance: float, max_iterations: int) -> _LinearOutcome:
+        return self.linear.solve(tau, tau * tau, t, tolerance, max_iterations, self.stats)
+
+    def advance(self, y0: State, tau: float, fraction: float) -> int:
+        """V += fraction dV, X = x0 + tau V; returns the number of non-finite particles."""
+        return self._advance(y0, tau, fraction)
+
+    def residual(self, y0: State, t: float, tau: float) -> tuple[float, float]:
+        """Set rhs = -g at the iterate; returns (|g|, |s|), s the magnitudes g sums (N s)."""
+        g2, s2 = self._nonlinear_residual(y0, tau, t)
+        return math.sqrt(g2), math.sqrt(s2)
+
+    def commit(self, y: State, h: float) -> int:
+        return self._commit(y, h)
+
+    @ti.kernel
+    def _begin(self, y0: ti.template(), tau: float):
+        for i in self.point.x:
+            # A pinned particle's velocity is not part of the dynamics (its derivative is zero);
+            # zeroing it keeps every vector of the solve zero on pinned particles.
+            v = ti.Vector.zero(y0.x.dtype, 3)
+            x = y0.x[i]
+            if self.system.free[i]:
+                v = y0.v[i]
+                x += tau * v
+            self.point.x[i] = x
+            self.point.v[i] = v
+
+    @ti.kernel
+    def _linearised_rhs(self, tau: float, t: float):
+        # f(x0 + tau V, V) ~ f0 + tau df/dx V + df/dv (V - v0): the momentum balance
+        # M (V - v0) = tau f becomes A dV = tau f0 + tau^2 df/dx v0 with dV = V - v0.
+        for i in self.rhs:
+            self.rhs[i] = tau * self.force[i] + self.system.force_jacobian_product(
+                i, self.point, self.point.v, 0.0, tau * tau, t)
+
+    @ti.kernel
+    def _advance(self, y0: ti.template(), tau: float, fraction: float) -> ti.i32:
+        bad = 0
+        for i in self.point.x:
+            if self.system.free[i]:
+                v = self.point.v[i] + fraction * self.delta[i]
+                x = y0.x[i] + tau * v
+                self.point.v[i] = v
+                self.point.x[i] = x
+                if not (finite(x) and finite(v)):
+                    bad += 1
+        return bad
+
+    @ti.kernel
+    def _nonlinear_residual(self, y0: ti.template(), tau: float, t: float) -> (float, float):
+        # g = M (V - v0) - tau f(X, V) with the true f; returns (|g|^2, |s|^2) where s_i is the
+        # sum of the magnitudes of the terms of g_i (what its rounding error is relative to).
+        g2 = 0.0
+        s2 = 0.0
+        for i in self.point.x:
+            f, force_scale = self.system.force_and_scale(i, self.point, t)
+            g = ti.Vector.zero(y0.x.dtype, 3)
+            if self.system.free[i]:
+                m = self.system.mass[i]
+                g = m * (self.point.v[i] - y0.v[i]) - tau * f
+                s = m * (self.point.v[i].norm() + y0.v[i].norm()) + tau * force_scale
+                g2 += g.norm_sqr()
+                s2 += s * s
+            self.rhs[i] = -g
+        return g2, s2
+
+    @ti.kernel
+    def _commit(self, y: ti.template(), h: float) -> ti.i32:
+        bad = 0
+        for i in y.x:
+            if self.system.free[i]:
+                v_stage = self.point.v[i]
+                x = y.x[i] + h * v_stage
+                v = v_stage
+                if ti.static(self.theta != 1.0):
+                    v = y.v[i] + (v_stage - y.v[i]) / self.theta
+                y.x[i] = x
+                y.v[i] = v
+                if not (finite(x) and finite(v)):
+                    bad += 1
+        return bad
+
+
+@ti.data_oriented
+class _BlockJacobiCG:
+    """Matrix-free preconditioned conjugate gradients on A dV = rhs at the iterate ``point``.
+
+    A = M - a df/dv - b df/dx is applied by ``system.system_matrix_row`` (a gather over each
+    particle's springs); the preconditioner inverts each free particle's 3x3 diagonal block
+    (block Jacobi), and is zero on pinned particles so every vector stays zero there. Dot
+    products are kernel reductions. Convergence: the recursively updated residual r satisfies
+    |r| <= tolerance |rhs|.
+    """
+
+    name = "pcg"
+
+    def __init__(self, system: System, point: State, rhs, solution):
+        self.system, self.point, self.rhs, self.solution = system, point, rhs, solution
+        n, real = system.particle_count, runtime.real()
+        self.r = ti.Vector.field(3, real, shape=n)  # residual rhs - A dV
+        self.z = ti.Vector.field(3, real, shape=n)  # preconditioned residual
+        self.p = ti.Vector.field(3, real, shape=n)  # search direction
+        self.q = ti.Vector.field(3, real, shape=n)  # A p
+        self.inverse_diagonal = ti.Matrix.field(3, 3, real, shape=n)
+
+    def invalidate_pattern(self) -> None:
+        """Nothing to do: CG has no symbolic analysis."""
+
+    def solve(self, a: float, b: float, t: float, tolerance: float, max_iterations: int,
+              stats: LinearSolverStats) -> _LinearOutcome:
+        rr, rz = self._start(a, b, t)
+        rhs_norm = math.sqrt(rr)
+        if rhs_norm == 0.0:
+            return _LinearOutcome(iterations=0, residual=0.0, converged=True)
+        threshold = (tolerance * rhs_norm) ** 2
+        for iteration in range(1, max_iterations + 1):
+            curvature = self._apply_matrix(a, b, t)
+            if not curvature > 0.0:
+                # A is positive definite by construction; this means NaN/inf reached the solve.
+                return _LinearOutcome(iteration, math.nan, False, message=f"CG breakdown (p.Ap = {curvature:.3g})")
+            rz_old = rz
+            rr, rz = self._update(rz_old / curvature)
+            if rr <= threshold or not math.isfinite(rr):
+                return _LinearOutcome(iteration, math.sqrt(rr) / rhs_norm, rr <= threshold)
+            self._new_direction(rz / rz_old)
+        residual = math.sqrt(rr) / rhs_norm
+        return _LinearOutcome(max_iterations, residual, False, message=(
+            f"CG reached cg_max_iterations={max_iterations} with relative residual {residual:.3g} "
+            f"> cg_tolerance={tolerance:.3g}"))
+
+    @ti.kernel
+    def _start(self, a: float, b: float, t: float) -> (float, float):
+        rr = 0.0
+        rz = 0.0
+        for i in self.r:
+            inverse = ti.Matrix.zero(self.r.dtype, 3, 3)
+            if self.system.free[i]:
+                inverse = self.system.system_matrix_diagonal_block(i, self.point, a, b, t).inverse()
+            self.inverse_diagonal[i] = inverse
+            r = self.rhs[i]
+            z = inverse @ r
+            self.solution[i] = ti.Vector.zero(self.r.dtype, 3)
+            self.r[i] = r
+            self.z[i] = z
+            self.p[i] = z
+            rr += r.dot(r)
+            rz += r.dot(z)
+        return rr, rz
+
+    @ti.kernel
+    def _apply_matrix(self, a: float, b: float, t: float) -> float:
+        curvature = 0.0
+        for i in self.p:
+            q = self.system.system_matrix_row(i, self.point, self.p, a, b, t)
+            self.q[i] = q
+            curvature += self.p[i].dot(q)
+        return curvature
+
+    @ti.kernel
+    def _update(self, alpha: float) -> (float, float):
+        rr = 0.0
+        rz = 0.0
+        for i in self.r:
+            self.solution[i] += alpha * self.p[i]
+            r = self.r[i] - alpha * self.q[i]
+            z = self.inverse_diagonal[i] @ r
+            self.r[i] = r
+            self.z[i] = z
+            rr += r.dot(r)
+            rz += r.dot(z)
+        return rr, rz
+
+    @ti.kernel
+    def _new_direction(self, beta: float):
+        for i in self.p:
+            self.p[i] = self.z[i] + beta * self.p[i]
+
+
+@ti.data_oriented
+class _SparseCholesky:
+    """Sparse direct solve of A dV = rhs: A assembled into a Taichi SparseMatrixBuilder, then
+    Taichi's SparseSolver (Eigen's simplicial LL^T with AMD ordering on the CPU) in the run's
+    precision (both default to f32 otherwise).
+
+    The symbolic analysis (ordering, elimination tree) depends only on the sparsity pattern,
+    which changes only when ``system.jacobian_pattern_version`` does: it runs once per pattern,
+    the numeric factorisation once per solve. The reported residual is recomputed with the
+    matrix-free product, so it also checks the assembly.
+    """
+
+    name = "cholesky"
+
+    def __init__(self, system: System, point: State, rhs, solution):
+        if runtime.backend() not in ("x64", "arm64"):
+            raise ConfigError(f"linear_solver 'direct' runs on the CPU backend only (this run uses "
+                              f"{runtime.backend()}); use 'cg'")
+        self.system, self.point, self.rhs, self.solution = system, point, rhs, solution
+        size = 3 * system.particle_count
+        self.builder = ti.linalg.SparseMatrixBuilder(size, size, max_num_triplets=system.system_matrix_triplet_capacity,
+                                                     dtype=runtime.real())
+        self.solver = ti.linalg.SparseSolver(dtype=runtime.real(), solver_type="LLT")
+        self.analysed_version: int | None = None
+
+    def invalidate_pattern(self) -> None:
+        self.analysed_version = None
+
+    def solve(self, a: float, b: float, t: float, tolerance: float, max_iterations: int,
+              stats: LinearSolverStats) -> _LinearOutcome:
+        self.system.assemble_system_matrix(self.point, a, b, t, self.builder)
+        matrix = self.builder.build()
+        version = self.system.jacobian_pattern_version
+        if version != self.analysed_version:
+            start = time.perf_counter()
+            self.solver.analyze_pattern(matrix)
+            stats.analyze_seconds += time.perf_counter() - start
+            stats.analyze_count += 1
+            self.analysed_version = version
+        start = time.perf_counter()
+        self.solver.factorize(matrix)
+        stats.factorize_seconds += time.perf_counter() - start
+        stats.factorize_count += 1
+        if not self.solver.info():
+            return _LinearOutcome(1, math.inf, False, message="sparse Cholesky factorisation failed "
+                                  "(the matrix is not numerically positive definite)")
+        solution = self.solver.solve(self.rhs.to_numpy().reshape(-1))
+        self.solution.from_numpy(np.ascontiguousarray(solution, dtype=runtime.np_real()).reshape(-1, 3))
+        residual2, rhs2 = self._residual_norms(a, b, t)
+        residual = math.sqrt(residual2 / rhs2) if rhs2 > 0 else math.sqrt(residual2)
+        # A backward-stable factorisation leaves a residual near rounding level times the
+        # condition number; beyond the tolerance it is reported, never silently accepted.
+        converged = residual <= tolerance
+        return _LinearOutcome(1, residual, converged, message="" if converged else (
+            f"sparse Cholesky solve left relative residual {residual:.3g} > cg_tolerance={tolerance:.3g} "
+            f"(ill-conditioned matrix)"))
+
+    @ti.kernel
+    def _residual_norms(self, a: float, b: float, t: float) -> (float, float):
+        residual2 = 0.0
+        rhs2 = 0.0
+        for i in self.rhs:
+            r = self.rhs[i] - self.system.system_matrix_row(i, self.point, self.solution, a, b, t)
+            residual2 += r.norm_sqr()
+            rhs2 += self.rhs[i].norm_sqr()
+        return residual2, rhs2
+
+
+@ti.data_oriented
+class _NewtonKrylov:
+    """The implicit stage of any system, by Newton-Krylov (GMRES) on the whole state.
+
+    Vectors of the state's shape (x, and v for a second-order system) are rows of one 2-D field
+    per component, so every vector kernel compiles once: rows 0..restart hold the Krylov basis,
+    then the Newton step dY and the right-hand side -g.
+    """
+
+    def __init__(self, system: System, theta: float, restart: int):
+        self.system = system
+        self.theta = theta
+        self.restart = restart
+        self.second_order = system.second_order
+        self.analytic = system.has_jacobian_product
+        n, real = system.particle_count, runtime.real()
+        self.step_row = restart + 1
+        self.rhs_row = restart + 2
+        rows = restart + 3
+        self.vx = ti.Vector.field(3, real, shape=(rows, n))
+        self.vv = ti.Vector.field(3, real, shape=(rows, n)) if self.second_order else None
+        self.coefficients = ti.field(real, shape=restart)
+        self.point = system.make_state()   # the Newton iterate Y
+        self.f = system.make_state()       # f(Y)
+        self.probe = system.make_state()   # Y + eps w (differences) or w (analytic Jacobian)
+        self.f_probe = system.make_state()  # f(Y + eps w), or J w
+        self.sqrt_eps = math.sqrt(float(np.finfo(runtime.np_real()).eps))
+        self.point_norm = 0.0  # |Y| at the current Newton iterate, for the difference step
+        self.stats = LinearSolverStats(solver="gmres")
+
+    def invalidate_pattern(self) -> None:
+        """Nothing to do: no matrix is assembled."""
+
+    def begin(self, y0: State, t: float, tau: float, linearised: bool) -> tuple[int, float]:
+        """Start Newton at Y = y0 (consistent: its residual is the true one); returns
+        (f evaluations, |g|)."""
+        self._copy_state(y0)
+        residual_norm, _ = self.residual(y0, t, tau)
+        return 1, residual_norm
+
+    def residual(self, y0: State, t: float, tau: float) -> tuple[float, float]:
+        """Set the right-hand side -g, g = Y - y0 - tau f(Y); returns (|g|, |s|) with
+        s_i = |Y_i| + |y0_i| + tau |f_i| (the magnitudes g is computed from)."""
+        self.system.eval_f(self.point, t, self.f)
+        g2, s2 = self._residual(y0, tau)
+        return math.sqrt(g2), math.sqrt(s2)
+
+    def advance(self, y0: State, tau: float, fraction: float) -> int:
+        """Y += fraction dY; returns the number of non-finite particles."""
+        return self._advance(fraction)
+
+    def commit(self, y: State, h: float) -> int:
+        return self._commit(y)
+
+    def solve(self, tau: float, t: float, tolerance: float, max_iterations: int) -> _LinearOutcome:
+        """Restarted GMRES(restart) on (I - tau J) dY = -g, from dY = 0 (Saad & Schultz 1986)."""
+        self._zero(self.step_row)
+        rhs_norm = math.sqrt(self._dot(self.rhs_row, self.rhs_row))
+        if rhs_norm == 0.0:
+            return _LinearOutcome(0, 0.0, True)
+        self.point_norm = math.sqrt(self._point_norm2())
+        iterations = f_evals = 0
+        residual = rhs_norm
+        while True:
+            if iterations == 0:
+                self._copy(self.rhs_row, 0)
+            else:  # restart from the true linear residual rhs - A dY
+                f_evals += self._apply(self.step_row, 0, t, tau)
+                self._axpby(-1.0, 0, 1.0, self.rhs_row, 0)
+            residual = math.sqrt(self._dot(0, 0))
+            if residual <= tolerance * rhs_norm or not math.isfinite(residual):
+                break
+            self._scale(0, 1.0 / residual)
+            hessenberg = np.zeros((self.restart + 1, self.restart))
+            cos, sin = np.zeros(self.restart), np.zeros(self.restart)
+            projected = np.zeros(self.restart + 1)
+            projected[0] = residual
+            size = 0
+            while size < self.restart and iterations < max_iterations:
+                k = size
+                f_evals += self._apply(k, k + 1, t, tau)
+                iterations += 1
+                for j in range(k + 1):  # modified Gram-Schmidt
+                    hessenberg[j, k] = self._dot(j, k + 1)
+                    self._axpby(-hessenberg[j, k], j, 1.0, k + 1, k + 1)
+                norm = math.sqrt(self._dot(k + 1, k + 1))
+                hessenberg[k + 1, k] = norm
+                for j in range(k):  # earlier Givens rotations
+                    upper, lower = hessenberg[j, k], hessenberg[j + 1, k]
+                    hessenberg[j, k] = cos[j] * upper + sin[j] * lower
+                    hessenberg[j + 1, k] = -sin[j] * upper + cos[j] * lower
+                radius = math.hypot(hessenberg[k, k], hessenberg[k + 1, k])
+                cos[k], sin[k] = (hessenberg[k, k] / radius, hessenberg[k + 1, k] / radius) if radius else (1.0, 0.0)
+                hessenberg[k, k] = radius
+                hessenberg[k + 1, k] = 0.0
+                projected[k + 1] = -sin[k] * projected[k]
+                projected[k] = cos[k] * projected[k]
+                size = k + 1
+                residual = abs(projected[k + 1])
+                if residual <= tolerance * rhs_norm or norm == 0.0 or not math.isfinite(residual):
+                    break
+                self._scale(k + 1, 1.0 / norm)
+            if size:
+                # The rotated Hessenberg matrix is upper triangular; lstsq copes with a singular one.
+                weights = np.linalg.lstsq(np.triu(hessenberg[:size, :size]), projected[:size], rcond=None)[0]
+                self.coefficients.from_numpy(np.pad(weights, (0, self.restart - size)).astype(runtime.np_real()))
+                self._add_combination(size)
+            if residual <= tolerance * rhs_norm or iterations >= max_iterations or not math.isfinite(residual):
+                break
+        relative = residual / rhs_norm
+        converged = relative <= tolerance
+        return _LinearOutcome(iterations, float(relative), converged, f_evals=f_evals, message="" if converged else (
+            f"GMRES reached cg_max_iterations={max_iterations} with relative residual {relative:.3g} "
+            f"> cg_tolerance={tolerance:.3g}"))
+
+    def _apply(self, source: int, target: int, t: float, tau: float) -> int:
+        """Row ``target`` = (I - tau J) row ``source``; returns the f evaluations it took."""
+        if self.analytic:
+            self._load_direction(source)
+            self.system.jacobian_product(self.point, t, self.probe, self.f_probe)
+            self._store_product(source, target, tau)
+            return 0
+        source_norm = math.sqrt(self._dot(source, source))
+        if source_norm == 0.0:
+            self._zero(target)
+            return 0
+        # Pernice & Walker (1998): balances truncation error against rounding in f.
+        eps = self.sqrt_eps * math.sqrt(1.0 + self.point_norm) / source_norm
+        self._load_perturbed(source, eps)
+        self.system.eval_f(self.probe, t, self.f_probe)
+        self._store_product(source, target, tau / eps)
+        return 1
+
+    @ti.kernel
+    def _copy_state(self, y0: ti.template()):
+        for i in self.point.x:
+            self.point.x[i] = y0.x[i]
+            if ti.static(self.second_order):
+                self.point.v[i] = y0.v[i]
+
+    @ti.kernel
+    def _residual(self, y0: ti.template(), tau: float) -> (float, float):
+        g2 = 0.0
+        s2 = 0.0
+        for i in self.point.x:
+            g = self.point.x[i] - y0.x[i] - tau * self.f.x[i]
+            self.vx[self.rhs_row, i] = -g
+            s = self.point.x[i].norm() + y0.x[i].norm() + tau * self.f.x[i].norm()
+            g2 += g.norm_sqr()
+            s2 += s * s
+            if ti.static(self.second_order):
+                gv = self.point.v[i] - y0.v[i] - tau * self.f.v[i]
+                self.vv[self.rhs_row, i] = -gv
+                sv = self.point.v[i].norm() + y0.v[i].norm() + tau * self.f.v[i].norm()
+                g2 += gv.norm_sqr()
+                s2 += sv * sv
+        return g2, s2
+
+    @ti.kernel
+    def _point_norm2(self) -> float:
+        total = 0.0
+        for i in self.point.x:
+            total += self.point.x[i].norm_sqr()
+            if ti.static(self.second_order):
+                total += self.point.v[i].norm_sqr()
+        return total
+
+    @ti.kernel
+    def _dot(self, a: ti.i32, b: ti.i32) -> float:
+        total = 0.0
+        for i in range(self.vx.shape[1]):
+            total += self.vx[a, i].dot(self.vx[b, i])
+            if ti.static(self.second_order):
+                total += self.vv[a, i].dot(self.vv[b, i])
+        return total
+
+    @ti.kernel
+    def _axpby(self, alpha: float, a: ti.i32, beta: float, b: ti.i32, target: ti.i32):
+        for i in range(self.vx.shape[1]):
+            self.vx[target, i] = alpha * self.vx[a, i] + beta * self.vx[b, i]
+            if ti.static(self.second_order):
+                self.vv[target, i] = alpha * self.vv[a, i] + beta * self.vv[b, i]
+
+    def _copy(self, source: int, target: int) -> None:
+        self._axpby(1.0, source, 0.0, source, target)
+
+    def _scale(self, row: int, factor: float) -> None:
+        self._axpby(factor, row, 0.0, row, row)
+
+    def _zero(self, row: int) -> None:
+        self._axpby(0.0, row, 0.0, row, row)
+
+    @ti.kernel
+    def _add_combination(self, size: ti.i32):
+        for i in range(self.vx.shape[1]):
+            dx = ti.Vector.zero(self.vx.dtype, 3)
+            for j in range(size):
+                dx += self.coefficients[j] * self.vx[j, i]
+            self.vx[self.step_row, i] += dx
+            if ti.static(self.second_order):
+                dv = ti.Vector.zero(self.vx.dtype, 3)
+                for j in range(size):
+                    dv += self.coefficients[j] * self.vv[j, i]
+                self.vv[self.step_row, i] += dv
+
+    @ti.kernel
+    def _load_perturbed(self, row: ti.i32, eps: float):
+        for i in self.probe.x:
+            self.probe.x[i] = self.point.x[i] + eps * self.vx[row, i]
+            if ti.static(self.second_order):
+                self.probe.v[i] = self.point.v[i] + eps * self.vv[row, i]
+
+    @ti.kernel
+    def _load_direction(self, row: ti.i32):
+        for i in self.probe.x:
+            self.probe.x[i] = self.vx[row, i]
+            if ti.static(self.second_order):
+                self.probe.v[i] = self.vv[row, i]
+
+    @ti.kernel
+    def _store_product(self, source: ti.i32, target: ti.i32, factor: float):
+        # target = source - tau J source, with J source = f_probe (analytic) or
+        # (f_probe - f) / eps (differences; factor = tau / eps).
+        for i in self.probe.x:
+            jx = self.f_probe.x[i]
+            if ti.static(not self.analytic):
+                jx -= self.f.x[i]
+            self.vx[target, i] = self.vx[source, i] - factor * jx
+            if ti.static(self.second_order):
+                jv = self.f_probe.v[i]
+                if ti.static(not self.analytic):
+                    jv -= self.f.v[i]
+                self.vv[target, i] = self.vv[source, i] - factor * jv
+
+    @ti.kernel
+    def _advance(self, fraction: float) -> ti.i32:
+        bad = 0
+        for i in self.point.x:
+            x = self.point.x[i] + fraction * self.vx[self.step_row, i]
+            self.point.x[i] = x
+            ok = finite(x)
+            if ti.static(self.second_order):
+                v = self.point.v[i] + fraction * self.vv[self.step_row, i]
+                self.point.v[i] = v
+                ok = ok and finite(v)
+            if not ok:
+                bad += 1
+        return bad
+
+    @ti.kernel
+    def _commit(self, y: ti.template()) -> ti.i32:
+        bad = 0
+        for i in y.x:
+            x = self.point.x[i]
+            if ti.static(self.theta != 1.0):
+                x = y.x[i] + (x - y.x[i]) / self.theta
+            y.x[i] = x
+            ok = finite(x)
+            if ti.static(self.second_order):
+                v = self.point.v[i]
+                if ti.static(self.theta != 1.0):
+                    v = y.v[i] + (v - y.v[i]) / self.theta
+                y.v[i] = v
+                ok = ok and finite(v)
+            if not ok:
+                bad += 1
+        return bad

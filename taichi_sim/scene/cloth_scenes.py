@@ -1,0 +1,191 @@
+"""The cloth family: a grid of structural, shear and flex springs, and the extras a cloth scene
+may switch on (wind, spheres, a ground plane, tearing, grab)."""
+import math
+from typing import Any
+
+import numpy as np
+
+from . import cloth as topo
+from .builder import SceneBuilder
+from .events import SpherePath
+from .params import Param
+from .preset import ScenePreset, common_params, with_defaults
+from .scene import Scene
+
+PIN_MODES = ("corners", "edge", "pole", "sides", "border", "none")
+
+CLOTH_PARAMS: tuple[Param, ...] = (
+    Param("nx", 32, "", "particles along the grid's i axis (world x)", minimum=2),
+    Param("ny", 32, "", "particles along the grid's j axis (world z, or y when vertical)", minimum=2),
+    Param("size", 1.0, "m", "side length of the square cloth", minimum=0.0, exclusive=True),
+    Param("height", 1.0, "m", "height (y) of the flat cloth, or of its top edge when vertical"),
+    Param("orientation", "horizontal", "", "horizontal (in the x-z plane) or vertical (x-y plane)",
+          choices=("horizontal", "vertical")),
+    Param("stiffness", 500.0, "N/m", "structural spring stiffness", minimum=0.0),
+    Param("shear_stiffness", 250.0, "N/m", "shear (diagonal) spring stiffness", minimum=0.0),
+    Param("flex_stiffness", 100.0, "N/m", "flex (two-apart) spring stiffness", minimum=0.0),
+    Param("structural", True, "", "include structural springs"),
+    Param("shear", True, "", "include shear springs"),
+    Param("flex", True, "", "include flex springs"),
+    Param("pin", "corners", "", "pinned particles: corners (both ends of the edge j = ny-1), edge "
+          "(that whole edge), pole (the edge i = 0), sides (edges i = 0 and i = nx-1), border (all four "
+          "edges) or none",
+          choices=PIN_MODES),
+    Param("jitter", 0.0, "m", "std. dev. of seeded random noise added to initial positions",
+          minimum=0.0),
+    *common_params(mass=0.01, drag=0.005, damping=0.05),
+    # wind
+    Param("wind", False, "", "aerodynamic gusting wind on the cloth triangles"),
+    Param("wind_speed", 6.0, "m/s", "mean wind speed", minimum=0.0),
+    Param("wind_heading", 0.0, "deg", "wind direction in the x-z plane, from +x toward +z"),
+    Param("wind_gust", 0.6, "", "relative strength of the gusts", minimum=0.0),
+    Param("wind_gust_frequency", 0.7, "Hz", "typical gust frequency", minimum=0.0, exclusive=True),
+    Param("wind_drag", 0.6, "kg/m^3", "aerodynamic coefficient rho*C_d/2 (air, C_d = 1: 0.6)",
+          minimum=0.0),
+    # sphere
+    Param("sphere", False, "", "a sphere the cloth collides with"),
+    Param("sphere_radius", 0.3, "m", "sphere radius", minimum=0.0, exclusive=True),
+    Param("sphere_x", 0.0, "m", "sphere centre x at t = 0"),
+    Param("sphere_y", 0.45, "m", "sphere centre y at t = 0"),
+    Param("sphere_z", 0.0, "m", "sphere centre z at t = 0"),
+    Param("sphere_motion", "static", "", "static, drop (down at sphere_speed), sweep (along +x at "
+          "sphere_speed) or oscillate (up and down, sphere_amplitude at sphere_frequency)",
+          choices=("static", "drop", "sweep", "oscillate")),
+    Param("sphere_speed", 0.5, "m/s", "speed of a dropping or sweeping sphere", minimum=0.0),
+    Param("sphere_amplitude", 0.2, "m", "amplitude of an oscillating sphere", minimum=0.0),
+    Param("sphere_frequency", 0.5, "Hz", "frequency of an oscillating sphere", minimum=0.0),
+    Param("sphere_friction", 0.0, "", "Coulomb friction coefficient on the sphere", minimum=0.0),
+    # ground plane
+    Param("plane", False, "", "a ground plane the cloth collides with"),
+    Param("plane_height", 0.0, "m", "height (y) of the ground plane"),
+    Param("restitution", 0.3, "", "ground bounce: normal speed kept after impact (0..1)", minimum=0.0),
+    Param("plane_friction", 0.5, "", "Coulomb friction coefficient on the ground", minimum=0.0),
+    # tearing
+    Param("tear", False, "", "springs break when over-stretched"),
+    Param("tear_strain", 0.3, "", "strain |d|/r - 1 at which a structural spring breaks (inf: never)",
+          minimum=0.0, exclusive=True, allow_infinite=True),
+    Param("tear_shear_factor", 1.5, "", "shear springs break at this multiple of tear_strain",
+          minimum=0.0, exclusive=True),
+    Param("tear_flex_factor", 2.0, "", "flex springs break at this multiple of tear_strain",
+          minimum=0.0, exclusive=True),
+    Param("tear_i_factor", 1.0, "", "multiplier for springs along the i axis (anisotropic fabric)",
+          minimum=0.0, exclusive=True),
+    Param("tear_j_factor", 1.0, "", "multiplier for springs along the j axis", minimum=0.0, exclusive=True),
+    Param("tear_seam", "none", "", "a weakened seam: across-i (splits the i axis in half), across-j, "
+          "or none", choices=("none", "across-i", "across-j")),
+    Param("tear_seam_factor", 0.4, "", "threshold multiplier of springs crossing the seam",
+          minimum=0.0, exclusive=True),
+    Param("tear_noise", 0.0, "", "relative amplitude of a seeded smooth noise map on thresholds (0..1)",
+          minimum=0.0),
+    # grab
+    Param("grab", False, "", "allow pulling a particle with the mouse (a stiff spring)"),
+    Param("grab_stiffness", 200.0, "N/m", "stiffness of the grab spring", minimum=0.0),
+)
+
+
+def cloth_pins(nx: int, ny: int, mode: str) -> np.ndarray:
+    """(nx*ny,) bool: which particles a cloth pins (see the ``pin`` parameter)."""
+    pinned = np.zeros((nx, ny), bool)
+    if mode == "corners":
+        pinned[0, -1] = pinned[-1, -1] = True
+    elif mode == "edge":
+        pinned[:, -1] = True
+    elif mode == "pole":
+        pinned[0, :] = True
+    elif mode == "sides":
+        pinned[0, :] = pinned[-1, :] = True
+    elif mode == "border":
+        pinned[0, :] = pinned[-1, :] = pinned[:, 0] = pinned[:, -1] = True
+    return pinned.ravel()
+
+
+def tear_thresholds(p: dict[str, Any], ends: np.ndarray, kind: np.ndarray, seed: int) -> np.ndarray:
+    """Per-spring breaking strains: tear_strain, scaled by kind, grid direction, seam and noise."""
+    nx, ny = p["nx"], p["ny"]
+    i, j = ends // ny, ends % ny
+    strain = np.full(len(ends), p["tear_strain"], float)
+    strain[kind == topo.SHEAR] *= p["tear_shear_factor"]
+    strain[kind == topo.FLEX] *= p["tear_flex_factor"]
+    strain[j[:, 0] == j[:, 1]] *= p["tear_i_factor"]  # springs along the i axis
+    strain[i[:, 0] == i[:, 1]] *= p["tear_j_factor"]
+    if p["tear_seam"] != "none":
+        coord, n = (i, nx) if p["tear_seam"] == "across-i" else (j, ny)
+        middle = (n - 1) / 2
+        crosses = (np.minimum(coord[:, 0], coord[:, 1]) < middle) & (np.maximum(coord[:, 0], coord[:, 1]) > middle)
+        strain[crosses] *= p["tear_seam_factor"]
+    if p["tear_noise"] > 0:
+        # Smooth value noise: a seeded 6x6 lattice, bilinear at each spring's midpoint.
+        lattice = np.random.default_rng(seed).uniform(-1.0, 1.0, (6, 6))
+        u = (i.mean(axis=1) / max(nx - 1, 1)) * 5
+        w = (j.mean(axis=1) / max(ny - 1, 1)) * 5
+        u0, w0 = np.minimum(u.astype(int), 4), np.minimum(w.astype(int), 4)
+        fu, fw = u - u0, w - w0
+        noise = (lattice[u0, w0] * (1 - fu) * (1 - fw) + lattice[u0 + 1, w0] * fu * (1 - fw)
+                 + lattice[u0, w0 + 1] * (1 - fu) * fw + lattice[u0 + 1, w0 + 1] * fu * fw)
+        strain *= np.maximum(1.0 + p["tear_noise"] * noise, 0.05)
+    return strain
+
+
+def sphere_path(p: dict[str, Any]) -> SpherePath:
+    center = (p["sphere_x"], p["sphere_y"], p["sphere_z"])
+    motion = p["sphere_motion"]
+    if motion == "drop":
+        return SpherePath(center, velocity=(0.0, -p["sphere_speed"], 0.0))
+    if motion == "sweep":
+        return SpherePath(center, velocity=(p["sphere_speed"], 0.0, 0.0))
+    if motion == "oscillate":
+        return SpherePath(center, amplitude=p["sphere_amplitude"], frequency=p["sphere_frequency"],
+                          axis=(0.0, 1.0, 0.0))
+    return SpherePath(center)
+
+
+def build_cloth(preset: ScenePreset, p: dict[str, Any], seed: int) -> Scene:
+    nx, ny, size = p["nx"], p["ny"], p["size"]
+    if p["orientation"] == "horizontal":
+        x = topo.grid_positions(nx, ny, size, size, origin=(-size / 2, p["height"], -size / 2),
+                                u_axis=(1, 0, 0), v_axis=(0, 0, 1))
+    else:  # j runs down from the top edge at `height`, so the edge j = ny-1 is at the bottom
+        x = topo.grid_positions(nx, ny, size, size, origin=(-size / 2, p["height"], 0.0),
+                                u_axis=(1, 0, 0), v_axis=(0, -1, 0))
+    b = SceneBuilder()
+    b.add_particles(x, p["particle_mass"], pinned=cloth_pins(nx, ny, p["pin"]))
+    ends, kind = topo.grid_springs(nx, ny, structural=p["structural"], shear=p["shear"], flex=p["flex"])
+    stiffness = np.choose(kind, [p["stiffness"], p["shear_stiffness"], p["flex_stiffness"]]) \
+        if len(kind) else np.zeros(0)
+    b.add_springs(ends, stiffness=stiffness, damping=p["damping"], kind=kind)
+    b.add_triangles(topo.grid_triangles(nx, ny))
+    if p["jitter"] > 0:  # after the springs, so rest lengths stay those of the flat grid
+        b.displace(np.random.default_rng(seed).normal(scale=p["jitter"], size=(nx * ny, 3)))
+    if p["tear"] and len(ends):
+        b.set_tearing(tear_thresholds(p, ends, kind, seed))
+    if p["wind"]:
+        b.set_wind(speed=p["wind_speed"], heading=p["wind_heading"], gust=p["wind_gust"],
+                   gust_frequency=p["wind_gust_frequency"], drag_coefficient=p["wind_drag"], seed=seed)
+    if p["sphere"]:
+        b.add_sphere(sphere_path(p), p["sphere_radius"], p["sphere_friction"])
+    if p["plane"]:
+        b.set_plane((0.0, p["plane_height"], 0.0), (0.0, 1.0, 0.0), min(p["restitution"], 1.0),
+                    p["plane_friction"])
+    if p["grab"]:
+        b.enable_grab(p["grab_stiffness"], damping=2 * math.sqrt(p["grab_stiffness"] * p["particle_mass"]))
+    return preset.finish(b, p, seed)
+
+
+CLOTH_SCENES = (
+    ScenePreset("cloth", "an nx x ny cloth of structural, shear and flex springs, starting flat; "
+                "--set wind/sphere/plane/tear/grab=1 add the extras", CLOTH_PARAMS, build_cloth,
+                default_dt=1e-3, default_integrator="symplectic_euler"),
+    ScenePreset("cloth-sphere", "a cloth falling onto a sphere above the ground",
+                with_defaults(CLOTH_PARAMS, pin="none", sphere=True, plane=True, sphere_friction=0.3),
+                build_cloth, default_dt=1e-3, default_integrator="symplectic_euler"),
+    ScenePreset("cloth-tear", "a cloth held at two sides, torn by a sphere dropping through it",
+                with_defaults(CLOTH_PARAMS, pin="sides", sphere=True, sphere_y=1.5, sphere_radius=0.2,
+                              sphere_motion="drop", sphere_speed=0.6, tear=True, tear_strain=0.25,
+                              tear_noise=0.3, plane=True),
+                build_cloth, default_dt=1e-3, default_integrator="symplectic_euler"),
+    ScenePreset("cloth-wind", "a flag pinned to a pole, fluttering in gusty wind",
+                with_defaults(CLOTH_PARAMS, orientation="vertical", pin="pole", height=1.5, wind=True,
+                              wind_speed=8.0, wind_heading=15.0, particle_mass=0.003, stiffness=300.0,
+                              shear_stiffness=150.0, flex_stiffness=60.0, jitter=0.002),
+                build_cloth, default_dt=1e-3, default_integrator="symplectic_euler"),
+)

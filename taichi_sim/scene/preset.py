@@ -1,0 +1,51 @@
+"""ScenePreset: a named scene recipe with typed parameters."""
+from dataclasses import dataclass, replace
+from typing import Any, Callable
+
+from .builder import SceneBuilder
+from .params import Param
+from .scene import Scene
+
+
+@dataclass(frozen=True)
+class ScenePreset:
+    """A scene recipe: ``build(preset, values, seed)`` returns a Scene."""
+
+    name: str
+    description: str
+    params: tuple[Param, ...]
+    build: Callable[["ScenePreset", dict[str, Any], int], Scene]
+    default_dt: float
+    default_integrator: str
+
+    def param(self, name: str) -> Param:
+        return next(p for p in self.params if p.name == name)
+
+    def finish(self, builder: SceneBuilder, values: dict[str, Any], seed: int) -> Scene:
+        """Add gravity and drag from ``values`` and finalize."""
+        builder.set_gravity(values["gravity"])
+        builder.set_drag(values["drag"])
+        return builder.finalize(name=self.name, params=values, default_dt=self.default_dt,
+                                default_integrator=self.default_integrator, seed=seed)
+
+
+def common_params(*, mass: float, gravity: float = 9.8, drag: float = 0.0,
+                  damping: float | None = 0.0) -> tuple[Param, ...]:
+    """particle_mass, gravity, drag (and the spring dashpot ``damping`` unless None)."""
+    params = (
+        Param("particle_mass", mass, "kg", "mass of each particle", minimum=0.0, exclusive=True),
+        Param("gravity", gravity, "m/s^2", "gravitational acceleration (pointing -y)"),
+        Param("drag", drag, "N s/m", "viscous drag coefficient, force -drag * v", minimum=0.0),
+    )
+    if damping is not None:
+        params += (Param("damping", damping, "N s/m", "spring dashpot coefficient along the spring",
+                         minimum=0.0),)
+    return params
+
+
+def with_defaults(params: tuple[Param, ...], **defaults) -> tuple[Param, ...]:
+    """The same parameters with some defaults changed (for presets that share a family)."""
+    unknown = set(defaults) - {p.name for p in params}
+    if unknown:
+        raise KeyError(f"no such parameters: {sorted(unknown)}")
+    return tuple(replace(p, default=defaults[p.name]) if p.name in defaults else p for p in params)
