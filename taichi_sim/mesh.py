@@ -43,6 +43,7 @@ class TriangleMesh:
         self.tearable = springs is not None and springs.tearable
         self.triangles = ti.Vector.field(3, ti.i32, shape=T)
         self.triangles.from_numpy(triangles)
+        self._indices = None
         if self.tearable:
             self.edge_springs = ti.Vector.field(3, ti.i32, shape=T)
             self.edge_springs.from_numpy(edge_springs(triangles, springs.ends_np, particle_count).astype(np.int32))
@@ -78,9 +79,10 @@ class TriangleMesh:
 
     def index_buffer(self) -> np.ndarray:
         """(T, 3) int32 numpy index buffer (torn triangles degenerate)."""
-        out = ti.field(ti.i32, shape=3 * self.triangle_count)
-        self.fill_index_buffer(out)
-        return out.to_numpy().reshape(-1, 3)
+        if self._indices is None:  # allocated once: a field per call would exhaust Taichi's trees
+            self._indices = ti.field(ti.i32, shape=3 * self.triangle_count)
+        self.fill_index_buffer(self._indices)
+        return self._indices.to_numpy().reshape(-1, 3)
 
     @ti.func
     def area_normal(self, y, tri):

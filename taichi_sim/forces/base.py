@@ -33,3 +33,9 @@ class ForceTerm:
     def energy(self, y) -> float | None:
         """Potential energy (J) of this term at state ``y``, or None if the term is dissipative."""
         return None
+
+    def dissipation(self, y) -> float | None:
+        """Rayleigh dissipation function R (W) of this term at state ``y``, or None if the term
+        dissipates nothing. R is quadratic in the velocities with -dR/dv_i the term's
+        dissipative force on i (so the term dissipates power 2R)."""
+        return None

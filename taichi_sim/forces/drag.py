@@ -1,5 +1,3 @@
-from __future__ import annotations
-
 import taichi as ti
 
 from .. import runtime
@@ -26,6 +24,17 @@ class Drag(ForceTerm):
     @ti.func
     def force(self, i, y, mass_i, t):
         return -self.k[None] * y.v[i]
+
+    def dissipation(self, y) -> float:
+        """R = k_drag/2 sum |v_i|^2 (W); pinned particles have zero velocity in a consistent state."""
+        return float(self._dissipation(y))
+
+    @ti.kernel
+    def _dissipation(self, y: ti.template()) -> float:
+        total = 0.0
+        for i in y.v:
+            total += 0.5 * self.k[None] * y.v[i].norm_sqr()
+        return total
 
     @ti.func
     def jacobian_product(self, i, y, p, a, b, t):

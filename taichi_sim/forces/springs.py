@@ -240,6 +240,23 @@ class Springs(ForceTerm):
                 total += 0.5 * self.stiffness[s] * stretch * stretch
         return total
 
+    def dissipation(self, y) -> float | None:
+        """R = 1/2 sum over live dashpots of c ((v_i - v_j) . u)^2 (W), or None without dashpots."""
+        return float(self._dissipation(y)) if self.damped else None
+
+    @ti.kernel
+    def _dissipation(self, y: ti.template()) -> float:
+        total = 0.0
+        for s in range(self.spring_count):
+            if self.is_alive(s):
+                e = self.ends[s]
+                d = y.x[e[0]] - y.x[e[1]]
+                length = d.norm()
+                if length > 0.0:
+                    rate = (y.v[e[0]] - y.v[e[1]]).dot(d / length)
+                    total += 0.5 * self.damping[s] * rate * rate
+        return total
+
     def tear(self, y) -> int:
         """Break every live spring strained beyond its threshold at ``y``; returns how many broke."""
         torn = int(self._tear(y)) if self.tearable else 0

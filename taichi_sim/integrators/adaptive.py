@@ -55,8 +55,9 @@ class EmbeddedRK(Integrator):
     starts from the same t and the same state values (checked bitwise by a kernel): after a
     rejection (every pair), and after an accepted step for FSAL pairs, whose last stage is f at
     y_new. A state changed between calls (post-step events, ``scene.reset()``) is detected and
-    f is evaluated afresh. A change to the system itself (a stiffness, a force toggled) is not
-    visible here: call :meth:`reset` after one.
+    f is evaluated afresh. A change to the system itself between steps (a grab target moved, a
+    spring torn, a stiffness changed) is not visible here: without :meth:`reset` it takes effect
+    from the second stage of the next step, as if it happened a fraction of a step later.
 
     Options (keyword-only):
         rtol: relative tolerance (default 1e-6), >= 0.

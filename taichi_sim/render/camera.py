@@ -61,12 +61,18 @@ class OrbitCamera:
         self.distance = float(np.clip(self.distance * factor, 1e-3, 1e6))
 
     def frame(self, lo, hi, aspect: float, *, margin: float = 1.1) -> None:
-        """Aim at the centre of the box [lo, hi] (m) from the current direction, at the distance
-        where its bounding sphere fills the view (times ``margin``)."""
+        """Aim at the centre of the box [lo, hi] (m) from the current direction, at the smallest
+        distance where all its corners are in view with ``margin`` (1.1: 10 % to spare)."""
         lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
         self.target = 0.5 * (lo + hi)
-        radius = max(0.5 * float(np.linalg.norm(hi - lo)), 1e-3)
-        self.distance = self.distance_for(radius, aspect) * margin
+        corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
+                            for z in (lo[2], hi[2])]) - self.target
+        right, up, back = self.basis()
+        tan_v = math.tan(math.radians(self.fov) / 2.0) / margin
+        tan_h = tan_v * aspect
+        depth = corners @ back  # toward the camera
+        needed = np.maximum(np.abs(corners @ right) / tan_h, np.abs(corners @ up) / tan_v) + depth
+        self.distance = max(float(needed.max()), float(depth.max()) + 0.2, 1e-2)
 
     def distance_for(self, radius: float, aspect: float) -> float:
         """Distance (m) at which a sphere of ``radius`` (m) just fits the narrower view angle."""

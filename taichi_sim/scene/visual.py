@@ -1,39 +1,41 @@
 """What to draw for a Scene: a small, explicit description the renderer reads.
 
-:func:`describe` looks at a built :class:`~taichi_sim.scene.scene.Scene` (its name, params,
-arrays, features and a few optional attributes) and returns a :class:`SceneVisual`. The renderer
-draws only what the visual names; it never steps the scene and never guesses from elsewhere.
+:func:`describe` looks at a built :class:`~taichi_sim.scene.scene.Scene` and returns a
+:class:`SceneVisual`. The renderer draws only what the visual names; it never steps the scene.
 
-Optional scene attributes it looks for (each may be absent; absence draws nothing extra):
+What it reads from the scene (every optional part may be None or absent; then nothing extra is
+drawn):
 
-``scene.spheres``
-    A sequence of sphere colliders, each an object with ``center`` (a 0-D ``ti.Vector.field(3)``,
-    m; read every frame so a moving sphere is drawn where it is) and ``radius`` (float, m).
-``scene.plane``
-    A ground plane as a pair ``(point, normal)`` of (3,) array-likes (m; the normal need not be
-    unit length).
-``scene.system.term("springs").alive``
-    A (S,) integer field over the scene's springs (same order as ``scene.arrays["springs"]``),
-    nonzero where the spring is intact. When present the renderer rebuilds its triangle and line
-    index buffers every frame: a cloth triangle disappears once one of its edges has torn.
-``scene.emitter``
-    A particle emitter with ``alive`` (a (capacity,) integer field, nonzero for a live particle),
-    ``age`` (a (capacity,) float field, s), ``lifetime`` (float, s) and optionally ``first``
-    (int, the particle id of emitter slot 0; default: the last ``capacity`` particles). Only live
-    emitter particles are drawn, coloured by age / lifetime.
-``scene.view_bounds``
-    ``(lo, hi)``, two (3,) array-likes (m): the box the camera should frame at the start,
-    overriding the box derived from the initial positions.
+- ``scene.state.x`` (positions, read every frame), ``scene.x0``, ``scene.name``,
+  ``scene.params``, ``scene.system.second_order``, ``scene.arrays["pinned"]`` and
+  ``scene.arrays["gravity"]``.
+- ``scene.springs``: the springs term, with ``ends_np`` (S, 2), ``kind_np`` (S,) (0 structural,
+  1 shear, 2 flex), ``rest`` (an (S,) field, m) and, when ``tearable``, ``alive`` (an (S,) int
+  field, nonzero while intact). Springs are drawn as lines: a cloth's structural ones only.
+- ``scene.mesh``: the surface triangles, with ``triangles_np`` (T, 3) particle ids wound
+  counter-clockwise seen from the front, ``tearable``, and the kernel
+  ``fill_index_buffer(out)`` that writes the 3T indices into a 1-D i32 field, a torn triangle
+  as a degenerate one. Drawn as a shaded two-coloured surface.
+- ``scene.spheres``: sphere colliders with ``centers()`` ((K, 3) m, called every frame, so a
+  moving sphere is drawn where it is) and ``radius`` (a (K,) field, m).
+- ``scene.plane``: a ground plane with ``point_np`` and ``normal_np`` ((3,) arrays).
+- ``scene.emitter``: a particle emitter with ``alive`` (a (capacity,) int field, nonzero for a
+  live particle), ``age`` (a (capacity,) float field, s), ``spec.lifetime`` (s), ``first`` (the
+  particle id of slot 0) and ``capacity``. Only live emitter particles are drawn.
+- ``scene.grabber``: the mouse-grab API (``pick(origin, direction)``, ``grab(particle)``,
+  ``drag_to(target)``, ``release()``), passed through for the launcher.
+- ``scene.view_bounds`` (optional): ``(lo, hi)``, two (3,) array-likes (m), the box the camera
+  frames at the start, overriding the box derived below.
 
-Cloth: a scene whose params hold integers ``nx`` and ``ny`` with ``nx * ny <= particle_count``
-draws particles ``0 .. nx*ny - 1`` as a grid surface, particle (i, j) having id ``i * ny + j``
-(see :func:`taichi_sim.scene.cloth.grid_index`); further particles are drawn as points.
+A scene whose params hold integers ``nx`` and ``ny`` with ``nx * ny <= particle_count`` is a
+cloth grid: particle (i, j) has id ``i * ny + j`` (see :func:`taichi_sim.scene.cloth.grid_index`),
+which the fabric pattern uses.
 """
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -42,11 +44,11 @@ from .scene import Scene
 
 
 @dataclass(frozen=True)
-class Sphere:
-    """A sphere to draw: ``center`` is a 0-D vec3 field (m), ``radius`` a float (m)."""
+class Spheres:
+    """Spheres to draw: ``centers()`` returns their (K, 3) centres now (m); ``radii`` (K,) m."""
 
-    center: Any
-    radius: float
+    centers: Callable[[], np.ndarray]
+    radii: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -80,13 +82,17 @@ class SceneVisual:
         first_order: whether the system is a first-order ODE (positions only).
         pinned: (n,) bool, pinned particles (drawn in a distinct colour).
         grid: (nx, ny) when particles ``0 .. nx*ny - 1`` form a cloth grid, else None.
+        triangles: (T, 3) int64 surface triangles (T may be 0).
+        mesh: the scene's mesh object (its ``fill_index_buffer`` kernel drops torn triangles),
+            or None when there is no surface.
+        tearing: whether springs (and so triangles) can tear: index buffers change per frame.
         springs: (S, 2) int64 particle ids of every spring (S may be 0).
-        spring_kind: (S,) int64, 0 structural, 1 shear, 2 flex.
         rest_length: (S,) float64 rest lengths (m).
         spring_alive: (S,) int field, nonzero where intact, or None when springs never tear.
         line_springs: (L,) int64 ids of the springs drawn as lines and used for the strain
-            colour map: the structural springs of a cloth, every spring otherwise.
+            colour map: a cloth's structural springs, every spring otherwise.
         spheres, plane, emitter: the optional extras (see the module docstring).
+        grabber: the scene's mouse-grab API, or None.
         trail: draw a fading trail behind each particle (the circle ODE).
         guides: static polylines drawn faintly, each (k, 3) float64 (m), e.g. the exact orbit.
         particle_radius: radius of a drawn particle (m).
@@ -100,14 +106,17 @@ class SceneVisual:
     first_order: bool
     pinned: np.ndarray
     grid: tuple[int, int] | None
+    triangles: np.ndarray
+    mesh: Any | None
+    tearing: bool
     springs: np.ndarray
-    spring_kind: np.ndarray
     rest_length: np.ndarray
     spring_alive: Any | None
     line_springs: np.ndarray
-    spheres: tuple[Sphere, ...]
+    spheres: Spheres | None
     plane: Plane | None
     emitter: Emitter | None
+    grabber: Any | None
     trail: bool
     guides: tuple[np.ndarray, ...]
     particle_radius: float
@@ -129,52 +138,76 @@ def describe(scene: Scene) -> SceneVisual:
     """The :class:`SceneVisual` of ``scene`` (reads it; allocates no Taichi fields)."""
     n = scene.particle_count
     x0 = np.asarray(scene.x0, dtype=np.float64).reshape(n, 3)
-    pinned = np.asarray(scene.arrays.get("pinned", np.zeros(n, bool)), bool).reshape(n)
-    springs = np.asarray(scene.arrays.get("springs", np.zeros((0, 2))), np.int64).reshape(-1, 2)
-    S = len(springs)
-    kind = np.asarray(scene.arrays.get("spring_kind", np.zeros(S)), np.int64).reshape(S)
-    rest = np.asarray(scene.arrays.get("rest_length", np.zeros(S)), np.float64).reshape(S)
-    grid = _grid(scene.params, n)
-    line_springs = np.flatnonzero(kind == STRUCTURAL) if grid is not None else np.arange(S)
+    arrays = scene.arrays
+    pinned = np.asarray(arrays.get("pinned", np.zeros(n, bool)), bool).reshape(n)
     first_order = not scene.system.second_order
 
-    term = scene.system.term("springs") if hasattr(scene.system, "term") else None
-    spring_alive = getattr(term, "alive", None) if term is not None else None
-    spheres = tuple(Sphere(center=s.center, radius=float(s.radius))
-                    for s in (getattr(scene, "spheres", None) or ()))
-    plane = _plane(getattr(scene, "plane", None))
-    emitter = _emitter(getattr(scene, "emitter", None), n)
+    term = getattr(scene, "springs", None)
+    if term is not None:
+        springs = np.asarray(term.ends_np, np.int64).reshape(-1, 2)
+        kind = np.asarray(term.kind_np, np.int64).reshape(-1)
+        rest = np.asarray(term.rest.to_numpy(), np.float64).reshape(-1)
+        alive = term.alive if term.tearable else None
+    else:
+        springs, kind, rest, alive = np.zeros((0, 2), np.int64), np.zeros(0, np.int64), np.zeros(0), None
+    mesh = getattr(scene, "mesh", None)
+    triangles = np.asarray(mesh.triangles_np, np.int64).reshape(-1, 3) if mesh is not None \
+        else np.zeros((0, 3), np.int64)
+    line_springs = np.flatnonzero(kind == STRUCTURAL) if len(triangles) else np.arange(len(springs))
+
+    spheres = None
+    if getattr(scene, "spheres", None) is not None:
+        spheres = Spheres(centers=scene.spheres.centers,
+                          radii=np.asarray(scene.spheres.radius.to_numpy(), np.float64).reshape(-1))
+    plane = None
+    if getattr(scene, "plane", None) is not None:
+        normal = np.asarray(scene.plane.normal_np, np.float64).reshape(3)
+        plane = Plane(point=np.asarray(scene.plane.point_np, np.float64).reshape(3),
+                      normal=normal / np.linalg.norm(normal))
+    emitter = None
+    if getattr(scene, "emitter", None) is not None:
+        e = scene.emitter
+        emitter = Emitter(alive=e.alive, age=e.age, lifetime=float(e.spec.lifetime),
+                          first=int(e.first), capacity=int(e.capacity))
 
     guides: tuple[np.ndarray, ...] = ()
-    if scene.name == "simple":  # the exact solution: a circle of the initial radius about z
+    if scene.name == "simple":  # the exact solution: the initial circle about the z axis
         angle = np.linspace(0.0, 2.0 * math.pi, 129)
         radius = float(np.linalg.norm(x0[0, :2]))
         guides = (np.stack([radius * np.cos(angle), radius * np.sin(angle),
                             np.full_like(angle, x0[0, 2])], axis=1),)
 
-    gravity = np.asarray(scene.arrays.get("gravity", np.zeros(3)), float).reshape(3)
-    lo, hi = _bounds(x0, pinned, hanging=bool(np.any(gravity != 0)), guides=guides, spheres=spheres)
+    gravity = np.asarray(arrays.get("gravity", np.zeros(3)), np.float64).reshape(3)
+    live = np.ones(n, bool)
+    extra = list(guides)
+    if emitter is not None:  # dead slots all sit at the nozzle: frame the spray's paths instead
+        live[emitter.first:emitter.first + emitter.capacity] = False
+        live[emitter.first] = True
+        extra.append(_spray(scene.emitter.spec, gravity))
+    lo, hi = _bounds(x0[live], pinned[live], hanging=bool(np.any(gravity != 0)),
+                     swinging=not len(triangles), extra=extra, spheres=spheres, plane=plane)
     override = getattr(scene, "view_bounds", None)
     if override is not None:
         lo, hi = (np.asarray(b, np.float64).reshape(3) for b in override)
-    extent = float(np.linalg.norm(hi - lo)) or 1.0
+    size = float(np.linalg.norm(hi - lo)) or 1.0
 
-    if grid is not None:
-        nx, ny = grid
-        spacing = float(np.median(rest[line_springs])) if len(line_springs) else extent / max(nx, ny)
+    grid = _grid(scene.params, n)
+    if len(triangles):
+        spacing = float(np.median(rest[line_springs])) if len(line_springs) else 0.02 * size
         radius = 0.3 * spacing
-        view = (35.0, 25.0)
+        view = (30.0, 20.0)
     else:
-        radius = 0.03 * extent
-        if S:
-            radius = min(radius, 0.25 * float(np.median(rest)))
+        radius = 0.025 * size
+        if len(rest):
+            radius = min(radius, 0.15 * float(np.median(rest)))
         planar = bool(np.ptp(x0[:, 2]) == 0.0)
-        view = (0.0, 0.0) if first_order else ((0.0, 8.0) if planar else (30.0, 20.0))
+        view = (0.0, 0.0) if first_order else ((0.0, 8.0) if planar and emitter is None else (30.0, 20.0))
     return SceneVisual(
         name=scene.name, positions=scene.state.x, particle_count=n, first_order=first_order,
-        pinned=pinned, grid=grid, springs=springs, spring_kind=kind, rest_length=rest,
-        spring_alive=spring_alive, line_springs=line_springs.astype(np.int64), spheres=spheres,
-        plane=plane, emitter=emitter, trail=first_order, guides=guides,
+        pinned=pinned, grid=grid, triangles=triangles, mesh=mesh if len(triangles) else None,
+        tearing=alive is not None, springs=springs, rest_length=rest, spring_alive=alive,
+        line_springs=line_springs.astype(np.int64), spheres=spheres, plane=plane, emitter=emitter,
+        grabber=getattr(scene, "grabber", None), trail=first_order, guides=guides,
         particle_radius=float(radius), bounds=(lo, hi), view=view)
 
 
@@ -185,43 +218,46 @@ def _grid(params: dict, n: int) -> tuple[int, int] | None:
     return None
 
 
-def _plane(value) -> Plane | None:
-    if value is None:
-        return None
-    point, normal = (np.asarray(v, np.float64).reshape(3) for v in value)
-    length = float(np.linalg.norm(normal))
-    if not length > 0:
-        raise ValueError("scene.plane normal must be nonzero")
-    return Plane(point=point, normal=normal / length)
+def _spray(spec, gravity: np.ndarray) -> np.ndarray:
+    """Points (m) on the ballistic paths of the spray's axis and cone edges over a lifetime."""
+    axis = np.asarray(spec.direction, np.float64)
+    axis /= np.linalg.norm(axis)
+    helper = np.array([1.0, 0.0, 0.0]) if abs(axis[0]) < 0.9 else np.array([0.0, 0.0, 1.0])
+    u = np.cross(axis, helper)
+    u /= np.linalg.norm(u)
+    w = np.cross(axis, u)
+    c, s = math.cos(math.radians(spec.spread)), math.sin(math.radians(spec.spread))
+    dirs = np.stack([axis, c * axis + s * u, c * axis - s * u, c * axis + s * w, c * axis - s * w])
+    t = np.linspace(0.0, spec.lifetime, 40)[:, None, None]
+    paths = np.asarray(spec.position, np.float64) + spec.speed * dirs[None] * t + 0.5 * gravity * t**2
+    return paths.reshape(-1, 3)
 
 
-def _emitter(value, n: int) -> Emitter | None:
-    if value is None:
-        return None
-    capacity = int(value.alive.shape[0])
-    first = int(getattr(value, "first", n - capacity))
-    if first < 0 or first + capacity > n:
-        raise ValueError(f"emitter slots {first}..{first + capacity - 1} are not particles of the scene")
-    return Emitter(alive=value.alive, age=value.age, lifetime=float(value.lifetime), first=first,
-                   capacity=capacity)
-
-
-def _bounds(x0: np.ndarray, pinned: np.ndarray, *, hanging: bool, guides, spheres) -> tuple[np.ndarray, np.ndarray]:
-    """The box to frame (m): the initial positions, guides and spheres; for a pinned scene under
-    gravity also where it can swing (mirrored about the pins' centroid in x and z) and hang (down
-    from that centroid by 1.2x the farthest particle's distance)."""
+def _bounds(x0: np.ndarray, pinned: np.ndarray, *, hanging: bool, swinging: bool, extra,
+            spheres: Spheres | None, plane: Plane | None) -> tuple[np.ndarray, np.ndarray]:
+    """The box to frame (m): the initial positions, extra points and spheres; for a pinned scene
+    under gravity also where it hangs (down from the pins' centroid by 1.2x the farthest
+    particle's distance) and, when ``swinging`` (a chain, not a cloth, which crumples), where it
+    swings through to (mirrored about the pins in x and z); never below a ground plane."""
     points = [x0]
     if hanging and pinned.any():
         pin = x0[pinned].mean(axis=0)
         reach = 1.2 * float(np.max(np.linalg.norm(x0 - pin, axis=1)))
-        mirrored = x0.copy()
-        mirrored[:, [0, 2]] = 2.0 * pin[[0, 2]] - x0[:, [0, 2]]
-        points += [mirrored, (pin - [0.0, reach, 0.0])[None, :]]
-    points += list(guides)
-    for s in spheres:
-        c = np.asarray(s.center.to_numpy(), np.float64).reshape(3)
-        points.append(np.stack([c - s.radius, c + s.radius]))
+        points.append((pin - [0.0, reach, 0.0])[None, :])
+        if swinging:
+            mirrored = x0.copy()
+            mirrored[:, [0, 2]] = 2.0 * pin[[0, 2]] - x0[:, [0, 2]]
+            points.append(mirrored)
+    points += list(extra)
+    if spheres is not None:
+        c = np.asarray(spheres.centers(), np.float64).reshape(-1, 3)
+        r = spheres.radii[:, None]
+        points += [c - r, c + r]
     allp = np.concatenate(points)
+    if plane is not None and abs(plane.normal[1]) > 0.9:  # nothing goes below the ground
+        ground = plane.point[1]
+        allp[:, 1] = np.maximum(allp[:, 1], ground) if plane.normal[1] > 0 else np.minimum(allp[:, 1], ground)
+        allp = np.concatenate([allp, plane.point[None, :]])
     lo, hi = allp.min(axis=0), allp.max(axis=0)
     pad = 0.05 * max(float(np.max(hi - lo)), 1e-3)
     return lo - pad, hi + pad

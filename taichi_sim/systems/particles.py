@@ -103,6 +103,15 @@ class ParticleSystem(System):
                 total += e
         return total
 
+    def potential_energy(self, y: State) -> float:
+        """Potential energy (J) of every conservative term at ``y``."""
+        return float(sum(e for e in (term.energy(y) for term in self.terms) if e is not None))
+
+    def dissipation(self, y: State) -> float:
+        """Rayleigh dissipation function (W) of every dissipative term at ``y`` (see
+        :meth:`ForceTerm.dissipation`)."""
+        return float(sum(r for r in (term.dissipation(y) for term in self.terms) if r is not None))
+
     # The force-Jacobian API of the implicit integrators. A is the matrix of an implicit step,
     # A = M - a df/dv - b df/dx (a = tau, b = tau**2 for a step of size tau), restricted to the
     # free particles: a pinned particle's row and column are those of the identity, so it is

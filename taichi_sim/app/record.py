@@ -1,0 +1,151 @@
+"""Offscreen recording: step a Session, render each frame without a window, write a video."""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from PIL import Image
+from tqdm import tqdm
+
+from ..errors import ConfigError
+from ..render.overlay import WARNING, Label, burn
+from ..render.renderer import Renderer
+from ..render.video import MAX_SIDE, VideoWriter, check_output, save_png
+from ..render.vulkan import open_window
+from .session import Session
+
+MAX_SECONDS = 3600.0
+
+
+@dataclass(frozen=True)
+class Clip:
+    """What to record.
+
+    Attributes:
+        scene: preset name; params: its parameter overrides; seed: its random seed.
+        integrators: one name, or two or three drawn side by side (same scene, same step).
+        dt: step size (s); None: the preset's.
+        seconds: video length (s); fps: video frames per second.
+        size: (width, height) of the video in pixels.
+        speed: simulated seconds per video second (each frame advances speed / fps s of
+            simulated time, in steps of dt).
+        supersample: render at this multiple of ``size`` and average down (smoother edges).
+        colors: palette size of a GIF.
+    """
+
+    scene: str
+    integrators: tuple[str, ...]
+    params: dict = field(default_factory=dict)
+    dt: float | None = None
+    seconds: float = 4.0
+    fps: float = 30.0
+    size: tuple[int, int] = (1280, 720)
+    speed: float = 1.0
+    seed: int = 0
+    supersample: int = 1
+    colors: int = 128
+
+    @property
+    def frame_count(self) -> int:
+        return max(1, round(self.seconds * self.fps))
+
+
+@dataclass(frozen=True)
+class Recording:
+    """What :func:`record` did: the output ``path``, ``frames`` written, ``wall`` seconds spent,
+    the ``still`` PNG (or None) and one line per run that stopped early (``failures``)."""
+
+    path: Path
+    frames: int
+    wall: float
+    still: Path | None
+    failures: tuple[str, ...]
+
+
+def check_clip(clip: Clip) -> None:
+    """Raise ConfigError for a clip that cannot be recorded (before any work is done)."""
+    if not (math.isfinite(clip.seconds) and 0 < clip.seconds <= MAX_SECONDS):
+        raise ConfigError(f"--seconds must be a number in (0, {MAX_SECONDS:g}], got {clip.seconds}")
+    if not (math.isfinite(clip.speed) and clip.speed > 0):
+        raise ConfigError(f"--speed must be a finite number > 0, got {clip.speed}")
+    if clip.supersample < 1 or max(clip.size) * clip.supersample > MAX_SIDE:
+        raise ConfigError(f"supersample {clip.supersample} x size {clip.size} exceeds {MAX_SIDE} pixels")
+
+
+def frame_labels(session: Session, renderer: Renderer, size: tuple[int, int]) -> list[Label]:
+    """Text for one frame of ``size`` pixels: each panel's integrator above it (side by side),
+    a caption with the scene, step and time, and why a run stopped."""
+    width, height = size
+    labels: list[Label] = []
+    runners = session.runners
+    line = max(11, round(height / 30)) * 1.5
+    if len(runners) > 1:
+        uv, depth = renderer.camera.project(np.array(renderer.label_points()), renderer.aspect)
+        for r, (u, v), d in zip(runners, uv, depth):
+            if d <= 0:
+                continue
+            x = float(np.clip(u * width, 0.1 * width, 0.9 * width))
+            y = float(np.clip((1.0 - v) * height - 0.3 * line, line, height - 2 * line))
+            labels.append(Label(r.name, x, y))
+            if r.frozen:
+                labels.append(Label(f"{r.status.value.replace('_', ' ')} at t = {r.t:.3g} s",
+                                    x, y + line, WARNING, anchor="mt"))
+    t = runners[0].t
+    names = " vs ".join(r.name for r in runners)
+    labels.append(Label(f"{session.scene_name}   {names}   h = {session.dt:.3g} s   t = {t:.2f} s",
+                        0.5 * line, height - 0.4 * line, anchor="lb"))
+    if len(runners) == 1 and runners[0].frozen:
+        labels.append(Label(runners[0].message, 0.5 * line, height - 1.4 * line, WARNING, anchor="lb"))
+    return labels
+
+
+def record(clip: Clip, out: str | Path, *, still: str | Path | None = None, still_at: float = 1.0,
+           progress: bool | None = None) -> Recording:
+    """Record ``clip`` into ``out`` (.mp4, .gif or a folder/ of PNGs) through the renderer,
+    offscreen. Frame 0 is the initial state; each later frame advances the simulation by
+    ``clip.speed / clip.fps`` seconds. ``still`` also saves the frame at fraction ``still_at``
+    of the clip as a PNG at the rendering (supersampled) resolution.
+
+    Validates everything before stepping; raises ConfigError for bad input and
+    :class:`~taichi_sim.render.RenderUnavailable` when no Vulkan is usable. Needs
+    :func:`taichi_sim.init`. Nothing partial is left on disk on failure.
+    """
+    check_clip(clip)
+    check_output(out, clip.size, clip.fps)
+    start = time.perf_counter()
+    session = Session(clip.scene, clip.integrators, params=clip.params, dt=clip.dt, seed=clip.seed)
+    ss = int(clip.supersample)
+    render_size = (clip.size[0] * ss, clip.size[1] * ss)
+    window = open_window(f"taichi-sim record {clip.scene}", render_size)
+    still_index = min(clip.frame_count - 1, max(0, round(still_at * (clip.frame_count - 1))))
+    still_path = None
+    try:
+        renderer = Renderer(window, session.visuals(), render_size)
+        with VideoWriter(out, clip.size, clip.fps, colors=clip.colors) as writer, \
+                tqdm(total=clip.frame_count, unit="frame", leave=False, disable=None if progress is None
+                     else not progress, desc=Path(out).name) as bar:
+            for k in range(clip.frame_count):
+                if k:
+                    session.advance(clip.speed / clip.fps)
+                renderer.follow([r.last_good for r in session.runners])
+                renderer.render([r.display for r in session.runners], session.options)
+                image = renderer.read_image()
+                frame = image if ss == 1 else np.asarray(
+                    Image.fromarray(image).resize(clip.size, Image.Resampling.BOX))
+                writer.append(burn(frame, frame_labels(session, renderer, clip.size)))
+                if still is not None and k == still_index:
+                    still_path = save_png(burn(image, frame_labels(session, renderer, render_size)), still)
+                bar.update()
+        path = writer.path
+    except BaseException:
+        if still_path is not None:
+            still_path.unlink(missing_ok=True)
+        raise
+    finally:
+        window.destroy()
+    failures = tuple(f"{r.name}: {r.message}" for r in session.runners if r.frozen)
+    return Recording(path=path, frames=clip.frame_count, wall=time.perf_counter() - start,
+                     still=still_path, failures=failures)

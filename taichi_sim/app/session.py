@@ -1,0 +1,321 @@
+"""The launcher's state and actions, in plain Python (tested without a window).
+
+A :class:`Session` holds one scene per integrator (one normally, two or three side by side),
+all built with the same parameters and stepped in lockstep by :class:`Runner` objects, plus the
+control panel's state: step size, substeps per frame, pause, what to show, the help overlay.
+The GGUI launcher only translates widgets and keys into calls on it.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from ..errors import ConfigError
+from ..integrators import INTEGRATORS, integrator_class
+from ..render.drawer import DrawOptions
+from ..scene import build_scene, scene_preset
+from ..scene.params import Param, resolve
+from ..scene.scene import Scene
+from ..scene.visual import describe
+from .runner import Runner
+
+MAX_PANELS = 3
+SUBSTEPS_MAX = 500
+DT_RANGE = (1e-5, 0.5)  # s, the step-size slider's range
+
+
+def _set_spring_stiffness(scene: Scene, p: dict) -> bool:
+    springs = scene.springs
+    if springs is None:
+        return False
+    if "shear_stiffness" in p:  # a cloth: one stiffness per spring kind
+        k = np.choose(springs.kind_np, [p["stiffness"], p["shear_stiffness"], p["flex_stiffness"]])
+    else:
+        k = p["stiffness"]
+    springs.set_parameters(stiffness=k)
+    return True
+
+
+def _set_damping(scene: Scene, p: dict) -> bool:
+    if scene.springs is None or not scene.springs.damped:  # dashpots were compiled away
+        return False
+    scene.springs.set_parameters(damping=p["damping"])
+    return True
+
+
+def _term_setter(term: str, apply: Callable[[Any, dict], None]) -> Callable[[Scene, dict], bool]:
+    def setter(scene: Scene, p: dict) -> bool:
+        found = scene.system.term(term) if hasattr(scene.system, "term") else None
+        if found is None:
+            return False
+        apply(found, p)
+        return True
+    return setter
+
+
+#: Parameters applied to a running scene without rebuilding it, when the force they tune exists
+#: (a scene built with zero drag has no drag term: changing drag then needs a rebuild).
+LIVE_SETTERS: dict[str, Callable[[Scene, dict], bool]] = {
+    "stiffness": _set_spring_stiffness,
+    "shear_stiffness": _set_spring_stiffness,
+    "flex_stiffness": _set_spring_stiffness,
+    "damping": _set_damping,
+    "gravity": _term_setter("gravity", lambda t, p: t.set((0.0, -p["gravity"], 0.0))),
+    "drag": _term_setter("drag", lambda t, p: t.set(p["drag"])),
+    "wind": _term_setter("wind", lambda t, p: t.set(enabled=p["wind"])),
+    "wind_speed": _term_setter("wind", lambda t, p: t.set(speed=p["wind_speed"])),
+    "wind_heading": _term_setter("wind", lambda t, p: t.set(heading=p["wind_heading"])),
+    "wind_gust": _term_setter("wind", lambda t, p: t.set(gust=p["wind_gust"])),
+    "wind_drag": _term_setter("wind", lambda t, p: t.set(drag_coefficient=p["wind_drag"])),
+}
+
+
+@dataclass(frozen=True)
+class ParamControl:
+    """How the panel edits one scene parameter.
+
+    Attributes:
+        param: the parameter (name, unit, meaning, type).
+        live: whether a change applies at once (else on the next reset).
+        low, high: the slider's range (numbers only).
+    """
+
+    param: Param
+    live: bool
+    low: float = 0.0
+    high: float = 1.0
+
+
+def slider_range(p: Param) -> tuple[float, float]:
+    """A slider range for a numeric parameter: from its minimum (or -4x its default) to 4x its
+    default (or 1 when the default is 0)."""
+    d = float(p.default) if math.isfinite(float(p.default)) else 1.0
+    span = 4.0 * abs(d) if d != 0 else 1.0
+    low = float(p.minimum) if p.minimum is not None else -span
+    high = max(span, low + 1.0)
+    if p.kind is int:
+        return float(math.ceil(low)), float(max(math.floor(high), math.ceil(low) + 1))
+    return low, high
+
+
+def compatible_integrators(scene: Scene) -> list[str]:
+    """Integrator names that can step ``scene`` (first-order systems have no velocities)."""
+    return [name for name, cls in INTEGRATORS.items()
+            if not (cls.requires_second_order and not scene.system.second_order)]
+
+
+class Session:
+    """Scenes, runners and the control state of the launcher (or of a recording).
+
+    Args:
+        scene: preset name.
+        integrators: one name, or two or three for a side-by-side comparison.
+        params: parameter overrides (values or command-line strings).
+        dt: step size (s); default: the preset's.
+        substeps: steps of ``dt`` per drawn frame (the launcher's speed).
+        seed: random seed of the scenes.
+    """
+
+    def __init__(self, scene: str, integrators: Sequence[str], *, params: dict | None = None,
+                 dt: float | None = None, substeps: int = 10, seed: int = 0):
+        preset = scene_preset(scene)
+        integrators = list(integrators)
+        if not 1 <= len(integrators) <= MAX_PANELS:
+            raise ConfigError(f"give 1 to {MAX_PANELS} integrators, got {len(integrators)}")
+        for name in integrators:
+            integrator_class(name)
+        self.seed = int(seed)
+        self.scene_name = preset.name
+        self.params = resolve(preset.params, preset.name, dict(params or {}))
+        self.pending: dict[str, Any] = {}
+        self.dt = float(dt if dt is not None else preset.default_dt)
+        self._check_dt(self.dt)
+        self.substeps = self._check_substeps(substeps)
+        self.paused = False
+        self.show_help = False
+        self.show_setup = False
+        self.generation = 0
+        self.runners: list[Runner] = []
+        self._build(integrators)
+
+    # -- building -----------------------------------------------------------------------------
+
+    def _build(self, integrators: Sequence[str], fallback: str | None = None) -> None:
+        """Build one scene per integrator; an integrator that cannot step the scene is replaced
+        by ``fallback``, or raises ConfigError without one."""
+        scenes = [build_scene(self.scene_name, self.params, seed=self.seed) for _ in integrators]
+        allowed = compatible_integrators(scenes[0])
+        if fallback is not None:
+            integrators = [n if n in allowed else fallback for n in integrators]
+        for name in integrators:
+            if name not in allowed:
+                raise ConfigError(f"integrator {name!r} cannot step scene {self.scene_name!r} "
+                                  f"(choose from {', '.join(allowed)})")
+        self.runners = [Runner(s, name, self.dt) for s, name in zip(scenes, integrators)]
+        self.options = DrawOptions.for_visual(describe(scenes[0]))
+        self.generation += 1
+
+    @property
+    def integrators(self) -> list[str]:
+        return [r.integrator.name for r in self.runners]
+
+    @property
+    def scenes(self) -> list[Scene]:
+        return [r.scene for r in self.runners]
+
+    def visuals(self):
+        """One :class:`~taichi_sim.scene.visual.SceneVisual` per panel (build a renderer from
+        them whenever :attr:`generation` changes)."""
+        return [describe(r.scene) for r in self.runners]
+
+    def select_scene(self, name: str) -> None:
+        """Switch to preset ``name`` with its default parameters and step size; integrators
+        that cannot step it fall back to the preset's default."""
+        preset = scene_preset(name)
+        old = self.integrators
+        self.scene_name = preset.name
+        self.params = resolve(preset.params, preset.name, {})
+        self.pending = {}
+        self.dt = preset.default_dt
+        self._build(old, fallback=preset.default_integrator)
+
+    # -- controls -----------------------------------------------------------------------------
+
+    def param_controls(self) -> list[ParamControl]:
+        """The scene's parameters, live ones first, each with its slider range."""
+        live, setup = [], []
+        for p in scene_preset(self.scene_name).params:
+            is_live = p.name in LIVE_SETTERS and self._applies_live(p.name)
+            low, high = slider_range(p) if p.kind in (int, float) else (0.0, 1.0)
+            (live if is_live else setup).append(ParamControl(p, is_live, low, high))
+        return live + setup
+
+    def _applies_live(self, name: str) -> bool:
+        scene = self.runners[0].scene
+        if name in ("stiffness", "shear_stiffness", "flex_stiffness"):
+            return scene.springs is not None
+        if name == "damping":
+            return scene.springs is not None and scene.springs.damped
+        term = {"gravity": "gravity", "drag": "drag"}.get(name, "wind")
+        return hasattr(scene.system, "term") and scene.system.term(term) is not None
+
+    def value(self, name: str) -> Any:
+        """The parameter's value as shown: a pending change, else the running one."""
+        return self.pending.get(name, self.params[name])
+
+    def set_param(self, name: str, value: Any) -> bool:
+        """Change a parameter. Returns True when it applied at once; otherwise it is pending and
+        applies at the next :meth:`reset`. Raises ConfigError for a bad value."""
+        preset = scene_preset(self.scene_name)
+        checked = resolve(preset.params, preset.name, {name: value})[name]
+        if name in LIVE_SETTERS and self._applies_live(name):
+            self.params[name] = checked
+            for r in self.runners:
+                LIVE_SETTERS[name](r.scene, self.params)
+                r.system_changed()
+            return True
+        if checked == self.params[name]:
+            self.pending.pop(name, None)
+        else:
+            self.pending[name] = checked
+        return False
+
+    def set_integrator(self, panel: int, name: str) -> None:
+        """Use integrator ``name`` for panel ``panel`` (keeps the state and the time)."""
+        allowed = compatible_integrators(self.runners[panel].scene)
+        if name not in allowed:
+            raise ConfigError(f"integrator {name!r} cannot step scene {self.scene_name!r}")
+        self.runners[panel].set_integrator(name)
+
+    def cycle_integrator(self, panel: int, step: int = 1) -> str:
+        """Switch panel ``panel`` to the next (step=1) or previous (-1) compatible integrator."""
+        allowed = compatible_integrators(self.runners[panel].scene)
+        current = self.runners[panel].integrator.name
+        k = allowed.index(current) if current in allowed else -1
+        name = allowed[(k + step) % len(allowed)]
+        self.set_integrator(panel, name)
+        return name
+
+    def _check_dt(self, dt: float) -> float:
+        if not (math.isfinite(dt) and dt > 0):
+            raise ConfigError(f"dt must be a finite number > 0, got {dt}")
+        return float(dt)
+
+    def _check_substeps(self, substeps: int) -> int:
+        if isinstance(substeps, bool) or not isinstance(substeps, int) or not 1 <= substeps <= SUBSTEPS_MAX:
+            raise ConfigError(f"substeps must be an integer in 1..{SUBSTEPS_MAX}, got {substeps!r}")
+        return substeps
+
+    def set_dt(self, dt: float) -> None:
+        """Step size (s) of every panel from the next step on."""
+        self.dt = self._check_dt(dt)
+        for r in self.runners:
+            r.set_dt(self.dt)
+
+    def set_substeps(self, substeps: int) -> None:
+        """Steps of ``dt`` per drawn frame."""
+        self.substeps = self._check_substeps(substeps)
+
+    def toggle_pause(self) -> None:
+        self.paused = not self.paused
+
+    def step(self) -> None:
+        """Pause, and advance every panel by exactly one step."""
+        self.paused = True
+        for r in self.runners:
+            r.step_once()
+
+    def reset(self) -> None:
+        """Back to t = 0. Pending parameter changes apply now (the scenes are rebuilt)."""
+        if self.pending:
+            self.params.update(self.pending)
+            self.pending = {}
+            options = self.options
+            self._build(self.integrators)
+            self.options = options
+            return
+        scenes = self.scenes
+        for r in self.runners:
+            r.reset()
+        if any(a is not b for a, b in zip(scenes, self.scenes)):
+            self.generation += 1  # a scene was rebuilt: the renderer must be too
+
+    # -- running ------------------------------------------------------------------------------
+
+    def advance(self, duration: float) -> None:
+        """Advance every panel by ``duration`` simulated seconds (the recorder's clock)."""
+        for r in self.runners:
+            r.advance(duration)
+
+    def frame(self) -> None:
+        """One launcher frame: ``substeps`` steps of ``dt`` unless paused."""
+        if not self.paused:
+            self.advance(self.substeps * self.dt)
+
+    @property
+    def frozen(self) -> bool:
+        """Whether every panel has stopped (diverged or failed)."""
+        return all(r.frozen for r in self.runners)
+
+    def status(self) -> str:
+        """One word or line for the HUD: paused / running / the first failure."""
+        failed = [r for r in self.runners if r.frozen]
+        if len(failed) == len(self.runners):
+            return failed[0].message if len(failed) == 1 else "all runs stopped"
+        return "paused" if self.paused else "running"
+
+    def hud_lines(self, fps: float | None = None) -> list[str]:
+        """The heads-up display: time, step, integrators, cost per frame, fps, energy, status."""
+        r0 = self.runners[0]
+        lines = [f"{self.scene_name}   t = {r0.t:.3f} s",
+                 f"h = {self.dt:.3g} s x {self.substeps} per frame"
+                 + ("" if fps is None else f"   {fps:.1f} fps")]
+        for r in self.runners:
+            energy = "n/a" if r.energy is None else f"{r.energy:.5g} J"
+            state = r.message if r.frozen else f"E = {energy}"
+            lines.append(f"{r.name}: {r.sim_ms:.1f} ms/frame   {state}")
+        lines.append(f"status: {self.status()}")
+        return lines

@@ -1,0 +1,134 @@
+"""The renderer: one or more scenes, side by side, in a GGUI window seen by an orbit camera."""
+from __future__ import annotations
+
+import contextlib
+import math
+from typing import Sequence
+
+import numpy as np
+import taichi as ti
+
+from ..scene.visual import SceneVisual
+from .camera import OrbitCamera
+from .drawer import DRAWABLE_LIMIT, DrawOptions, SceneDrawer, layout_offsets
+
+BACKGROUND = (0.075, 0.085, 0.105)
+AMBIENT = (0.38, 0.38, 0.40)
+LIGHT = (0.72, 0.70, 0.66)
+
+
+@contextlib.contextmanager
+def _quiet_taichi_warnings():
+    """Raise Taichi's log level to errors for the duration (restored to warnings after, if they
+    were shown before)."""
+    warn = ti._logging.is_logging_effective(ti.WARN)
+    ti.set_logging_level(ti.ERROR)
+    try:
+        yield
+    finally:
+        if warn:
+            ti.set_logging_level(ti.WARN)
+
+
+class Renderer:
+    """Draws ``visuals`` into ``window``: scene k shifted along x by ``offsets[k]`` (m).
+
+    The renderer reads positions (a scene's field or an array); it never steps a scene.
+    Staging fields are allocated once here, so build one renderer per set of scenes and reuse it.
+
+    Args:
+        window: a ``ti.ui.Window`` (see :func:`taichi_sim.render.open_window`).
+        visuals: what to draw, one :class:`SceneVisual` per scene.
+        size: the window's (width, height) in pixels.
+    """
+
+    def __init__(self, window, visuals: Sequence[SceneVisual], size: tuple[int, int]):
+        if not visuals:
+            raise ValueError("Renderer needs at least one scene visual")
+        self.window = window
+        self.size = (int(size[0]), int(size[1]))
+        self.canvas = window.get_canvas()
+        self.scene = window.get_scene()
+        self.ti_camera = ti.ui.Camera()
+        self.visuals = list(visuals)
+        self.offsets = layout_offsets(self.visuals)
+        self.drawers = [SceneDrawer(v, off) for v, off in zip(self.visuals, self.offsets)]
+        yaw, pitch = self.visuals[0].view
+        self.camera = OrbitCamera(yaw=math.radians(yaw), pitch=math.radians(pitch))
+        self.home()
+
+    @property
+    def aspect(self) -> float:
+        return self.size[0] / self.size[1]
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """The box (m) holding every scene's start-up bounds at its offset."""
+        lo = np.min([v.bounds[0] + off for v, off in zip(self.visuals, self.offsets)], axis=0)
+        hi = np.max([v.bounds[1] + off for v, off in zip(self.visuals, self.offsets)], axis=0)
+        return lo, hi
+
+    def home(self) -> None:
+        """Frame every scene from its preferred direction (the start-up view)."""
+        yaw, pitch = self.visuals[0].view
+        self.camera.yaw, self.camera.pitch = math.radians(yaw), math.radians(pitch)
+        self.camera.frame(*self.bounds(), self.aspect)
+        self._home_distance = self.camera.distance
+
+    def follow(self, positions: Sequence[np.ndarray], *, rate: float = 0.25, max_growth: float = 2.5) -> None:
+        """Back the camera off (smoothly, by ``rate`` of the gap per call, up to ``max_growth``
+        times the start-up distance) until every drawable point of ``positions`` (one (n, 3)
+        array per scene, m) is in view. It never moves closer: framing stays steady."""
+        pts = [np.asarray(p, np.float64).reshape(-1, 3) + off for p, off in zip(positions, self.offsets)]
+        pts = np.concatenate(pts)
+        with np.errstate(invalid="ignore"):
+            pts = pts[np.all(np.abs(pts) <= DRAWABLE_LIMIT, axis=1)]
+        if not len(pts):
+            return
+        radius = float(np.max(np.linalg.norm(pts - self.camera.target, axis=1)))
+        wanted = min(self.camera.distance_for(1.05 * radius, self.aspect), max_growth * self._home_distance)
+        if wanted > self.camera.distance:
+            self.camera.distance += rate * (wanted - self.camera.distance)
+
+    def label_points(self) -> list[np.ndarray]:
+        """World point (m) above the middle of each scene, where its label goes."""
+        return [np.array([0.5 * (v.bounds[0][0] + v.bounds[1][0]), v.bounds[1][1], v.center[2]]) + off
+                for v, off in zip(self.visuals, self.offsets)]
+
+    def render(self, sources: Sequence, options: DrawOptions | Sequence[DrawOptions]) -> list[int]:
+        """Draw one frame: ``sources[k]`` is scene k's position field or an (n, 3) array.
+
+        ``options`` applies to every scene, or is one per scene. Returns, per scene, how many
+        particles were not drawable (non-finite or huge) and kept their previous position.
+        Read the frame with :meth:`read_image` (offscreen) or ``window.show()`` (on screen).
+        """
+        if isinstance(options, DrawOptions):
+            options = [options] * len(self.drawers)
+        held = [d.sync(src) for d, src in zip(self.drawers, sources)]
+        eye = self.camera.position
+        right, up, _ = self.camera.basis()
+        self.camera.apply(self.ti_camera)
+        self.scene.set_camera(self.ti_camera)
+        self.scene.ambient_light(AMBIENT)
+        light = eye + self.camera.distance * (0.4 * up + 0.3 * right)
+        self.scene.point_light(tuple(light.tolist()), LIGHT)
+        with _quiet_taichi_warnings():  # GGUI's own staging kernels warn about f64 -> f32
+            for drawer, opts in zip(self.drawers, options):
+                drawer.update(opts, eye)
+                drawer.draw(self.scene, opts)
+            self.canvas.set_background_color(BACKGROUND)
+            self.canvas.scene(self.scene)
+        return held
+
+    def clear_trails(self) -> None:
+        for d in self.drawers:
+            d.clear_trail()
+
+    def read_image(self) -> np.ndarray:
+        """The drawn frame as an (height, width, 3) uint8 RGB array, top row first.
+
+        Reading consumes the frame (a second read returns background only): call once per
+        :meth:`render`.
+        """
+        buf = self.window.get_image_buffer_as_numpy()  # (W, H, 4) float in [0, 1], y up
+        rgb = np.flip(np.transpose(buf[:, :, :3], (1, 0, 2)), axis=0)
+        return (np.clip(rgb, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)

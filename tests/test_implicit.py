@@ -1,0 +1,379 @@
+"""Implicit Euler (Baraff-Witkin) and implicit midpoint: closed forms, measured orders, stability
+at the extremes, the two linear solvers, pinned particles, failure statuses and the Jacobians."""
+import math
+
+import numpy as np
+import pytest
+import taichi as ti
+
+import taichi_sim as ts
+from taichi_sim.cli import main
+from taichi_sim.errors import ConfigError
+from taichi_sim.forces import ForceTerm
+from taichi_sim.integrators import Status, create_integrator
+
+from helpers import fitted_order, spring_exact
+
+STIFF_CLOTH = {"nx": 12, "ny": 12, "stiffness": 1e8, "shear_stiffness": 1e8, "flex_stiffness": 1e8}
+
+
+def radius(scene) -> float:
+    x, _ = scene.state.to_numpy()
+    return float(np.linalg.norm(x[0]))
+
+
+# ---------------------------------------------------------------- closed forms (circle ODE)
+
+@pytest.mark.parametrize("h, steps", [(0.1, 100), (1.0, 20)])
+def test_implicit_euler_shrinks_the_circle_by_the_closed_form(f64, h, steps):
+    # R(z) = 1/(1 - z): |R(ih)| = (1 + h^2)^(-1/2) per step. f is linear and its Jacobian is
+    # exact, so the default single Newton step IS backward Euler.
+    scene = ts.build_scene("simple")
+    result = ts.run(scene, "implicit_euler", dt=h, steps=steps)
+    assert result.status is Status.OK and result.linear_iterations > 0
+    expected = scene.params["radius"] * (1 + h * h) ** (-steps / 2)
+    assert radius(scene) == pytest.approx(expected, rel=1e-10)
+
+
+@pytest.mark.parametrize("h", [0.1, 1.0])
+def test_implicit_midpoint_keeps_the_circle_radius(f64, h):
+    # |R(ih)| = |1 + ih/2| / |1 - ih/2| = 1. GMRES on this 3-unknown linear system is exact after
+    # at most 3 iterations, so only rounding (~1e-16 per step) is left.
+    scene = ts.build_scene("simple")
+    result = ts.run(scene, "implicit_midpoint", dt=h, steps=100)
+    assert result.status is Status.OK
+    assert radius(scene) == pytest.approx(scene.params["radius"], rel=1e-12)
+
+
+def test_finite_difference_jacobian_products_reach_the_same_solution(f64):
+    # Without the system's analytic Jacobian the products come from differences of f (relative
+    # error ~sqrt(eps) ~ 1e-8); Newton still converges to the exact stage because its residual
+    # uses the true f: each iteration gains ~8 digits, so newton_tolerance 1e-13 is reachable.
+    scene = ts.build_scene("simple")
+    scene.system.has_jacobian_product = False
+    integrator = create_integrator("implicit_euler", scene.system, newton_iterations=5, newton_tolerance=1e-13)
+    h, steps = 0.1, 100
+    result = ts.run(scene, integrator, dt=h, steps=steps)
+    assert result.status is Status.OK and integrator.stats.solver == "gmres"
+    assert radius(scene) == pytest.approx((1 + h * h) ** (-steps / 2), rel=1e-10)
+
+
+# ---------------------------------------------------------------- measured orders
+
+@pytest.mark.parametrize("name", ["implicit_euler", "implicit_midpoint"])
+def test_measured_order_on_the_harmonic_oscillator(f64, name):
+    # The spring scene (no drag, no dashpot) is a 1-D harmonic oscillator with an exact solution.
+    # The spring stays stretched, so the Jacobian is exact; tight tolerances make each step the
+    # exact implicit solution, leaving only the method's own error.
+    t_end, errors, hs = 1.0, [], []
+    for steps in (100, 200, 400):
+        scene = ts.build_scene("spring")
+        integrator = create_integrator(name, scene.system, newton_iterations=20, newton_tolerance=1e-12,
+                                       cg_tolerance=1e-12)
+        result = ts.run(scene, integrator, dt=t_end / steps, steps=steps, energy_every=0)
+        assert result.status is Status.OK
+        y_exact, _, _ = spring_exact(scene, t_end)
+        errors.append(abs(scene.state.x.to_numpy()[1, 1] - y_exact))
+        hs.append(t_end / steps)
+    assert fitted_order(hs, errors) == pytest.approx(integrator.order, abs=0.1)
+
+
+def test_implicit_midpoint_conserves_the_energy_of_a_linear_spring(f64):
+    # The midpoint rule conserves quadratic invariants; the bob's energy (kinetic + linear spring +
+    # gravity, motion along y only) is one. The stage is linear, so each solve is exact to rounding.
+    scene = ts.build_scene("spring")
+    result = ts.run(scene, "implicit_midpoint", dt=0.05, steps=200)
+    assert result.status is Status.OK
+    assert np.max(np.abs(result.energy - result.energy[0])) <= 1e-10 * abs(result.energy[0])
+
+
+# ---------------------------------------------------------------- stability at the extremes
+
+def test_stiff_cloth_exact_backward_euler_never_gains_energy(f64):
+    # k = 1e8 N/m, m = 0.01 kg, h = 1/30 s: h^2 k / m = 1e7. Exact backward Euler dissipates:
+    # with a convex potential, E1 - E0 <= -|v1 - v0|_M^2 / 2 - h (dashpot and drag power) <= 0.
+    # The Baraff-Witkin linearisation does not inherit this (see the next test), so the exact
+    # solution is asked for (Newton with a line search on the incremental potential). Each step
+    # is solved to relative residual 1e-8, which perturbs the energy at that relative order:
+    # 1e-6 |E0| is the allowance; the step-by-step dissipation is ~1e-3 |E0|.
+    scene = ts.build_scene("cloth", STIFF_CLOTH)
+    integrator = create_integrator("implicit_euler", scene.system, linear_solver="direct", newton_iterations=200)
+    result = ts.run(scene, integrator, dt=1 / 30, steps=10)
+    assert result.status is Status.OK, result.message
+    assert scene.state.nonfinite_count() == 0
+    assert np.max(np.diff(result.energy)) <= 1e-6 * abs(result.energy[0])
+    assert result.energy[-1] < result.energy[0]
+
+
+def test_stiff_cloth_baraff_witkin_stays_finite_and_settles(f64):
+    # One linearised step per frame: starting flat at rest length, the springs have no transverse
+    # stiffness, so the first step lets the particles next to the pins fall freely and stretch
+    # their springs; the energy jumps transiently (a known limit of the linearisation, ~10^3 J
+    # here). Backward Euler's L-stability damps the stiff modes by ~(h omega)^-2 ~ 1e-7 per step,
+    # so the jump must die out: finite throughout, and below the initial energy after 1 s.
+    scene = ts.build_scene("cloth", STIFF_CLOTH)
+    result = ts.run(scene, "implicit_euler", dt=1 / 30, steps=30)
+    assert result.status is Status.OK, result.message
+    assert scene.state.nonfinite_count() == 0 and np.all(np.isfinite(result.energy))
+    assert result.energy[-1] < result.energy[0]
+
+
+@pytest.mark.parametrize("options", [{}, {"newton_iterations": 50}])
+def test_pendulum_at_one_second_steps_does_not_blow_up(f64, options):
+    # omega h ~ 200 for the stiff links (k = 1000 N/m, m = 0.1 kg): far past any explicit limit.
+    scene = ts.build_scene("pendulum")
+    result = ts.run(scene, ts.create_integrator("implicit_euler", scene.system, **options), dt=1.0, steps=20)
+    assert result.status is Status.OK, result.message
+    x, v = scene.state.to_numpy()
+    assert np.all(np.isfinite(x)) and np.all(np.isfinite(v))
+    # Backward Euler damps: from rest, the energy can only fall (up to the solve tolerance).
+    assert result.energy[-1] <= result.energy[0]
+    # The chain hangs below its pin at roughly its length: nothing flew off.
+    chain = (scene.params["particle_count"] - 1) * scene.params["segment_length"]
+    assert np.max(np.linalg.norm(x - x[0], axis=1)) < 2 * chain
+
+
+# ---------------------------------------------------------------- the two linear solvers
+
+def test_direct_and_cg_agree_to_their_tolerances(f64):
+    # One step from rest: the step solves A dv = b with b = h f0 (zero on pinned particles) and
+    # A - M positive semi-definite, so |A^-1| <= 1/min(m). Two solutions with relative residuals
+    # r1, r2 differ by at most (r1 + r2) |b| / min(m).
+    h = 1 / 60
+    params = {"nx": 10, "ny": 10, "jitter": 0.01}
+    velocities, reports = {}, {}
+    for solver in ("cg", "direct"):
+        scene = ts.build_scene("cloth", params, seed=3)
+        force = ti.Vector.field(3, ti.f64, shape=scene.particle_count)
+        scene.system.forces(scene.state, force)
+        rhs_norm = h * np.linalg.norm(force.to_numpy())
+        integrator = create_integrator("implicit_euler", scene.system, linear_solver=solver)
+        reports[solver] = integrator.step(scene.state, 0.0, h)
+        assert reports[solver].status is Status.OK
+        velocities[solver] = scene.state.v.to_numpy()
+    # A factorisation in f32 (Taichi's default) could not get the residual below ~1e-7.
+    assert reports["direct"].linear_residual < 1e-12
+    bound = (reports["cg"].linear_residual + reports["direct"].linear_residual) * rhs_norm / scene.arrays["mass"].min()
+    assert np.linalg.norm(velocities["cg"] - velocities["direct"]) <= bound
+
+
+def test_direct_solver_analyses_once_per_pattern_and_factorises_every_solve(f64):
+    scene = ts.build_scene("cloth", {"nx": 8, "ny": 8})
+    integrator = create_integrator("implicit_euler", scene.system, linear_solver="direct")
+    ts.run(scene, integrator, dt=1 / 60, steps=5)
+    stats = integrator.stats
+    assert (stats.solver, stats.analyze_count, stats.factorize_count) == ("cholesky", 1, 5)
+    assert stats.factorize_seconds > 0 and stats.solve_seconds >= stats.factorize_seconds
+    scene.system.term("springs").topology_version += 1  # what tearing does
+    integrator.step(scene.state, 0.0, 1 / 60)
+    assert (stats.analyze_count, stats.factorize_count) == (2, 6)
+    integrator.invalidate_pattern()
+    integrator.step(scene.state, 0.0, 1 / 60)
+    assert (stats.analyze_count, stats.factorize_count) == (3, 7)
+
+
+def test_tearing_triggers_a_new_analysis_and_the_solve_stays_exact(f64):
+    scene = ts.build_scene("cloth", {"nx": 8, "ny": 8, "tear": True, "tear_strain": 0.01, "stiffness": 50.0})
+    springs = scene.system.term("springs")
+    integrator = create_integrator("implicit_euler", scene.system, linear_solver="direct")
+    h, versions = 1 / 60, set()
+    for k in range(20):
+        versions.add(springs.topology_version)
+        report = integrator.step(scene.state, k * h, h)
+        assert report.status is Status.OK and report.linear_residual < 1e-12
+        scene.after_step((k + 1) * h, h)
+    assert springs.alive_count() < springs.spring_count, "the scene should have torn"
+    assert integrator.stats.analyze_count == len(versions) > 1
+
+
+# ---------------------------------------------------------------- pinned particles, failures
+
+@pytest.mark.parametrize("name, solver", [("implicit_euler", "cg"), ("implicit_euler", "direct"),
+                                          ("implicit_midpoint", "cg")])
+def test_pinned_particles_stay_bit_identical(f64, name, solver):
+    scene = ts.build_scene("cloth", {"nx": 8, "ny": 8, "pin": "edge"})
+    pinned = scene.arrays["pinned"]
+    x0 = scene.state.x.to_numpy()
+    result = ts.run(scene, create_integrator(name, scene.system, linear_solver=solver), dt=1 / 60, steps=10)
+    assert result.status is Status.OK
+    x, v = scene.state.to_numpy()
+    assert np.array_equal(x[pinned].view(np.uint64), x0[pinned].view(np.uint64))
+    assert np.all(v[pinned] == 0.0)
+    assert not np.allclose(x[~pinned], x0[~pinned])
+
+
+def test_cg_iteration_cap_is_not_converged_with_the_residual(f64):
+    # A jittered stiff cloth: the block-Jacobi preconditioner alone is far from A^-1.
+    scene = ts.build_scene("cloth", STIFF_CLOTH | {"jitter": 1e-3})
+    integrator = create_integrator("implicit_euler", scene.system, cg_max_iterations=1)
+    x0, v0 = scene.state.to_numpy()
+    report = integrator.step(scene.state, 0.0, 1 / 30)
+    assert report.status is Status.NOT_CONVERGED and not report.accepted
+    assert report.linear_residual > integrator.cg_tolerance and report.linear_iterations == 1
+    assert "cg_max_iterations=1" in report.message and f"{report.linear_residual:.3g}" in report.message
+    x, v = scene.state.to_numpy()
+    assert np.array_equal(x, x0) and np.array_equal(v, v0), "a failed step must leave the state alone"
+    result = ts.run(scene, integrator, dt=1 / 30, steps=3)
+    assert result.status is Status.NOT_CONVERGED and "cg_max_iterations=1" in result.message
+
+
+def test_newton_iteration_cap_is_not_converged(f64):
+    # Two quasi-Newton iterations cannot gain 8 digits on the strongly nonlinear stiff cloth
+    # (the exact solve above takes dozens).
+    scene = ts.build_scene("cloth", STIFF_CLOTH)
+    integrator = create_integrator("implicit_midpoint", scene.system, linear_solver="direct", newton_iterations=2)
+    report = integrator.step(scene.state, 0.0, 1 / 30)
+    assert report.status is Status.NOT_CONVERGED and "newton_iterations=2" in report.message
+
+
+@pytest.mark.parametrize("scene_name, name", [("cloth", "implicit_euler"), ("cloth", "implicit_midpoint"),
+                                              ("simple", "implicit_euler")])
+def test_non_finite_state_is_diverged(f64, scene_name, name):
+    scene = ts.build_scene(scene_name, {"nx": 6, "ny": 6} if scene_name == "cloth" else {})
+    x, v = scene.state.to_numpy()
+    x[-1, 0] = np.nan
+    scene.state.from_numpy(x, v)
+    report = create_integrator(name, scene.system).step(scene.state, 0.0, 0.01)
+    assert report.status is Status.DIVERGED
+
+
+# ---------------------------------------------------------------- Jacobians
+
+@ti.kernel
+def _force_jacobian_product(system: ti.template(), y: ti.template(), p: ti.template(), out: ti.template(),
+                            a: float, b: float):
+    for i in out:
+        out[i] = system.force_jacobian_product(i, y, p, a, b, 0.0)
+
+
+def _vector_field(array: np.ndarray):
+    field = ti.Vector.field(3, ti.f64, shape=len(array))
+    field.from_numpy(array)
+    return field
+
+
+def _jacobian_setup(scale: float, rng):
+    """A 5x5 cloth with dashpots and drag, every spring scaled by ``scale`` (plus 1% noise), and
+    random velocities."""
+    scene = ts.build_scene("cloth", {"nx": 5, "ny": 5, "damping": 0.3, "drag": 0.1})
+    x, _ = scene.state.to_numpy()
+    centre = x.mean(axis=0)
+    x = centre + scale * (x - centre) + rng.normal(scale=0.01 * 0.25, size=x.shape)
+    return scene, x, rng.normal(size=x.shape)
+
+
+def _random_direction(scene, rng):
+    """A random (n, 3) direction, zero on pinned particles (as every vector of the solve is)."""
+    p = rng.normal(size=(scene.particle_count, 3))
+    p[scene.arrays["pinned"]] = 0.0
+    return p
+
+
+def _jacobian_product(scene, x, v, p, a, b):
+    state = scene.system.make_state()
+    state.from_numpy(x, v)
+    out = _vector_field(np.zeros_like(x))
+    _force_jacobian_product(scene.system, state, _vector_field(p), out, a, b)
+    return out.to_numpy()
+
+
+def _forces_at(scene, x, v):
+    state = scene.system.make_state()
+    state.from_numpy(x, v)
+    out = _vector_field(np.zeros_like(x))
+    scene.system.forces(state, out)
+    return out.to_numpy()
+
+
+def test_spring_jacobians_match_central_differences(f64, rng):
+    # Every spring stretched by 20%: the compression clamp is inactive, so df/dx is exact. The
+    # dashpots' dependence on x (left out of df/dx) is proportional to relative velocity, so
+    # df/dx is checked at rest; df/dv (dashpots and drag) at random velocities, where f is linear
+    # in v. Central differences with eps = 1e-6 have error ~ eps^2 |f'''| + 1e-16 |f| / eps,
+    # about 1e-9 of |J p| here.
+    scene, x, v = _jacobian_setup(1.2, rng)
+    p = _random_direction(scene, rng)
+    eps = 1e-6
+    for a, b, velocity in ((0.0, 1.0, np.zeros_like(v)), (1.0, 0.0, v)):
+        analytic = _jacobian_product(scene, x, velocity, p, a, b)
+        plus = _forces_at(scene, x + b * eps * p, velocity + a * eps * p)
+        minus = _forces_at(scene, x - b * eps * p, velocity - a * eps * p)
+        numeric = (plus - minus) / (2 * eps)
+        assert np.linalg.norm(analytic - numeric) <= 1e-6 * np.linalg.norm(numeric)
+
+
+def test_compressed_spring_jacobian_is_negative_semidefinite(f64, rng):
+    # Every spring compressed by 20%: the exact stiffness block has a positive transverse part
+    # k (r/|d| - 1) (I - u u^T); the clamp drops it, so p . (df/dx p) <= 0 for every p, keeping
+    # M - h df/dv - h^2 df/dx positive definite.
+    scene, x, v = _jacobian_setup(0.8, rng)
+    for _ in range(5):
+        p = _random_direction(scene, rng)
+        product = _jacobian_product(scene, x, v, p, 0.0, 1.0)
+        assert np.sum(p * product) <= 1e-12 * np.linalg.norm(p) * np.linalg.norm(product)
+
+
+@ti.data_oriented
+class _ForceWithoutJacobian(ForceTerm):
+    """A term that declares no Jacobian, so the system falls back to the generic solver."""
+
+    name = "no_jacobian"
+
+    @ti.func
+    def force(self, i, y, mass_i, t):
+        return ti.Vector.zero(y.x.dtype, 3)
+
+
+def test_newton_krylov_fallback_reaches_the_same_backward_euler_state(f64):
+    # Both paths solve the same backward Euler equations, to relative residual 1e-12.
+    h, states = 0.01, []
+    for with_jacobian in (True, False):
+        scene = ts.build_scene("pendulum")
+        if not with_jacobian:
+            scene.system.add_term(_ForceWithoutJacobian())
+        integrator = create_integrator("implicit_euler", scene.system, newton_iterations=20,
+                                       newton_tolerance=1e-12, cg_tolerance=1e-12)
+        assert integrator.stats.solver == ("pcg" if with_jacobian else "gmres")
+        assert ts.run(scene, integrator, dt=h, steps=10).status is Status.OK
+        states.append(scene.state.to_numpy())
+    np.testing.assert_allclose(states[1][0], states[0][0], atol=1e-9)
+    np.testing.assert_allclose(states[1][1], states[0][1], atol=1e-7)
+
+
+# ---------------------------------------------------------------- options and the CLI
+
+@pytest.mark.parametrize("options", [{"linear_solver": "lu"}, {"newton_iterations": 0},
+                                     {"newton_iterations": 1.5}, {"cg_tolerance": 0.0},
+                                     {"newton_tolerance": 2.0}, {"cg_max_iterations": 0}, {"tolerance": 1e-6}])
+def test_bad_options_are_config_errors(f64, options):
+    scene = ts.build_scene("spring")
+    with pytest.raises(ConfigError):
+        create_integrator("implicit_euler", scene.system, **options)
+
+
+def test_direct_solver_needs_spring_jacobians(f64):
+    with pytest.raises(ConfigError, match="direct"):
+        create_integrator("implicit_midpoint", ts.build_scene("simple").system, linear_solver="direct")
+
+
+@pytest.mark.parametrize("solver", ["direct", "cg"])
+def test_cli_cloth_records_linear_solver_work(tmp_path, solver):
+    path = tmp_path / "c.npz"
+    code = main(["simulate", "cloth", "--integrator", "implicit_euler", "--dt", "0.0166", "--steps", "5",
+                 "--set", "nx=8", "--set", "ny=8", "--linear-solver", solver, "--out", str(path), "--quiet"])
+    assert code == 0
+    data = np.load(path)
+    assert str(data["status"]) == "ok" and int(data["linear_iterations"]) >= 5
+    assert 0 <= float(data["linear_residual"]) < 1e-8
+
+
+@pytest.mark.parametrize("name", ["implicit_euler", "implicit_midpoint"])
+def test_cli_runs_implicit_methods_on_the_circle(tmp_path, name):
+    path = tmp_path / "s.npz"
+    code = main(["simulate", "simple", "--integrator", name, "--dt", "0.1", "--steps", "10",
+                 "--newton-iterations", "3", "--out", str(path), "--quiet"])
+    assert code == 0
+    data = np.load(path)
+    assert str(data["status"]) == "ok" and "linear_iterations" in data and "linear_residual" in data
+    expected = 1.0 if name == "implicit_midpoint" else (1 + 0.01) ** -5
+    assert np.linalg.norm(data["x"][0]) == pytest.approx(expected, rel=1e-10)
