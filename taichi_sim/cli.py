@@ -44,6 +44,28 @@ def _assignment(text: str) -> tuple[str, str]:
     return name.strip(), value.strip()
 
 
+def _name_list(text: str) -> list[str]:
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    if not 2 <= len(names) <= 3:
+        raise argparse.ArgumentTypeError(f"expects 2 or 3 comma-separated integrator names, got {text!r}")
+    return names
+
+
+def _add_view_options(p: argparse.ArgumentParser) -> None:
+    """Options shared by ``demo`` and ``record``: what to run and how."""
+    which = p.add_mutually_exclusive_group()
+    which.add_argument("--integrator", default=None, help="integrator name (default: the scene's)")
+    which.add_argument("--side-by-side", dest="side_by_side", type=_name_list, metavar="A,B[,C]",
+                       help="run the scene with 2 or 3 integrators at once, drawn next to each other")
+    p.add_argument("--dt", type=_positive_float, default=None, help="step size in s (default: the scene's)")
+    p.add_argument("--set", dest="assignments", action="append", type=_assignment, default=[],
+                   metavar="NAME=VALUE", help="scene parameter (repeatable); see `taichi-sim list`")
+    p.add_argument("--seed", type=int, default=0, help="random seed for scenes with randomness")
+    p.add_argument("--precision", choices=("f32", "f64"), default="f64")
+    p.add_argument("--arch", choices=("cpu", "gpu"), default="cpu",
+                   help="where the simulation runs (rendering always uses Vulkan)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="taichi-sim", description="Particle and mass-spring simulation on Taichi.")
     sub = parser.add_subparsers(dest="command", parser_class=_Parser)
@@ -65,6 +87,9 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--atol", type=_positive_float, help="absolute tolerance (adaptive methods)")
     sim.add_argument("--linear-solver", choices=("cg", "direct"),
                      help="linear solver of the implicit methods (default cg)")
+    sim.add_argument("--max-step", type=_positive_float,
+                     help="largest step of an adaptive method in s (default: unbounded, or 10x the "
+                          "scene's default dt when the scene has collisions, tearing or emission)")
     sim.add_argument("--newton-iterations", type=_positive_int,
                      help="Newton iterations per implicit step")
     sim.add_argument("--seed", type=int, default=0, help="random seed for scenes with randomness")
@@ -73,6 +98,26 @@ def build_parser() -> argparse.ArgumentParser:
                           "steps, else about 2000 samples)")
     sim.add_argument("--out", required=True, help="output .npz path")
     sim.add_argument("--quiet", action="store_true", help="no summary line or progress bar")
+
+    demo = sub.add_parser("demo", help="the interactive launcher (needs a display and Vulkan)")
+    demo.add_argument("scene", nargs="?", default="cloth", help="scene to start with (default cloth)")
+    _add_view_options(demo)
+    demo.add_argument("--substeps", type=_positive_int, default=10, help="steps per drawn frame")
+    demo.add_argument("--size", default="1280x800", metavar="WxH", help="window size in pixels")
+
+    rec = sub.add_parser("record", help="render a scene offscreen into .mp4, .gif or a folder of PNGs")
+    rec.add_argument("scene", nargs="?", help="scene to record (not with --showcase)")
+    _add_view_options(rec)
+    rec.add_argument("--seconds", type=_positive_float, default=5.0, help="video length in s")
+    rec.add_argument("--fps", type=_positive_float, default=30.0, help="video frames per second")
+    rec.add_argument("--size", default="1280x720", metavar="WxH", help="video size in pixels")
+    rec.add_argument("--speed", type=_positive_float, default=1.0,
+                     help="simulated seconds per video second")
+    dest = rec.add_mutually_exclusive_group(required=True)
+    dest.add_argument("--out", help="FILE.mp4, FILE.gif, or DIR/ for PNG frames")
+    dest.add_argument("--showcase", metavar="DIR",
+                      help="record the showcase (a GIF and a PNG per entry) into DIR")
+    rec.add_argument("--quiet", action="store_true", help="no summary line or progress bar")
     return parser
 
 
@@ -96,18 +141,18 @@ def cmd_list(args) -> int:
 
 def cmd_simulate(args) -> int:
     from . import io, runtime
-    from .integrators import create_integrator, integrator_class
+    from .integrators import check_options, create_integrator
     from .run import check_run_args, run
     from .scene import build_scene, scene_preset
 
     preset = scene_preset(args.scene)
     integrator_name = args.integrator or preset.default_integrator
-    integrator_cls = integrator_class(integrator_name)
-    adaptive = integrator_cls.adaptive
+    options = {name: getattr(args, name)
+               for name in ("rtol", "atol", "linear_solver", "newton_iterations", "max_step")
+               if getattr(args, name) is not None}
+    adaptive = check_options(integrator_name, options).adaptive
     dt = args.dt if args.dt is not None or adaptive else preset.default_dt
     check_run_args(dt, args.steps, args.t_end, adaptive=adaptive)
-    options = {name: getattr(args, name) for name in ("rtol", "atol", "linear_solver", "newton_iterations")
-               if getattr(args, name) is not None}
     if args.energy_every is not None and args.energy_every < 0:
         raise ConfigError(f"--energy-every must be >= 0, got {args.energy_every}")
     params = dict(args.assignments)
@@ -115,6 +160,8 @@ def cmd_simulate(args) -> int:
 
     runtime.init(arch=args.arch, precision=args.precision)
     scene = build_scene(args.scene, params, seed=args.seed)
+    if adaptive and scene.post_step and "max_step" not in options:
+        options["max_step"] = 10 * preset.default_dt  # events act only between steps
     integrator = create_integrator(integrator_name, scene.system, **options)
     result = run(scene, integrator, dt=dt, steps=args.steps, t_end=args.t_end,
                  energy_every=args.energy_every, progress=None if not args.quiet else False)
@@ -129,14 +176,126 @@ def cmd_simulate(args) -> int:
     return 0 if result.status.value == "ok" else 1
 
 
+def _session_args(args) -> dict:
+    """Scene, integrators, parameters and step of ``demo`` / ``record``, checked before any
+    Taichi work (ConfigError names the culprit)."""
+    from .integrators import integrator_class
+    from .scene import scene_preset
+    from .scene.params import resolve
+
+    preset = scene_preset(args.scene)
+    integrators = args.side_by_side or [args.integrator or preset.default_integrator]
+    for name in integrators:
+        integrator_class(name)
+    params = dict(args.assignments)
+    resolve(preset.params, preset.name, params)
+    return {"scene": preset.name, "integrators": tuple(integrators), "params": params, "dt": args.dt}
+
+
+def cmd_demo(args) -> int:
+    from . import runtime
+    from .app.launcher import Launcher
+    from .app.session import Session
+    from .render import RenderUnavailable, has_display, parse_size
+
+    size = parse_size(args.size)
+    spec = _session_args(args)
+    try:
+        if not has_display():
+            raise RenderUnavailable("an on-screen window needs a display (DISPLAY or WAYLAND_DISPLAY "
+                                    "is not set); record a video instead with `taichi-sim record`")
+        runtime.init(arch=args.arch, precision=args.precision)
+        session = Session(spec["scene"], spec["integrators"], params=spec["params"], dt=spec["dt"],
+                          substeps=args.substeps, seed=args.seed)
+        Launcher(session, size).run()
+    except RenderUnavailable as exc:
+        print(f"taichi-sim: error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    return 0
+
+
+def cmd_record(args) -> int:
+    from . import runtime
+    from .app.record import Clip, check_clip, record
+    from .app.showcase import record_showcase
+    from .render import RenderUnavailable, parse_size
+    from .render.video import check_output
+
+    if args.showcase is not None:
+        extra = [flag for flag, given in (("SCENE", args.scene), ("--integrator", args.integrator),
+                                          ("--side-by-side", args.side_by_side), ("--dt", args.dt),
+                                          ("--set", args.assignments)) if given]
+        if extra:
+            raise ConfigError(f"--showcase records its own scenes; drop {', '.join(extra)}")
+        try:
+            runtime.init(arch=args.arch, precision=args.precision)
+            recordings = record_showcase(args.showcase, progress=None if not args.quiet else False)
+        except RenderUnavailable as exc:
+            print(f"taichi-sim: error: {exc}", file=sys.stderr)
+            return EXIT_USAGE
+        if not args.quiet:
+            _print_showcase(recordings)
+        return 0
+    if args.scene is None:
+        raise ConfigError("record needs a SCENE (or --showcase DIR)")
+    spec = _session_args(args)
+    clip = Clip(scene=spec["scene"], integrators=spec["integrators"], params=spec["params"],
+                dt=spec["dt"], seconds=args.seconds, fps=args.fps, size=parse_size(args.size),
+                speed=args.speed, seed=args.seed)
+    check_clip(clip)
+    check_output(args.out, clip.size, clip.fps)
+    try:
+        runtime.init(arch=args.arch, precision=args.precision)
+        result = record(clip, args.out, progress=None if not args.quiet else False)
+    except RenderUnavailable as exc:
+        print(f"taichi-sim: error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    for line in result.failures:
+        print(f"taichi-sim: {line}", file=sys.stderr)
+    if not args.quiet:
+        print(f"{result.path}: {result.frames} frames of {clip.size[0]}x{clip.size[1]} at "
+              f"{clip.fps:g} fps ({clip.frame_count / clip.fps:g} s of video), {result.wall:.1f} s")
+    return 0
+
+
+def _print_showcase(recordings) -> None:
+    for r in recordings:
+        print(f"  {r.path}  {r.still}  ({r.frames} frames, {r.wall:.1f} s)")
+
+
+def cmd_default() -> int:
+    """No arguments: the launcher where a display exists, else the showcase recorded into
+    media/."""
+    from . import runtime
+    from .app.launcher import Launcher
+    from .app.session import Session
+    from .app.showcase import record_showcase
+    from .render import RenderUnavailable, has_display
+
+    try:
+        runtime.init(arch="cpu", precision="f64")
+        if has_display():
+            Launcher(Session("cloth", ["symplectic_euler"])).run()
+            return 0
+        print("taichi-sim: no display (DISPLAY / WAYLAND_DISPLAY unset): recording the showcase "
+              "into media/ instead", file=sys.stderr)
+        recordings = record_showcase("media")
+    except RenderUnavailable as exc:
+        print(f"taichi-sim: error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    print("Showcase recorded into media/ (open the GIFs in a browser):")
+    _print_showcase(recordings)
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     try:
         args = parser.parse_args(argv)
         if args.command is None:
-            parser.print_help()
-            return 0
-        return {"list": cmd_list, "simulate": cmd_simulate}[args.command](args)
+            return cmd_default()
+        return {"list": cmd_list, "simulate": cmd_simulate, "demo": cmd_demo,
+                "record": cmd_record}[args.command](args)
     except ConfigError as exc:
         print(f"taichi-sim: error: {exc}", file=sys.stderr)
         return EXIT_USAGE

@@ -42,17 +42,29 @@ class TriangleMesh:
         self.springs = springs
         self.tearable = springs is not None and springs.tearable
         self.triangles = ti.Vector.field(3, ti.i32, shape=T)
-        self.triangles.from_numpy(triangles)
         self._indices = None
+        edges = np.full((T, 3), -1, np.int32)
         if self.tearable:
             self.edge_springs = ti.Vector.field(3, ti.i32, shape=T)
-            self.edge_springs.from_numpy(edge_springs(triangles, springs.ends_np, particle_count).astype(np.int32))
+            edges = edge_springs(triangles, springs.ends_np, particle_count).astype(np.int32)
         offsets, incident, _ = incidence_of(particle_count, triangles)
         self.offsets = ti.field(ti.i32, shape=particle_count + 1)
         self.incident = ti.field(ti.i32, shape=max(len(incident), 1))
-        self.offsets.from_numpy(offsets)
-        if len(incident):
-            self.incident.from_numpy(incident)
+        self._upload(triangles, edges, offsets, incident)
+
+    @ti.kernel
+    def _upload(self, triangles: ti.types.ndarray(dtype=ti.i32, ndim=2),
+                edges: ti.types.ndarray(dtype=ti.i32, ndim=2),
+                offsets: ti.types.ndarray(dtype=ti.i32, ndim=1),
+                incident: ti.types.ndarray(dtype=ti.i32, ndim=1)):
+        for tri in range(self.triangle_count):
+            self.triangles[tri] = ti.Vector([triangles[tri, 0], triangles[tri, 1], triangles[tri, 2]])
+            if ti.static(self.tearable):
+                self.edge_springs[tri] = ti.Vector([edges[tri, 0], edges[tri, 1], edges[tri, 2]])
+        for i in range(offsets.shape[0]):
+            self.offsets[i] = offsets[i]
+        for e in range(incident.shape[0]):
+            self.incident[e] = incident[e]
 
     @ti.func
     def is_intact(self, tri):

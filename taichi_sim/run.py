@@ -90,8 +90,13 @@ def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: 
         integrator = create_integrator(integrator, scene.system)
     adaptive = integrator.adaptive
     check_run_args(dt, steps, t_end, adaptive=adaptive)
+    f_evals = 0
     if adaptive:
-        h = dt if dt is not None else integrator.initial_step(scene.state, 0.0, t_end)
+        if dt is None:
+            h = integrator.initial_step(scene.state, 0.0, t_end)
+            f_evals += integrator.initial_step_f_evals
+        else:
+            h = dt
         expected = steps  # unknown for an adaptive run to t_end
     else:
         h = dt
@@ -104,7 +109,7 @@ def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: 
         energy.append(scene.energy())
         energy_t.append(0.0)
     status, message = Status.OK, ""
-    f_evals = rejected = done = linear_iterations = 0
+    rejected = done = linear_iterations = 0
     linear_residual = 0.0
     t = 0.0
     start = time.perf_counter()
@@ -127,9 +132,11 @@ def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: 
             if report.status is not Status.OK:
                 status = report.status
                 detail = f" ({report.message})" if report.message else ""
-                message = (f"{status.value} at step {done + 1} (t = {t + h:.6g} s) with "
-                           f"{integrator.name}, h = {h:.3g} s{detail}: lower the step or pick a "
-                           f"more stable integrator")
+                advice = ("loosen rtol/atol or use f64" if status is Status.STEP_TOO_SMALL
+                          else "lower the step or pick a more stable integrator")
+                reached = t + h if report.accepted else t  # a rejected attempt left the state at t
+                message = (f"{status.value} at step {done + 1} (t = {reached:.6g} s) with "
+                           f"{integrator.name}, h = {h:.3g} s{detail}: {advice}")
                 break
             if not report.accepted:
                 rejected += 1
@@ -142,7 +149,8 @@ def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: 
                 t += report.h
             else:
                 t = done * dt  # no round-off drift over many fixed steps
-            scene.after_step(t, report.h)
+            if scene.after_step(t, report.h):
+                integrator.reset()  # an event changed the system (e.g. tore springs)
             if has_energy and (done % every == 0 or last or done == steps):
                 e = scene.energy()
                 if not math.isfinite(e):  # the state is finite but its squares overflow

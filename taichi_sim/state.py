@@ -34,11 +34,21 @@ class State:
         return self.x.to_numpy(), (self.v.to_numpy() if self.second_order else None)
 
     def from_numpy(self, x: np.ndarray, v: np.ndarray | None = None) -> None:
+        """Set positions (and velocities; default zero) from (n, 3) arrays."""
         dtype = runtime.np_real()
-        self.x.from_numpy(np.ascontiguousarray(x, dtype=dtype).reshape(self.particle_count, 3))
+        x = np.ascontiguousarray(x, dtype=dtype).reshape(self.particle_count, 3)
         if self.second_order:
-            v = np.zeros((self.particle_count, 3)) if v is None else v
-            self.v.from_numpy(np.ascontiguousarray(v, dtype=dtype).reshape(self.particle_count, 3))
+            v = np.zeros_like(x) if v is None else np.ascontiguousarray(v, dtype=dtype).reshape(x.shape)
+        self._upload(x, x if v is None else v)
+
+    @ti.kernel
+    def _upload(self, x: ti.types.ndarray(ndim=2), v: ti.types.ndarray(ndim=2)):
+        # One kernel for both fields: Field.from_numpy would compile one kernel per field.
+        for i in range(self.particle_count):
+            for k in ti.static(range(3)):
+                self.x[i][k] = x[i, k]
+                if ti.static(self.second_order):
+                    self.v[i][k] = v[i, k]
 
     @ti.kernel
     def copy_from(self, other: ti.template()):

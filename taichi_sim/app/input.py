@@ -126,14 +126,12 @@ class CameraControl:
 
     Args:
         camera: the renderer's camera (changed in place).
-        aspect: window width / height.
         home: called to restore the start-up view.
         hooks: :class:`GrabHook` objects (one per panel whose scene can be grabbed).
     """
 
-    def __init__(self, camera: OrbitCamera, aspect: float, home, hooks: Sequence[GrabHook] = ()):
+    def __init__(self, camera: OrbitCamera, home, hooks: Sequence[GrabHook] = ()):
         self.camera = camera
-        self.aspect = float(aspect)
         self._home = home
         self.hooks = list(hooks)
         self.user_moved = False  # the user orbited or zoomed: automatic framing stops
@@ -167,7 +165,7 @@ class CameraControl:
         elif middle and dv:
             self.zoom(math.exp(-2.0 * dv))
         if pressed and not over_panel and self.held is None:
-            origin, direction = self.camera.screen_ray(u, v, self.aspect)
+            origin, direction = self.camera.screen_ray(u, v)
             hits = [(d, hook) for d, hook in ((h.pick(origin, direction), h) for h in self.hooks)
                     if d is not None]
             if hits:
@@ -175,7 +173,7 @@ class CameraControl:
                 self.held.hold()
         elif left and self.held is not None:
             if du or dv:
-                self.held.drag(*self.camera.screen_ray(u, v, self.aspect))
+                self.held.drag(*self.camera.screen_ray(u, v))
         elif not left and self.held is not None:
             self.held.release()
             self.held = None

@@ -20,58 +20,71 @@ from .input import CameraControl, GrabberHook, apply_key, help_lines
 from .session import DT_RANGE, SUBSTEPS_MAX, Session
 
 PANEL = (0.0, 0.0, 0.27, 1.0)  # control panel: x, y, width, height (fractions of the window)
-HUD = (0.70, 0.0, 0.30, 0.24)
+HUD = (0.62, 0.0, 0.38, 0.26)
 HELP = (0.35, 0.25, 0.32, 0.5)
 WARNING = (1.0, 0.45, 0.38)
 
 
 class Launcher:
-    """Runs ``session`` in an on-screen window of ``size`` = (width, height) pixels."""
+    """Runs ``session`` in a window of ``size`` = (width, height) pixels.
 
-    def __init__(self, session: Session, size: tuple[int, int] = (1280, 800)):
+    ``window`` defaults to a new on-screen one; pass an offscreen window (see
+    :func:`~taichi_sim.render.open_window`) to draw frames with :meth:`draw_frame` without a
+    display (input then is not polled).
+    """
+
+    def __init__(self, session: Session, size: tuple[int, int] = (1280, 800), *, window=None):
         self.session = session
         self.size = size
-        self.window = open_window("taichi-sim", size, visible=True)
+        self.window = window if window is not None else open_window("taichi-sim", size, visible=True)
         self.gui = self.window.get_gui()
         self.generation = -1
         self.fps = 0.0
         self.error = ""
+        self._rebuild()
 
     def _rebuild(self) -> None:
         """A new renderer (and grab hooks) for the session's current scenes."""
-        self.renderer = Renderer(self.window, self.session.visuals(), self.size)
+        self.renderer = Renderer(self.window, self.session.visuals(), self.size, inset=PANEL[2])
         hooks = [GrabberHook(v.grabber, off, reach=0.05 * float(np.linalg.norm(v.extent)))
                  for v, off in zip(self.renderer.visuals, self.renderer.offsets) if v.grabber is not None]
-        self.control = CameraControl(self.renderer.camera, self.renderer.aspect, self.renderer.home, hooks)
+        self.control = CameraControl(self.renderer.camera, self.renderer.home, hooks)
         self.generation = self.session.generation
 
     def run(self) -> None:
+        """The interactive loop, until the window closes or Escape is pressed."""
         last = time.perf_counter()
         while self.window.running:
-            if self.session.generation != self.generation:
-                self._rebuild()
-            for event in self.window.get_events(ti.ui.PRESS):
-                if self._guard(apply_key, event.key, self.session, self.control) == "quit":
-                    self.window.running = False
-            u, v = self.window.get_cursor_pos()
-            over = u < PANEL[2] or (u > HUD[0] and v > 1.0 - HUD[3])
-            self.control.update(u, v, left=self.window.is_pressed(ti.ui.LMB),
-                                right=self.window.is_pressed(ti.ui.RMB),
-                                middle=self.window.is_pressed(ti.ui.MMB), over_panel=over)
-            self.session.frame()
-            if self.session.generation != self.generation:  # a reset rebuilt a scene
-                self._rebuild()
-            if not self.control.user_moved:
-                self.renderer.follow([r.last_good for r in self.session.runners])
-            self.renderer.render([r.display for r in self.session.runners], self.session.options)
-            self._panel()
-            self._hud()
-            if self.session.show_help:
-                self._help()
+            self.poll_input()
+            self.draw_frame()
             self.window.show()
             now = time.perf_counter()
             self.fps = 0.9 * self.fps + 0.1 / max(now - last, 1e-6)
             last = now
+
+    def poll_input(self) -> None:
+        """Keys and mouse of this frame (on-screen windows only)."""
+        for event in self.window.get_events(ti.ui.PRESS):
+            if self._guard(apply_key, event.key, self.session, self.control) == "quit":
+                self.window.running = False
+        u, v = self.window.get_cursor_pos()
+        over = u < PANEL[2] or (u > HUD[0] and v > 1.0 - HUD[3])
+        self.control.update(u, v, left=self.window.is_pressed(ti.ui.LMB),
+                            right=self.window.is_pressed(ti.ui.RMB),
+                            middle=self.window.is_pressed(ti.ui.MMB), over_panel=over)
+
+    def draw_frame(self) -> None:
+        """Advance the session one frame and draw the scenes, the panel, the HUD and the help."""
+        if self.session.generation != self.generation:
+            self._rebuild()
+        self.session.frame()
+        if not self.control.user_moved:
+            self.renderer.follow([r.last_good for r in self.session.runners])
+        self.renderer.render([r.display for r in self.session.runners], self.session.options)
+        self._panel()
+        self._hud()
+        if self.session.show_help:
+            self._help()
 
     def _guard(self, action, *args):
         """Run a control action and return its result; a bad value is shown in the panel
@@ -165,8 +178,7 @@ class Launcher:
             for line in s.hud_lines(self.fps):
                 g.text(line, WARNING if "diverged" in line or "not converged" in line else None)
             if len(s.runners) > 1:
-                uv, _ = self.renderer.camera.project(np.array(self.renderer.label_points()),
-                                                     self.renderer.aspect)
+                uv, _ = self.renderer.camera.project(np.array(self.renderer.label_points()))
                 order = np.argsort(uv[:, 0])
                 g.text("left to right: " + ", ".join(s.runners[k].name for k in order))
 

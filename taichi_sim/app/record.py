@@ -83,7 +83,7 @@ def frame_labels(session: Session, renderer: Renderer, size: tuple[int, int]) ->
     runners = session.runners
     line = max(11, round(height / 30)) * 1.5
     if len(runners) > 1:
-        uv, depth = renderer.camera.project(np.array(renderer.label_points()), renderer.aspect)
+        uv, depth = renderer.camera.project(np.array(renderer.label_points()))
         for r, (u, v), d in zip(runners, uv, depth):
             if d <= 0:
                 continue
@@ -93,7 +93,7 @@ def frame_labels(session: Session, renderer: Renderer, size: tuple[int, int]) ->
             if r.frozen:
                 labels.append(Label(f"{r.status.value.replace('_', ' ')} at t = {r.t:.3g} s",
                                     x, y + line, WARNING, anchor="mt"))
-    t = runners[0].t
+    t = max(r.t for r in runners)  # runs that froze stopped their clocks
     names = " vs ".join(r.name for r in runners)
     labels.append(Label(f"{session.scene_name}   {names}   h = {session.dt:.3g} s   t = {t:.2f} s",
                         0.5 * line, height - 0.4 * line, anchor="lb"))

@@ -16,6 +16,12 @@ from ..render.drawer import DRAWABLE_LIMIT
 from ..scene import build_scene
 from ..scene.scene import Scene
 
+ADVICE = "lower the step or pick a more stable integrator"
+
+#: A run whose energy rises above its start by more than this many times the scene's energy
+#: scale has diverged, even while its numbers are still finite.
+ENERGY_GROWTH_LIMIT = 100.0
+
 #: Most integrator calls in one :meth:`Runner.advance` (an adaptive method crawling at tiny
 #: steps must not freeze the window); the rest of that frame's simulated time is dropped.
 MAX_CALLS_PER_ADVANCE = 100_000
@@ -33,8 +39,9 @@ class Runner:
     Attributes:
         t: simulated time (s); steps: accepted steps; f_evals: evaluations of f.
         status: ``Status.OK`` while running; anything else froze the run.
-        message: one line saying why the run froze ("diverged at t = ...: lower the step or
-            pick a more stable integrator"), else "".
+        failure: what stopped the run ("diverged at t = 0.24 s (energy overflowed)"), else "".
+        message: ``failure`` with the advice (": lower the step or pick a more stable
+            integrator"), else "".
         energy: total energy (J) at the last frame, or None when the system has none.
         sim_ms: wall time (ms) of the last :meth:`advance`.
         last_good: (n, 3) float64 positions of the last frame whose state was finite.
@@ -79,13 +86,14 @@ class Runner:
         self.steps = 0
         self.f_evals = 0
         self.status = Status.OK
-        self.message = ""
+        self.failure = self.message = ""
         self.sim_ms = 0.0
         self._pending = 0.0
         self._h_next = self.dt
         self.system_changed()  # the state jumped: a cached f is stale
         self.last_good = np.asarray(self.scene.state.x.to_numpy(), np.float64)
-        self.energy = self.scene.energy()
+        self.energy = self.energy0 = self.scene.energy()
+        self.energy_scale = energy_scale(self.scene, self.energy0)
 
     def reset(self) -> None:
         """Back to the initial state. A scene whose model changes while it runs (torn springs,
@@ -162,16 +170,29 @@ class Runner:
         x = np.asarray(self.scene.state.x.to_numpy(), np.float64)
         with np.errstate(invalid="ignore", over="ignore"):
             ok = bool(np.all(np.abs(x) <= DRAWABLE_LIMIT))
-        energy = self.scene.energy() if ok else None
-        if ok and (energy is None or math.isfinite(energy)):
+        if not ok:
+            self._freeze(Status.DIVERGED, self.t, "positions blew up")
+            return
+        energy = self.scene.energy()
+        if energy is not None and not math.isfinite(energy):
+            self._freeze(Status.DIVERGED, self.t, "energy overflowed")
+        elif energy is not None and energy - self.energy0 > ENERGY_GROWTH_LIMIT * self.energy_scale:
+            self._freeze(Status.DIVERGED, self.t, "energy blew up")
+        else:
             self.last_good = x
             self.energy = energy
-        else:
-            self._freeze(Status.DIVERGED, self.t, "" if ok else "positions blew up")
 
     def _freeze(self, status: Status, t: float, detail: str) -> None:
         self.status = status
-        what = status.value.replace("_", " ")
         detail = f" ({detail})" if detail else ""
-        self.message = (f"{what} at t = {t:.4g} s{detail}: lower the step or pick a more "
-                        f"stable integrator")
+        self.failure = f"{status.value.replace('_', ' ')} at t = {t:.4g} s{detail}"
+        self.message = f"{self.failure}: {ADVICE}"
+
+
+def energy_scale(scene: Scene, energy0: float | None) -> float:
+    """A typical energy (J) of ``scene``: the larger of |E(0)| and total mass x |g| x size."""
+    x0 = np.asarray(scene.x0, np.float64)
+    size = float(np.linalg.norm(np.ptp(x0, axis=0))) if len(x0) > 1 else float(np.linalg.norm(x0))
+    arrays = scene.arrays
+    weight = float(np.sum(arrays.get("mass", 0.0))) * float(np.linalg.norm(arrays.get("gravity", 0.0)))
+    return max(abs(energy0 or 0.0), weight * size, 1e-12)

@@ -20,7 +20,7 @@ from ..scene import build_scene, scene_preset
 from ..scene.params import Param, resolve
 from ..scene.scene import Scene
 from ..scene.visual import describe
-from .runner import Runner
+from .runner import ADVICE, Runner
 
 MAX_PANELS = 3
 SUBSTEPS_MAX = 500
@@ -301,21 +301,23 @@ class Session:
         return all(r.frozen for r in self.runners)
 
     def status(self) -> str:
-        """One word or line for the HUD: paused / running / the first failure."""
+        """The run status for the HUD: paused, running, or what stopped every run."""
         failed = [r for r in self.runners if r.frozen]
         if len(failed) == len(self.runners):
-            return failed[0].message if len(failed) == 1 else "all runs stopped"
+            return failed[0].failure if len(failed) == 1 else "every run stopped"
         return "paused" if self.paused else "running"
 
     def hud_lines(self, fps: float | None = None) -> list[str]:
         """The heads-up display: time, step, integrators, cost per frame, fps, energy, status."""
-        r0 = self.runners[0]
-        lines = [f"{self.scene_name}   t = {r0.t:.3f} s",
+        t = max(r.t for r in self.runners)  # runs that froze stopped their clocks
+        lines = [f"{self.scene_name}   t = {t:.3f} s",
                  f"h = {self.dt:.3g} s x {self.substeps} per frame"
                  + ("" if fps is None else f"   {fps:.1f} fps")]
         for r in self.runners:
             energy = "n/a" if r.energy is None else f"{r.energy:.5g} J"
-            state = r.message if r.frozen else f"E = {energy}"
+            state = r.failure if r.frozen else f"E = {energy}"
             lines.append(f"{r.name}: {r.sim_ms:.1f} ms/frame   {state}")
         lines.append(f"status: {self.status()}")
+        if any(r.frozen for r in self.runners):
+            lines.append(ADVICE)
         return lines

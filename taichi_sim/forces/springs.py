@@ -74,36 +74,63 @@ class Springs(ForceTerm):
         self.rest = ti.field(real, shape=S)
         self.stiffness = ti.field(real, shape=S)
         self.damping = ti.field(real, shape=S)
-        self.ends.from_numpy(ends)
-        self.set_parameters(rest_length=rest_length, stiffness=stiffness, damping=damping)
         offsets, sid, other = incidence(particle_count, ends)
         self.offsets = ti.field(ti.i32, shape=particle_count + 1)
         self.incident = ti.field(ti.i32, shape=2 * S)
         self.other = ti.field(ti.i32, shape=2 * S)
-        self.offsets.from_numpy(offsets)
-        self.incident.from_numpy(sid)
-        self.other.from_numpy(other)
         self.tearable = tear_strain is not None
         # Bumped whenever the set of live springs changes (a direct solver re-analyses then).
         self.topology_version = 0
         if self.tearable:
             self.alive = ti.field(ti.i32, shape=S)
-            self.alive.fill(1)
             self.tear_strain = ti.field(real, shape=S)
-            self.tear_strain.from_numpy(np.broadcast_to(
-                np.asarray(tear_strain, dtype=runtime.np_real()), (S,)).copy())
+        # One upload kernel per term: Field.from_numpy would compile a kernel for every field.
+        self._upload_topology(ends, offsets, sid, other)
+        self._upload_columns(rest_length, stiffness, damping, tear_strain)
 
-    def set_parameters(self, *, rest_length=None, stiffness=None, damping=None) -> None:
-        """Replace per-spring values (arrays of shape (S,) or scalars). Dashpots must have been
-        present at construction for a nonzero ``damping`` to take effect."""
+    @ti.kernel
+    def _upload_topology(self, ends: ti.types.ndarray(dtype=ti.i32, ndim=2),
+                         offsets: ti.types.ndarray(dtype=ti.i32, ndim=1),
+                         incident: ti.types.ndarray(dtype=ti.i32, ndim=1),
+                         other: ti.types.ndarray(dtype=ti.i32, ndim=1)):
+        for s in range(self.spring_count):
+            self.ends[s] = ti.Vector([ends[s, 0], ends[s, 1]])
+            if ti.static(self.tearable):
+                self.alive[s] = 1
+        for i in range(offsets.shape[0]):
+            self.offsets[i] = offsets[i]
+        for e in range(incident.shape[0]):
+            self.incident[e] = incident[e]
+            self.other[e] = other[e]
+
+    @ti.kernel
+    def _upload_parameters(self, rest: ti.types.ndarray(), stiffness: ti.types.ndarray(),
+                           damping: ti.types.ndarray(), tear_strain: ti.types.ndarray()):
+        for s in range(self.spring_count):
+            self.rest[s] = rest[s]
+            self.stiffness[s] = stiffness[s]
+            self.damping[s] = damping[s]
+            if ti.static(self.tearable):
+                self.tear_strain[s] = tear_strain[s]
+
+    def set_parameters(self, *, rest_length=None, stiffness=None, damping=None, tear_strain=None) -> None:
+        """Replace per-spring values (arrays of shape (S,) or scalars; None keeps the current
+        ones). Dashpots must have been present at construction for a nonzero ``damping`` to
+        take effect, and tearing for ``tear_strain``."""
+        current = self.arrays()
+        self._upload_columns(current["rest_length"] if rest_length is None else rest_length,
+                             current["stiffness"] if stiffness is None else stiffness,
+                             current["spring_damping"] if damping is None else damping,
+                             current.get("tear_strain", 0.0) if tear_strain is None else tear_strain)
+
+    def _upload_columns(self, rest_length, stiffness, damping, tear_strain) -> None:
         npr = runtime.np_real()
-        S = self.spring_count
-        if rest_length is not None:
-            self.rest.from_numpy(np.broadcast_to(np.asarray(rest_length, dtype=npr), (S,)).copy())
-        if stiffness is not None:
-            self.stiffness.from_numpy(np.broadcast_to(np.asarray(stiffness, dtype=npr), (S,)).copy())
-        if damping is not None:
-            self.damping.from_numpy(np.broadcast_to(np.asarray(damping, dtype=npr), (S,)).copy())
+
+        def column(value):
+            return np.ascontiguousarray(np.broadcast_to(np.asarray(value, npr), (self.spring_count,)))
+
+        self._upload_parameters(column(rest_length), column(stiffness), column(damping),
+                                column(0.0 if tear_strain is None else tear_strain))
 
     def arrays(self) -> dict:
         """Spring data as numpy arrays (the npz schema's spring keys)."""

@@ -24,12 +24,9 @@ def integrator_class(name: str) -> type[Integrator]:
         raise ConfigError(f"unknown integrator {name!r} (choose from {', '.join(INTEGRATORS)})") from None
 
 
-def create_integrator(name: str, system, **options) -> Integrator:
-    """Bind the integrator called ``name`` to ``system`` (allocates its scratch once).
-
-    ``options`` are the method's keyword-only settings (e.g. ``rtol`` for rk45); an option the
-    method does not take raises ConfigError.
-    """
+def check_options(name: str, options: dict) -> type[Integrator]:
+    """The class of integrator ``name``, after checking it takes every keyword in ``options``
+    (ConfigError otherwise); nothing is allocated."""
     cls = integrator_class(name)
     accepted = {p.name for p in inspect.signature(cls.__init__).parameters.values()
                 if p.kind is inspect.Parameter.KEYWORD_ONLY}
@@ -37,10 +34,13 @@ def create_integrator(name: str, system, **options) -> Integrator:
     if unknown:
         raise ConfigError(f"integrator {name!r} takes no option {unknown[0]!r}"
                           + (f" (it takes: {', '.join(sorted(accepted))})" if accepted else ""))
-    return cls(system, **options)
+    return cls
 
 
-__all__ = ["INTEGRATORS", "Integrator", "Status", "StepReport", "ButcherTableau", "ExplicitRK",
-           "Euler", "Midpoint", "Trapezoid", "RK4", "SymplecticEuler", "create_integrator",
-           "integrator_class", "EmbeddedRK", "DormandPrince45", "Fehlberg45", "ImplicitEuler",
-           "ImplicitMidpoint", "LinearSolverStats"]
+def create_integrator(name: str, system, **options) -> Integrator:
+    """Bind the integrator called ``name`` to ``system`` (allocates its scratch once).
+
+    ``options`` are the method's keyword-only settings (e.g. ``rtol`` for rk45); an option the
+    method does not take raises ConfigError.
+    """
+    return check_options(name, options)(system, **options)

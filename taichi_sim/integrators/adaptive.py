@@ -66,12 +66,15 @@ class EmbeddedRK(Integrator):
         safety: factor (0, 1] on the optimal step, default 0.9.
         min_step: smallest step (s) the controller may propose before giving up; default and
             floor 10 ulp of t, ``10 * eps * max(|t|, 1)``.
+        max_step: largest step (s) it may propose (default: unbounded). Post-step events
+            (collisions, tearing, emission) act only between steps, so scenes with them need one.
     ``rtol``, ``atol`` and ``safety`` are read at every step (the tolerances as kernel
     arguments), so they may be changed between steps without recompiling.
     """
 
     tableau: ButcherTableau
     adaptive = True
+    initial_step_f_evals = 2
     max_growth = 10.0
     min_shrink = 0.2
 
@@ -80,7 +83,7 @@ class EmbeddedRK(Integrator):
         cls.order = cls.tableau.order
 
     def __init__(self, system: System, *, rtol: float = 1e-6, atol: float = 1e-9,
-                 safety: float = 0.9, min_step: float | None = None):
+                 safety: float = 0.9, min_step: float | None = None, max_step: float = math.inf):
         super().__init__(system)
         if not (math.isfinite(rtol) and rtol >= 0):
             raise ConfigError(f"rtol must be a finite number >= 0, got {rtol}")
@@ -91,8 +94,11 @@ class EmbeddedRK(Integrator):
             raise ConfigError(f"safety must be in (0, 1], got {safety}")
         if min_step is not None and not (math.isfinite(min_step) and min_step > 0):
             raise ConfigError(f"min_step must be a finite number > 0, got {min_step}")
+        if not max_step > 0:
+            raise ConfigError(f"max_step must be > 0, got {max_step}")
         self.rtol, self.atol, self.safety = float(rtol), float(atol), float(safety)
         self.min_step = min_step
+        self.max_step = float(max_step)
 
         tab = self.tableau
         self.error_exponent = -1.0 / (min(tab.order, tab.embedded_order) + 1)
@@ -149,8 +155,8 @@ class EmbeddedRK(Integrator):
         scaled by atol + rtol |y0|, d0 = |y0|, d1 = |f0|, h0 = 0.01 d0/d1; one explicit Euler
         probe of h0 gives d2 = |f(y0 + h0 f0) - f0| / h0, and h1 = (0.01 / max(d1, d2))^(1/(q+1))
         makes the local error about 1% of the tolerance. Returns min(100 h0, h1, t_end - t).
-        Costs two evaluations of f (not part of any StepReport); the first is kept as the first
-        stage of the next step.
+        Costs ``initial_step_f_evals`` = 2 evaluations of f (not part of any StepReport; the run
+        loop adds them); the first is kept as the first stage of the next step.
         """
         remaining = math.inf if t_end is None else t_end - t
         if not remaining > 0:
@@ -170,7 +176,7 @@ class EmbeddedRK(Integrator):
             h1 = max(1e-6, h0 * 1e-3)
         else:
             h1 = (0.01 / max(d1, d2)) ** -self.error_exponent
-        return min(100 * h0, h1, remaining)
+        return min(100 * h0, h1, remaining, self.max_step)
 
     def _first_stage_is_current(self, state: State, t: float) -> bool:
         return (self.first_stage_time is not None and self.first_stage_time == t
@@ -191,7 +197,7 @@ class EmbeddedRK(Integrator):
         self._commit(state)
         # FSAL: _commit made stages[0] = f(y_new, t + h); otherwise y changed under stages[0].
         self.first_stage_time = t + h if self.tableau.fsal else None
-        return StepReport(accepted=True, h=h, next_h=h * factor, f_evals=f_evals)
+        return StepReport(accepted=True, h=h, next_h=min(h * factor, self.max_step), f_evals=f_evals)
 
     def _reject(self, t: float, h: float, err: float, nonfinite: bool, f_evals: int) -> StepReport:
         if nonfinite:

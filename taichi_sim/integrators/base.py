@@ -67,9 +67,16 @@ class Integrator(ABC):
             raise ConfigError(f"integrator {self.name!r} needs a second-order (particle) system")
         self.system = system
 
+    initial_step_f_evals: int = 0
+
     def initial_step(self, state: State, t: float, t_end: float | None) -> float:
-        """First step size (s) for an adaptive method when the user gives none."""
+        """First step size (s) for an adaptive method when the user gives none; it costs
+        ``initial_step_f_evals`` evaluations of f."""
         raise NotImplementedError(f"{self.name} needs an explicit step size")
+
+    def reset(self) -> None:
+        """Forget anything carried between steps (call after the system itself changed: a
+        spring torn, a parameter moved). Stateless methods do nothing."""
 
     @abstractmethod
     def step(self, state: State, t: float, h: float) -> StepReport:

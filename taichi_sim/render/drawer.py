@@ -363,8 +363,9 @@ class SceneDrawer:
             length = nrm.norm()
             if length > 0:
                 nrm = nrm / length
-            self.normals[v] = ti.cast(nrm, ti.f32)
             front = nrm.dot(eye - self.pos[v]) >= 0
+            # GGUI lights a surface by its normal as given: flip it to the side in view.
+            self.normals[v] = ti.cast(nrm if front else -nrm, ti.f32)
             colour = ti.Vector(BACK) * self.weave[v]
             if strain:
                 colour = _colormap(self.strain[v] / scale)
@@ -430,13 +431,15 @@ class SceneDrawer:
 
 
 def layout_offsets(visuals, *, gap: float = 0.25) -> list[np.ndarray]:
-    """x-offsets (m) placing the scenes side by side, each panel as wide as the widest scene plus
-    ``gap`` of it, centred on the first scene's position."""
+    """x-offsets (m) placing the scenes side by side, centred on the first one's position.
+
+    Each panel is as wide as the widest scene (at least 0.6x its height or depth, so thin
+    scenes such as a hanging spring keep room for their labels), plus ``gap`` of that.
+    """
     if not visuals:
         return []
-    width = max(float(v.extent[0]) for v in visuals) * (1.0 + gap)
-    width = width if width > 0 else 1.0
+    width = max(max(float(v.extent[0]), 0.6 * float(max(v.extent[1], v.extent[2]))) for v in visuals)
+    width = (width if width > 0 else 1.0) * (1.0 + gap)
     first = -0.5 * (len(visuals) - 1) * width
     return [np.array([first + k * width - (v.center[0] - visuals[0].center[0]), 0.0, 0.0])
             for k, v in enumerate(visuals)]
-

@@ -40,9 +40,12 @@ class Renderer:
         window: a ``ti.ui.Window`` (see :func:`taichi_sim.render.open_window`).
         visuals: what to draw, one :class:`SceneVisual` per scene.
         size: the window's (width, height) in pixels.
+        inset: fraction of the window width a control panel covers on the left; the scenes are
+            framed in the rest.
     """
 
-    def __init__(self, window, visuals: Sequence[SceneVisual], size: tuple[int, int]):
+    def __init__(self, window, visuals: Sequence[SceneVisual], size: tuple[int, int], *,
+                 inset: float = 0.0):
         if not visuals:
             raise ValueError("Renderer needs at least one scene visual")
         self.window = window
@@ -54,12 +57,9 @@ class Renderer:
         self.offsets = layout_offsets(self.visuals)
         self.drawers = [SceneDrawer(v, off) for v, off in zip(self.visuals, self.offsets)]
         yaw, pitch = self.visuals[0].view
-        self.camera = OrbitCamera(yaw=math.radians(yaw), pitch=math.radians(pitch))
+        self.camera = OrbitCamera(self.size[0] / self.size[1], yaw=math.radians(yaw),
+                                  pitch=math.radians(pitch), inset=inset)
         self.home()
-
-    @property
-    def aspect(self) -> float:
-        return self.size[0] / self.size[1]
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """The box (m) holding every scene's start-up bounds at its offset."""
@@ -71,13 +71,17 @@ class Renderer:
         """Frame every scene from its preferred direction (the start-up view)."""
         yaw, pitch = self.visuals[0].view
         self.camera.yaw, self.camera.pitch = math.radians(yaw), math.radians(pitch)
-        self.camera.frame(*self.bounds(), self.aspect)
+        self.camera.frame(*self.bounds())
         self._home_distance = self.camera.distance
 
     def follow(self, positions: Sequence[np.ndarray], *, rate: float = 0.25, max_growth: float = 2.5) -> None:
         """Back the camera off (smoothly, by ``rate`` of the gap per call, up to ``max_growth``
         times the start-up distance) until every drawable point of ``positions`` (one (n, 3)
-        array per scene, m) is in view. It never moves closer: framing stays steady."""
+        array per scene, m) is in view. It never moves closer: framing stays steady. Side by
+        side it does nothing: panels keep a common, fixed frame, so a run that blows up does
+        not shrink the others."""
+        if len(self.drawers) > 1:
+            return
         pts = [np.asarray(p, np.float64).reshape(-1, 3) + off for p, off in zip(positions, self.offsets)]
         pts = np.concatenate(pts)
         with np.errstate(invalid="ignore"):
@@ -85,7 +89,7 @@ class Renderer:
         if not len(pts):
             return
         radius = float(np.max(np.linalg.norm(pts - self.camera.target, axis=1)))
-        wanted = min(self.camera.distance_for(1.05 * radius, self.aspect), max_growth * self._home_distance)
+        wanted = min(self.camera.distance_for(1.05 * radius), max_growth * self._home_distance)
         if wanted > self.camera.distance:
             self.camera.distance += rate * (wanted - self.camera.distance)
 

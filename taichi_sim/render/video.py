@@ -22,6 +22,19 @@ MAX_FPS = 240.0
 KINDS = ("mp4", "gif", "png")
 
 
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def _publish(tmp: Path, path: Path) -> None:
+    """Give the finished temporary file (or folder) the permissions of a newly created one,
+    then rename it to ``path``."""
+    os.chmod(tmp, (0o777 if tmp.is_dir() else 0o666) & ~_umask())
+    os.replace(tmp, path)
+
+
 def parse_size(text: str) -> tuple[int, int]:
     """``"WxH"`` -> (width, height) in pixels, each an integer in 16..4096."""
     parts = str(text).lower().split("x")
@@ -147,7 +160,7 @@ class VideoWriter:
                 self._gif_frames = []
             if self.kind == "png" and self.path.exists():
                 self.path.rmdir()  # checked empty before any work
-            os.replace(self._tmp, self.path)
+            _publish(self._tmp, self.path)
         except BaseException:
             self.abort()
             raise
@@ -174,7 +187,7 @@ def save_png(image: np.ndarray, path: str | os.PathLike) -> Path:
     os.close(fd)
     try:
         Image.fromarray(np.ascontiguousarray(image, np.uint8)).save(tmp, optimize=True)
-        os.replace(tmp, path)
+        _publish(Path(tmp), path)
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)

@@ -1,7 +1,8 @@
 """Post-step events: applied between accepted steps, never inside f (DESIGN.md section 3).
 
 Collision projection, tearing and emission are not smooth; inside f they would break RK order
-and adaptive error estimates. Each event is called as ``event(state, t, h)`` after a step.
+and adaptive error estimates. Each event is called as ``event(state, t, h)`` after a step and
+returns True when it changed the system itself (tearing does), not only the state.
 """
 import math
 from dataclasses import dataclass
@@ -150,8 +151,10 @@ class Tearing:
         self.springs = springs
         self.torn_total = 0
 
-    def __call__(self, state, t: float, h: float) -> None:
-        self.torn_total += self.springs.tear(state)
+    def __call__(self, state, t: float, h: float) -> bool:
+        torn = self.springs.tear(state)
+        self.torn_total += torn
+        return torn > 0
 
 
 @dataclass(frozen=True)

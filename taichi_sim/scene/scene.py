@@ -64,11 +64,15 @@ class Scene:
         """Total energy (J) of the current state, or None when the system defines none."""
         return self.system.energy(self.state)
 
-    def after_step(self, t: float, h: float) -> None:
+    def after_step(self, t: float, h: float) -> bool:
         """Apply post-step events (collisions, tearing, emission) after an accepted step that
-        ended at time ``t`` (s) and was ``h`` (s) long."""
+        ended at time ``t`` (s) and was ``h`` (s) long. Returns whether an event changed the
+        system itself (not just the state), so integrators that carry data between steps must
+        be reset."""
+        changed = False
         for event in self.post_step:
-            event(self.state, t, h)
+            changed |= bool(event(self.state, t, h))
+        return changed
 
     @property
     def arrays(self) -> dict[str, np.ndarray]:

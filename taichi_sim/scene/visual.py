@@ -195,7 +195,7 @@ def describe(scene: Scene) -> SceneVisual:
     if len(triangles):
         spacing = float(np.median(rest[line_springs])) if len(line_springs) else 0.02 * size
         radius = 0.3 * spacing
-        view = (30.0, 20.0)
+        view = (30.0, 30.0)
     else:
         radius = 0.025 * size
         if len(rest):
@@ -242,7 +242,7 @@ def _bounds(x0: np.ndarray, pinned: np.ndarray, *, hanging: bool, swinging: bool
     points = [x0]
     if hanging and pinned.any():
         pin = x0[pinned].mean(axis=0)
-        reach = 1.2 * float(np.max(np.linalg.norm(x0 - pin, axis=1)))
+        reach = 1.1 * float(np.max(np.linalg.norm(x0 - pin, axis=1)))
         points.append((pin - [0.0, reach, 0.0])[None, :])
         if swinging:
             mirrored = x0.copy()

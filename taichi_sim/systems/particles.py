@@ -41,9 +41,14 @@ class ParticleSystem(System):
         self.terms = list(terms)
         self.mass = ti.field(runtime.real(), shape=n)
         self.free = ti.field(ti.i32, shape=n)
-        self.mass.from_numpy(mass.astype(runtime.np_real()))
         moving = ~pinned if active is None else (~pinned & np.asarray(active, bool).reshape(n))
-        self.free.from_numpy(moving.astype(np.int32))
+        self._upload(mass.astype(runtime.np_real()), moving.astype(np.int32))
+
+    @ti.kernel
+    def _upload(self, mass: ti.types.ndarray(ndim=1), free: ti.types.ndarray(dtype=ti.i32, ndim=1)):
+        for i in range(self.particle_count):
+            self.mass[i] = mass[i]
+            self.free[i] = free[i]
 
     def add_term(self, term: ForceTerm) -> None:
         """Add a force term; only before the first eval_f (its kernel is compiled then)."""

@@ -1,0 +1,484 @@
+"""Rendering, recording and the launcher's logic.
+
+Tests that draw run offscreen on Vulkan (Mesa's software driver on CI) and are skipped, with the
+reason, only where no Vulkan is usable. The launcher's logic (session controls, keys, the
+camera and grab hooks, divergence freezing) is tested without a window.
+"""
+import math
+import os
+
+import imageio.v2 as imageio
+import numpy as np
+import pytest
+import taichi as ti
+
+import taichi_sim as ts
+from taichi_sim.app.input import KEYMAP, CameraControl, GrabberHook, apply_key, help_lines
+from taichi_sim.app.record import Clip, frame_labels, record
+from taichi_sim.app.runner import Runner
+from taichi_sim.app.session import Session, compatible_integrators
+from taichi_sim.app.showcase import SHOWCASE, record_showcase, shortened
+from taichi_sim.cli import main
+from taichi_sim.errors import ConfigError
+from taichi_sim.integrators import Status
+from taichi_sim.render import DrawOptions, OrbitCamera, Renderer, RenderUnavailable, open_window
+from taichi_sim.render import vulkan
+from taichi_sim.render.drawer import SceneDrawer
+from taichi_sim.render.renderer import BACKGROUND
+from taichi_sim.scene.visual import describe
+
+SIZE = (320, 200)
+_window_cache: dict = {}
+
+
+@pytest.fixture(scope="module")
+def runtime():
+    """One Taichi runtime for this module (CPU, f64): windows die with the runtime."""
+    ts.init(arch="cpu", precision="f64")
+
+
+@pytest.fixture
+def window(runtime):
+    """A shared offscreen window, re-created if another test re-initialised Taichi."""
+    prog = ti.lang.impl.get_runtime().prog
+    if _window_cache.get("prog") is not prog:
+        problem = vulkan.vulkan_problem()
+        if problem:
+            pytest.skip(f"no usable Vulkan: {problem}")
+        _window_cache.update(prog=prog, window=open_window("taichi_sim tests", SIZE))
+    return _window_cache["window"]
+
+
+def video_frames(path):
+    """Every frame of a video file (the ffmpeg reader claims infinite length: iterate it)."""
+    with imageio.get_reader(path) as reader:
+        return [frame for frame in reader]
+
+
+def background_mask(image, tolerance=6):
+    bg = np.round(np.asarray(BACKGROUND) * 255)
+    return np.all(np.abs(image.astype(int) - bg) <= tolerance, axis=2)
+
+
+def pixel(uv, size=SIZE):
+    """(row, column) of screen point uv (v up)."""
+    return int((1.0 - uv[1]) * size[1]), int(uv[0] * size[0])
+
+
+# -- the camera and screen <-> world mapping (no window) ------------------------------------------
+
+def test_camera_view_matches_ggui_and_rays_invert_projection(runtime):
+    cam = OrbitCamera(1.6, target=(0.2, 0.5, -0.1), distance=3.0, yaw=0.7, pitch=0.4)
+    ggui = ti.ui.Camera()
+    cam.apply(ggui)
+    # GGUI's matrix acts on row vectors: it is our column-vector matrix transposed.
+    np.testing.assert_allclose(np.array(ggui.get_view_matrix()).T, cam.view_matrix(), atol=1e-5)
+    proj = np.array(ggui.get_projection_matrix(1.6)).T
+    points = np.array([[0.2, 0.5, -0.1], [0.6, 0.9, 0.3], [-0.4, 0.1, -0.5]])
+    clip = (proj @ cam.view_matrix() @ np.c_[points, np.ones(3)].T).T
+    uv_ggui = 0.5 * (clip[:, :2] / clip[:, 3:] + 1.0)
+    uv, depth = cam.project(points)
+    np.testing.assert_allclose(uv, uv_ggui, atol=1e-5)
+    assert np.all(depth > 0)
+    np.testing.assert_allclose(uv[0], [0.5, 0.5], atol=1e-12)  # the target is in the middle
+    for p, (u, v) in zip(points, uv):
+        origin, direction = cam.screen_ray(u, v)
+        assert np.isclose(np.linalg.norm(direction), 1.0)
+        miss = (p - origin) - np.dot(p - origin, direction) * direction
+        assert np.linalg.norm(miss) < 1e-9
+
+
+def test_camera_inset_centres_the_target_in_the_uncovered_part():
+    cam = OrbitCamera(2.0, target=(1.0, 2.0, 3.0), yaw=-0.3, pitch=0.2, inset=0.3)
+    uv, _ = cam.project([cam.target])
+    np.testing.assert_allclose(uv[0], [0.3 + 0.7 / 2, 0.5], atol=1e-12)
+    cam.frame((-1.0, -0.5, -0.2), (1.0, 0.5, 0.2))
+    corners = np.array([[x, y, z] for x in (-1, 1) for y in (-0.5, 0.5) for z in (-0.2, 0.2)])
+    uv, depth = cam.project(corners)
+    assert np.all(depth > 0)
+    assert uv[:, 0].min() >= 0.3 - 1e-9 and uv[:, 0].max() <= 1.0 and 0 <= uv[:, 1].min() <= uv[:, 1].max() <= 1
+    # the box fills the view: some corner is near an edge of the uncovered region
+    edge = np.min([uv[:, 0].min() - 0.3, 1 - uv[:, 0].max(), uv[:, 1].min(), 1 - uv[:, 1].max()])
+    assert edge < 0.1
+
+
+def test_orbit_zoom_and_grab_hooks_follow_the_mouse():
+    cam = OrbitCamera(1.5, distance=4.0)
+    events = []
+
+    class Hook:
+        def __init__(self, name, distance):
+            self.name, self.distance = name, distance
+
+        def pick(self, origin, direction):
+            events.append((self.name, "pick", direction.copy()))
+            return self.distance
+
+        def hold(self):
+            events.append((self.name, "hold"))
+
+        def drag(self, origin, direction):
+            events.append((self.name, "drag", direction.copy()))
+
+        def release(self):
+            events.append((self.name, "release"))
+
+    homed = []
+    control = CameraControl(cam, lambda: homed.append(True), [Hook("far", 0.3), Hook("near", 0.1),
+                                                               Hook("none", None)])
+    control.update(0.5, 0.5, left=False, right=False, middle=False)
+    yaw, pitch = cam.yaw, cam.pitch
+    control.update(0.6, 0.45, left=False, right=True, middle=False)  # right-drag orbits
+    assert cam.yaw == pytest.approx(yaw - math.pi * 0.1) and cam.pitch == pytest.approx(pitch + math.pi * 0.05)
+    assert control.user_moved
+    distance = cam.distance
+    control.update(0.6, 0.55, left=False, right=False, middle=True)  # middle-drag up: closer
+    assert cam.distance < distance
+    control.update(0.6, 0.55, left=True, right=False, middle=False, over_panel=True)
+    assert not events  # a press over the control panel is the panel's
+    control.update(0.6, 0.55, left=False, right=False, middle=False)
+    control.update(0.5, 0.5, left=True, right=False, middle=False)
+    assert [e[:2] for e in events] == [("far", "pick"), ("near", "pick"), ("none", "pick"), ("near", "hold")]
+    np.testing.assert_allclose(events[0][2], -control.camera.basis()[2], atol=1e-12)  # centre ray
+    control.update(0.55, 0.5, left=True, right=False, middle=False)
+    assert events[-1][:2] == ("near", "drag")
+    control.update(0.55, 0.5, left=False, right=False, middle=False)
+    assert events[-1] == ("near", "release") and control.held is None
+    control.home()
+    assert homed and not control.user_moved
+
+
+def test_grabber_hook_picks_the_particle_under_the_cursor(runtime):
+    scene = ts.build_scene("cloth", {"nx": 6, "ny": 6, "grab": True})
+    offset = np.array([2.0, 0.0, 0.0])
+    cam = OrbitCamera(1.6, target=scene.x0.mean(axis=0) + offset, distance=3.0, yaw=0.4, pitch=0.6)
+    hook = GrabberHook(scene.grabber, offset, reach=0.05)
+    target = 14
+    uv, _ = cam.project([scene.x0[target] + offset])
+    origin, direction = cam.screen_ray(*uv[0])
+    assert hook.pick(origin, direction) == pytest.approx(0.0, abs=1e-9)
+    assert hook.candidate == target
+    hook.hold()
+    hook.drag(*cam.screen_ray(uv[0][0] + 0.05, uv[0][1]))
+    term = scene.system.term("grab")
+    assert term.particle[None] == target
+    assert not np.allclose(term.target[None].to_numpy(), scene.x0[target])
+    hook.release()
+    assert term.particle[None] == -1
+    assert hook.pick(*cam.screen_ray(0.0, 0.0)) is None  # nothing near the corner ray
+
+
+# -- the launcher's logic (no window) -------------------------------------------------------------
+
+def test_pause_single_step_and_reset(runtime):
+    s = Session("spring", ["symplectic_euler"], dt=0.01, substeps=5)
+    r = s.runners[0]
+    s.frame()
+    assert r.steps == 5 and r.t == pytest.approx(0.05)
+    s.toggle_pause()
+    s.frame()
+    assert r.steps == 5
+    s.step()
+    assert r.steps == 6 and s.paused
+    s.reset()
+    assert r.t == 0.0 and r.steps == 0
+    np.testing.assert_array_equal(r.scene.state.x.to_numpy(), r.scene.x0)
+    status = s.status()
+    assert status == "paused"
+    s.toggle_pause()
+    assert s.status() == "running"
+
+
+def test_parameter_changes_apply_live_or_on_reset(runtime):
+    s = Session("cloth", ["symplectic_euler", "rk4"], params={"nx": 5, "ny": 4})
+    generation = s.generation
+    controls = {c.param.name: c for c in s.param_controls()}
+    assert controls["stiffness"].live and controls["gravity"].live and not controls["nx"].live
+    assert controls["stiffness"].low == 0.0 and controls["stiffness"].high == 2000.0
+    assert s.set_param("stiffness", 800.0) is True
+    for scene in s.scenes:  # every panel, without a rebuild
+        kinds = scene.springs.kind_np
+        np.testing.assert_allclose(scene.springs.stiffness.to_numpy()[kinds == 0], 800.0)
+        np.testing.assert_allclose(scene.springs.stiffness.to_numpy()[kinds == 1], 250.0)
+    assert s.set_param("gravity", 5.0) is True
+    np.testing.assert_allclose(s.scenes[1].system.term("gravity").get(), [0.0, -5.0, 0.0])
+    assert s.generation == generation
+    assert s.set_param("nx", 6) is False
+    assert s.pending == {"nx": 6} and s.value("nx") == 6 and s.params["nx"] == 5
+    with pytest.raises(ConfigError):
+        s.set_param("nx", 1)
+    s.reset()
+    assert s.generation == generation + 1 and not s.pending
+    assert all(scene.particle_count == 24 for scene in s.scenes)
+    assert s.params["stiffness"] == 800.0  # live changes survive the rebuild
+    np.testing.assert_allclose(s.scenes[0].springs.stiffness.to_numpy()[s.scenes[0].springs.kind_np == 0], 800.0)
+
+
+def test_integrator_and_scene_pickers(runtime):
+    s = Session("simple", ["euler"], dt=0.1)
+    assert "symplectic_euler" not in compatible_integrators(s.scenes[0])
+    seen = {s.cycle_integrator(0) for _ in range(len(compatible_integrators(s.scenes[0])))}
+    assert seen == set(compatible_integrators(s.scenes[0]))
+    with pytest.raises(ConfigError):
+        s.set_integrator(0, "symplectic_euler")
+    s.select_scene("pendulum")
+    assert s.scene_name == "pendulum" and s.dt == ts.SCENES["pendulum"].default_dt
+    s.select_scene("simple")  # symplectic_euler cannot step it: the preset's default takes over
+    assert s.integrators[0] in compatible_integrators(s.scenes[0])
+    with pytest.raises(ConfigError):
+        s.set_dt(-1.0)
+    with pytest.raises(ConfigError):
+        s.set_substeps(0)
+    with pytest.raises(ConfigError):
+        Session("spring", ["euler", "rk4", "midpoint", "trapezoid"])
+
+
+def test_keys_toggle_what_they_say_and_help_lists_them(runtime):
+    s = Session("pendulum", ["symplectic_euler"])
+    cam = OrbitCamera(1.5, distance=2.0)
+    control = CameraControl(cam, lambda: None)
+    assert apply_key(" ", s, control) == "pause" and s.paused
+    assert apply_key("n", s, control) == "step" and s.runners[0].steps == 1
+    springs = s.options.springs
+    apply_key("k", s, control)
+    assert s.options.springs is not springs
+    apply_key("h", s, control)
+    assert s.show_help
+    apply_key("=", s, control)
+    assert cam.distance == pytest.approx(2.0 / 1.15)
+    assert apply_key("Escape", s, control) == "quit"
+    assert apply_key("?", s, control) is None
+    text = "\n".join(help_lines())
+    for key, (_, meaning) in KEYMAP.items():
+        assert meaning in text
+    assert "right-drag" in text
+
+
+def test_divergence_freezes_on_the_last_finite_state(runtime):
+    runner = Runner(ts.build_scene("pendulum"), "euler", 8e-3)
+    for _ in range(100):
+        runner.advance(0.05)
+        if runner.frozen:
+            break
+    assert runner.status is Status.DIVERGED
+    assert runner.message.startswith("diverged at t = ")
+    assert runner.message.endswith(": lower the step or pick a more stable integrator")
+    assert isinstance(runner.display, np.ndarray) and np.all(np.isfinite(runner.display))
+    t, frozen_view = runner.t, runner.display.copy()
+    runner.advance(0.05)
+    assert runner.t == t
+    np.testing.assert_array_equal(runner.display, frozen_view)
+    runner.reset()
+    assert not runner.frozen and runner.display is runner.scene.state.x
+
+
+def test_non_finite_state_freezes_the_run(runtime):
+    runner = Runner(ts.build_scene("simple"), "rk4", 0.01)
+    runner.advance(0.1)
+    good = runner.last_good.copy()
+    runner.scene.state.x.from_numpy(np.array([[np.nan, 0.0, 0.0]]))
+    runner.advance(0.1)
+    assert runner.frozen and "diverged" in runner.message
+    np.testing.assert_array_equal(runner.display, good)
+
+
+# -- drawing (offscreen Vulkan) -------------------------------------------------------------------
+
+def test_cloth_frame_shows_cloth_where_the_cloth_is(window):
+    scene = ts.build_scene("cloth", {"nx": 12, "ny": 12})
+    renderer = Renderer(window, [describe(scene)], SIZE)
+    renderer.render([scene.state.x], DrawOptions(mesh=True, particles=False))
+    image = renderer.read_image()
+    assert image.shape == (SIZE[1], SIZE[0], 3)
+    bg = background_mask(image)
+    # centres of the flat cloth's inner cells project onto cloth-coloured pixels
+    x = scene.x0.reshape(12, 12, 3)
+    centres = (0.25 * (x[:-1, :-1] + x[1:, :-1] + x[:-1, 1:] + x[1:, 1:]))[2:-2, 2:-2].reshape(-1, 3)
+    uv, depth = renderer.camera.project(centres)
+    assert np.all(depth > 0)
+    rows, cols = zip(*(pixel(p) for p in uv))
+    assert not bg[rows, cols].any()
+    colours = image[rows, cols].astype(int)
+    assert np.all(np.abs(colours[:, 0] - colours[:, 2]) > 40)  # warm or cool fabric, not grey
+    # everything away from the cloth's projection is background
+    corners, _ = renderer.camera.project(scene.x0)
+    lo, hi = corners.min(axis=0) - 0.03, corners.max(axis=0) + 0.03
+    (r0, c0), (r1, c1) = pixel((lo[0], hi[1])), pixel((hi[0], lo[1]))
+    outside = np.ones_like(bg)
+    outside[max(r0, 0):r1, max(c0, 0):c1] = False
+    assert bg[outside].all()
+    assert 0.02 < (~bg).mean() < 0.8
+
+
+def test_falling_cloth_frames_change_and_strain_colours_differ(window):
+    scene = ts.build_scene("cloth", {"nx": 10, "ny": 10})
+    renderer = Renderer(window, [describe(scene)], SIZE)
+    runner = Runner(scene, "symplectic_euler", 1e-3)
+    frames = []
+    for _ in range(3):
+        renderer.render([runner.display], DrawOptions())
+        frames.append(renderer.read_image().astype(int))
+        runner.advance(0.25)
+    assert (np.abs(frames[1] - frames[0]).sum(axis=2) > 30).mean() > 0.01
+    assert (np.abs(frames[2] - frames[1]).sum(axis=2) > 30).mean() > 0.01
+    renderer.render([runner.display], DrawOptions(strain=True))
+    strained = renderer.read_image().astype(int)
+    renderer.render([runner.display], DrawOptions())
+    plain = renderer.read_image().astype(int)
+    assert (np.abs(strained - plain).sum(axis=2) > 30).mean() > 0.01
+
+
+def test_non_finite_positions_never_reach_the_staging_fields(window):
+    scene = ts.build_scene("pendulum", {"particle_count": 5})
+    drawer = SceneDrawer(describe(scene))
+    assert drawer.sync(scene.state.x) == 0
+    good = drawer.pos.to_numpy()[:5].copy()
+    x = scene.x0.copy()
+    x[1] = np.nan
+    x[2, 0] = np.inf
+    x[3, 1] = 1e30
+    x[4] += 0.5
+    assert drawer.sync(x) == 3  # the array path
+    staged = drawer.pos.to_numpy()
+    assert np.all(np.isfinite(staged))
+    np.testing.assert_array_equal(staged[1:4], good[1:4])  # held at their last drawable place
+    np.testing.assert_allclose(staged[4], x[4], rtol=1e-6)
+    scene.state.x.from_numpy(x)
+    assert drawer.sync(scene.state.x) == 3  # the kernel path, from the scene's f64 field
+    assert np.all(np.isfinite(drawer.pos.to_numpy()))
+    renderer = Renderer(window, [describe(scene)], SIZE)
+    assert renderer.render([scene.state.x], DrawOptions()) == [3]
+    assert renderer.read_image().any()
+
+
+def test_side_by_side_panels_are_offset_and_labelled(window):
+    session = Session("spring", ["euler", "symplectic_euler"], dt=0.02)
+    renderer = Renderer(window, session.visuals(), SIZE)
+    assert renderer.offsets[1][0] - renderer.offsets[0][0] > 0.5
+    renderer.render([r.display for r in session.runners], session.options)
+    image = renderer.read_image()
+    pins = np.array([r.scene.x0[0] for r in session.runners]) + np.array(renderer.offsets)
+    uv, _ = renderer.camera.project(pins)
+    assert uv[0][0] < 0.5 < uv[1][0]
+    bg = background_mask(image)
+    for p in uv:
+        r, c = pixel(p)
+        assert not bg[r - 1:r + 2, c - 1:c + 2].all()  # each pin is drawn
+    labels = frame_labels(session, renderer, SIZE)
+    texts = [label.text for label in labels]
+    assert "euler" in texts and "symplectic_euler" in texts
+    assert labels[0].x < labels[1].x
+
+
+def test_launcher_draws_panel_hud_and_help_offscreen(window):
+    from taichi_sim.app.launcher import Launcher
+
+    session = Session("simple", ["euler"], dt=0.1)
+    session.show_help = True
+    launcher = Launcher(session, SIZE, window=window)
+    for _ in range(3):
+        launcher.draw_frame()
+    image = launcher.renderer.read_image()
+    assert session.runners[0].steps == 30
+    assert not background_mask(image)[:, : SIZE[0] // 5].all()  # the control panel is drawn
+    assert any("t = 3.000 s" in line for line in session.hud_lines())
+
+
+# -- recording ------------------------------------------------------------------------------------
+
+def test_record_mp4_and_gif_read_back_with_the_right_frames(window, tmp_path):
+    clip = Clip(scene="cloth", integrators=("symplectic_euler",), params={"nx": 8, "ny": 8},
+                seconds=0.5, fps=10, size=(96, 64))
+    result = record(clip, tmp_path / "cloth.mp4", progress=False)
+    frames = video_frames(result.path)
+    assert len(frames) == 5 and frames[0].shape == (64, 96, 3)
+    assert not np.array_equal(frames[0], frames[-1])
+    gif = record(Clip(scene="spring", integrators=("euler", "rk4"), dt=0.05, seconds=0.4, fps=10,
+                      size=(192, 128)), tmp_path / "spring.gif", still=tmp_path / "still.png", progress=False)
+    frames = imageio.mimread(gif.path)
+    assert len(frames) == 4 and frames[0].shape[:2] == (128, 192)
+    assert imageio.imread(gif.still).shape[:2] == (128, 192)
+    folder = record(Clip(scene="simple", integrators=("euler",), seconds=0.3, fps=10, size=(32, 32)),
+                    str(tmp_path / "frames") + "/", progress=False)
+    assert sorted(os.listdir(folder.path)) == [f"frame_{k:05d}.png" for k in range(3)]
+    assert sorted(os.listdir(tmp_path)) == ["cloth.mp4", "frames", "spring.gif", "still.png"]
+
+
+def test_showcase_table_and_a_short_recording(window, tmp_path):
+    for entry in SHOWCASE:
+        assert entry.clip.integrators[0] in ts.INTEGRATORS and entry.clip.scene in ts.SCENES
+        assert entry.clip.size[0] * entry.clip.size[1] <= 640 * 320 and entry.clip.fps <= 15
+    entry = shortened(next(e for e in SHOWCASE if len(e.clip.integrators) > 1), 0.5)
+    (result,) = record_showcase(tmp_path / "media", progress=False, entries=(entry,))
+    assert result.path.stat().st_size < 2_000_000 and result.still.stat().st_size < 2_000_000
+    assert sorted(p.name for p in (tmp_path / "media").iterdir()) == [f"{entry.name}.gif", f"{entry.name}.png"]
+
+
+# -- the command line (bad input fails before any work; no Vulkan is one clear line) ---------------
+
+@pytest.mark.parametrize("args, message", [
+    (["--size", "0x10"], "--size"),
+    (["--size", "1280x720x3"], "--size"),
+    (["--size", "5000x100"], "--size"),
+    (["--size", "101x100"], "even"),
+    (["--fps", "0"], "--fps"),
+    (["--seconds", "-1"], "--seconds"),
+    (["--integrator", "nope"], "unknown integrator"),
+    (["--set", "nx=1"], "nx"),
+])
+def test_record_rejects_bad_input_with_exit_2_and_no_file(tmp_path, capsys, args, message):
+    out = tmp_path / "clip.mp4"
+    assert main(["record", "cloth", *args, "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert message in err and len(err.splitlines()) == 1 and err.startswith("taichi-sim: error:")
+    assert not out.exists() and not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("make_out", [
+    lambda tmp: tmp / "missing" / "clip.mp4",
+    lambda tmp: tmp / "clip.avi",
+    lambda tmp: tmp,  # a directory given as a file... is a PNG folder, but not an empty one
+    lambda tmp: tmp / "frames.gif" / "x.gif",
+])
+def test_record_rejects_unwritable_outputs(tmp_path, capsys, make_out):
+    (tmp_path / "keep.txt").write_text("x")
+    out = make_out(tmp_path)
+    assert main(["record", "spring", "--out", str(out)]) == 2
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1
+    assert sorted(os.listdir(tmp_path)) == ["keep.txt"]
+
+
+def test_showcase_takes_no_scene_and_demo_needs_a_display(monkeypatch, capsys, tmp_path):
+    assert main(["record", "cloth", "--showcase", str(tmp_path)]) == 2
+    assert "--showcase records its own scenes" in capsys.readouterr().err
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    assert main(["demo", "pendulum"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "needs a display" in err and len(err.splitlines()) == 1
+
+
+def test_without_vulkan_record_says_what_to_install(monkeypatch, capsys, tmp_path):
+    monkeypatch.setattr(vulkan, "ICD_DIRS", (str(tmp_path / "no-icds"),))
+    monkeypatch.setattr(vulkan.platform, "system", lambda: "Linux")
+    monkeypatch.delenv("VK_ICD_FILENAMES", raising=False)
+    monkeypatch.delenv("VK_DRIVER_FILES", raising=False)
+    with pytest.raises(RenderUnavailable, match="mesa-vulkan-drivers"):
+        open_window("x", (32, 32))
+    out = tmp_path / "clip.gif"
+    assert main(["record", "spring", "--seconds", "0.2", "--fps", "5", "--size", "32x32",
+                 "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "mesa-vulkan-drivers" in err and "Vulkan" in err
+    assert not out.exists() and sorted(os.listdir(tmp_path)) == []
+    code = main(["simulate", "spring", "--steps", "3", "--out", str(tmp_path / "run.npz"), "--quiet"])
+    assert code == 0  # the simulation commands do not need Vulkan
+
+
+def test_record_command_writes_an_mp4(window, tmp_path, capsys):
+    out = tmp_path / "pendulum.mp4"
+    assert main(["record", "pendulum", "--side-by-side", "euler,symplectic_euler", "--dt", "0.005",
+                 "--seconds", "0.5", "--fps", "8", "--size", "64x48", "--out", str(out), "--quiet"]) == 0
+    frames = video_frames(out)
+    assert len(frames) == 4 and frames[0].shape == (48, 64, 3)
+    assert sorted(os.listdir(tmp_path)) == ["pendulum.mp4"]
