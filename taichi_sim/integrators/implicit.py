@@ -174,7 +174,9 @@ class _ImplicitStageMethod(Integrator):
         merit = stage.merit(state, tau) if not linearised else math.nan
         for newton in range(1, self.newton_iterations + 1):
             start = time.perf_counter()
-            outcome = stage.solve(tau, t_stage, self.cg_tolerance, self.cg_max_iterations)
+            # The first solve of a step is warm-started from the previous step's (CG only):
+            # later Newton corrections are small and unrelated to it.
+            outcome = stage.solve(tau, t_stage, self.cg_tolerance, self.cg_max_iterations, warm_start=newton == 1)
             stats.solve_seconds += time.perf_counter() - start
             stats.solves += 1
             stats.iterations += outcome.iterations
@@ -319,8 +321,8 @@ class _VelocityNewton:
         residual_norm, _ = self.residual(y0, t, tau)
         return 1, residual_norm
 
-    def solve(self, tau: float, t: float, tolerance: float, max_iterations: int) -> _LinearOutcome:
-        return self.linear.solve(tau, tau * tau, t, tolerance, max_iterations, self.stats)
+    def solve(self, tau: float, t: float, tolerance: float, max_iterations: int, warm_start: bool) -> _LinearOutcome:
+        return self.linear.solve(tau, tau * tau, t, tolerance, max_iterations, self.stats, warm_start)
 
     def advance(self, y0: State, tau: float, fraction: float) -> int:
         """V += fraction dV, X = x0 + tau V; returns the number of non-finite particles."""
@@ -457,12 +459,17 @@ class _BlockJacobiCG:
         """Nothing to do: CG has no symbolic analysis."""
 
     def solve(self, a: float, b: float, t: float, tolerance: float, max_iterations: int,
-              stats: LinearSolverStats) -> _LinearOutcome:
-        rr, rz = self._start(a, b, t)
-        rhs_norm = math.sqrt(rr)
+              stats: LinearSolverStats, warm_start: bool) -> _LinearOutcome:
+        """Solve from dV = 0, or from the last solution (``warm_start``: a step's velocity change
+        is close to the previous step's, which saves iterations)."""
+        rr, rz, bb = self._start(a, b, t, int(warm_start))
+        rhs_norm = math.sqrt(bb)
         if rhs_norm == 0.0:
+            self.solution.fill(0.0)
             return _LinearOutcome(iterations=0, residual=0.0, converged=True)
         threshold = (tolerance * rhs_norm) ** 2
+        if rr <= threshold:
+            return _LinearOutcome(iterations=0, residual=math.sqrt(rr) / rhs_norm, converged=True)
         for iteration in range(1, max_iterations + 1):
             curvature = self._apply_matrix(a, b, t)
             if not curvature > 0.0:
@@ -479,23 +486,28 @@ class _BlockJacobiCG:
             f"> cg_tolerance={tolerance:.3g}"))
 
     @ti.kernel
-    def _start(self, a: float, b: float, t: float) -> (float, float):
+    def _start(self, a: float, b: float, t: float, warm: ti.i32) -> (float, float, float):
         rr = 0.0
         rz = 0.0
+        bb = 0.0
         for i in self.r:
             inverse = ti.Matrix.zero(self.r.dtype, 3, 3)
             if self.system.free[i]:
                 inverse = self.system.system_matrix_diagonal_block(i, self.point, a, b, t).inverse()
             self.inverse_diagonal[i] = inverse
             r = self.rhs[i]
+            if warm:
+                r -= self.system.system_matrix_row(i, self.point, self.solution, a, b, t)
+            else:
+                self.solution[i] = ti.Vector.zero(self.r.dtype, 3)
             z = inverse @ r
-            self.solution[i] = ti.Vector.zero(self.r.dtype, 3)
             self.r[i] = r
             self.z[i] = z
             self.p[i] = z
             rr += r.dot(r)
             rz += r.dot(z)
-        return rr, rz
+            bb += self.rhs[i].dot(self.rhs[i])
+        return rr, rz, bb
 
     @ti.kernel
     def _apply_matrix(self, a: float, b: float, t: float) -> float:
@@ -558,7 +570,7 @@ class _SparseCholesky:
         self.analysed_version = None
 
     def solve(self, a: float, b: float, t: float, tolerance: float, max_iterations: int,
-              stats: LinearSolverStats) -> _LinearOutcome:
+              stats: LinearSolverStats, warm_start: bool) -> _LinearOutcome:
         self.system.assemble_system_matrix(self.point, a, b, t, self.builder)
         matrix = self.builder.build()
         version = self.system.jacobian_pattern_version
@@ -674,7 +686,7 @@ class _NewtonKrylov:
     def commit(self, y: State, h: float) -> int:
         return self._commit(y)
 
-    def solve(self, tau: float, t: float, tolerance: float, max_iterations: int) -> _LinearOutcome:
+    def solve(self, tau: float, t: float, tolerance: float, max_iterations: int, warm_start: bool) -> _LinearOutcome:
         """Restarted GMRES(restart) on (I - tau J) dY = -g, from dY = 0 (Saad & Schultz 1986)."""
         self._zero(self.step_row)
         rhs_norm = math.sqrt(self._dot(self.rhs_row, self.rhs_row))
