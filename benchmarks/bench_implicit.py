@@ -37,7 +37,8 @@ def bench(precision: str, solver: str, args) -> dict:
         for _ in range(steps):
             report = integrator.step(scene.state, t, DT)
             if report.status is not ts.Status.OK:
-                raise RuntimeError(f"{precision} {solver}: {report.status.value} at t = {t:.3f} s: {report.message}")
+                raise RuntimeError(f"{precision} {solver}: {report.status.value} at t = {t:.3f} s: "
+                                   f"{report.message}")
             t += DT
 
     advance(args.warmup)
@@ -55,7 +56,8 @@ def bench(precision: str, solver: str, args) -> dict:
         "precision": precision, "solver": stats.solver, "rate": statistics.median(rates),
         "rate_min": min(rates), "rate_max": max(rates),
         "iterations": (stats.iterations - iterations0) / timed_steps,
-        "factorize_ms": 1e3 * (stats.factorize_seconds - factorize_s0) / factorizations if factorizations else None,
+        "factorize_ms": (1e3 * (stats.factorize_seconds - factorize_s0) / factorizations
+                         if factorizations else None),
         "analyze_ms": 1e3 * stats.analyze_seconds if stats.analyze_count else None,
         "analyze_count": stats.analyze_count, "backend": ts.runtime.backend(),
     }

@@ -108,11 +108,11 @@ def build_parser() -> argparse.ArgumentParser:
     rec = sub.add_parser("record", help="render a scene offscreen into .mp4, .gif or a folder of PNGs")
     rec.add_argument("scene", nargs="?", help="scene to record (not with --showcase)")
     _add_view_options(rec)
-    rec.add_argument("--seconds", type=_positive_float, default=5.0, help="video length in s")
-    rec.add_argument("--fps", type=_positive_float, default=30.0, help="video frames per second")
-    rec.add_argument("--size", default="1280x720", metavar="WxH", help="video size in pixels")
-    rec.add_argument("--speed", type=_positive_float, default=1.0,
-                     help="simulated seconds per video second")
+    rec.add_argument("--seconds", type=_positive_float, help="video length in s (default 5)")
+    rec.add_argument("--fps", type=_positive_float, help="video frames per second (default 30)")
+    rec.add_argument("--size", metavar="WxH", help="video size in pixels (default 1280x720)")
+    rec.add_argument("--speed", type=_positive_float,
+                     help="simulated seconds per video second (default 1)")
     dest = rec.add_mutually_exclusive_group(required=True)
     dest.add_argument("--out", help="FILE.mp4, FILE.gif, or DIR/ for PNG frames")
     dest.add_argument("--showcase", metavar="DIR",
@@ -224,9 +224,11 @@ def cmd_record(args) -> int:
     if args.showcase is not None:
         extra = [flag for flag, given in (("SCENE", args.scene), ("--integrator", args.integrator),
                                           ("--side-by-side", args.side_by_side), ("--dt", args.dt),
-                                          ("--set", args.assignments)) if given]
+                                          ("--set", args.assignments), ("--seconds", args.seconds),
+                                          ("--fps", args.fps), ("--size", args.size),
+                                          ("--speed", args.speed)) if given]
         if extra:
-            raise ConfigError(f"--showcase records its own scenes; drop {', '.join(extra)}")
+            raise ConfigError(f"--showcase records its own scenes and settings; drop {', '.join(extra)}")
         try:
             runtime.init(arch=args.arch, precision=args.precision)
             recordings = record_showcase(args.showcase, progress=None if not args.quiet else False)
@@ -240,8 +242,8 @@ def cmd_record(args) -> int:
         raise ConfigError("record needs a SCENE (or --showcase DIR)")
     spec = _session_args(args)
     clip = Clip(scene=spec["scene"], integrators=spec["integrators"], params=spec["params"],
-                dt=spec["dt"], seconds=args.seconds, fps=args.fps, size=parse_size(args.size),
-                speed=args.speed, seed=args.seed)
+                dt=spec["dt"], seconds=args.seconds or 5.0, fps=args.fps or 30.0,
+                size=parse_size(args.size or "1280x720"), speed=args.speed or 1.0, seed=args.seed)
     check_clip(clip)
     check_output(args.out, clip.size, clip.fps)
     try:

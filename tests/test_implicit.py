@@ -1,6 +1,5 @@
 """Implicit Euler (Baraff-Witkin) and implicit midpoint: closed forms, measured orders, stability
 at the extremes, the two linear solvers, pinned particles, failure statuses and the Jacobians."""
-import math
 
 import numpy as np
 import pytest
@@ -51,7 +50,8 @@ def test_finite_difference_jacobian_products_reach_the_same_solution(f64):
     # uses the true f: each iteration gains ~8 digits, so newton_tolerance 1e-13 is reachable.
     scene = ts.build_scene("simple")
     scene.system.has_jacobian_product = False
-    integrator = create_integrator("implicit_euler", scene.system, newton_iterations=5, newton_tolerance=1e-13)
+    integrator = create_integrator("implicit_euler", scene.system, newton_iterations=5,
+                                   newton_tolerance=1e-13)
     h, steps = 0.1, 100
     result = ts.run(scene, integrator, dt=h, steps=steps)
     assert result.status is Status.OK and integrator.stats.solver == "gmres"
@@ -96,9 +96,10 @@ def test_stiff_cloth_exact_backward_euler_never_gains_energy(f64):
     # The Baraff-Witkin linearisation does not inherit this (see the next test), so the exact
     # solution is asked for (Newton with a line search on the incremental potential). Each step
     # is solved to relative residual 1e-8, which perturbs the energy at that relative order:
-    # 1e-6 |E0| is the allowance; the step-by-step dissipation is ~1e-3 |E0|.
+    # 1e-6 |E0| is the allowance; each step dissipates a few 1e-3 |E0|.
     scene = ts.build_scene("cloth", STIFF_CLOTH)
-    integrator = create_integrator("implicit_euler", scene.system, linear_solver="direct", newton_iterations=200)
+    integrator = create_integrator("implicit_euler", scene.system, linear_solver="direct",
+                                   newton_iterations=200, newton_tolerance=1e-8)
     result = ts.run(scene, integrator, dt=1 / 30, steps=6)
     assert result.status is Status.OK, result.message
     assert scene.state.nonfinite_count() == 0
@@ -109,7 +110,7 @@ def test_stiff_cloth_exact_backward_euler_never_gains_energy(f64):
 def test_stiff_cloth_baraff_witkin_stays_finite_and_settles(f64):
     # One linearised step per frame: starting flat at rest length, the springs have no transverse
     # stiffness, so the first step lets the particles next to the pins fall freely and stretch
-    # their springs; the energy jumps transiently (a known limit of the linearisation, ~10^3 J
+    # their springs; the energy jumps transiently (a known limit of the linearisation: ~8e3 J
     # here). Backward Euler's L-stability damps the stiff modes by ~(h omega)^-2 ~ 1e-7 per step,
     # so the jump must die out: finite throughout, and below the initial energy after 1 s.
     scene = ts.build_scene("cloth", STIFF_CLOTH)
@@ -154,7 +155,8 @@ def test_direct_and_cg_agree_to_their_tolerances(f64):
         velocities[solver] = scene.state.v.to_numpy()
     # A factorisation in f32 (Taichi's default) could not get the residual below ~1e-7.
     assert reports["direct"].linear_residual < 1e-12
-    bound = (reports["cg"].linear_residual + reports["direct"].linear_residual) * rhs_norm / scene.arrays["mass"].min()
+    residuals = reports["cg"].linear_residual + reports["direct"].linear_residual
+    bound = residuals * rhs_norm / scene.arrays["mass"].min()
     assert np.linalg.norm(velocities["cg"] - velocities["direct"]) <= bound
 
 
@@ -222,7 +224,8 @@ def test_newton_iteration_cap_is_not_converged(f64):
     # Two quasi-Newton iterations cannot gain 8 digits on the strongly nonlinear stiff cloth
     # (the exact solve above takes dozens).
     scene = ts.build_scene("cloth", STIFF_CLOTH)
-    integrator = create_integrator("implicit_midpoint", scene.system, linear_solver="direct", newton_iterations=2)
+    integrator = create_integrator("implicit_midpoint", scene.system, linear_solver="direct",
+                                   newton_iterations=2)
     report = integrator.step(scene.state, 0.0, 1 / 30)
     assert report.status is Status.NOT_CONVERGED and "newton_iterations=2" in report.message
 
@@ -252,11 +255,12 @@ def _force_jacobian_product(system: ti.template(), y: ti.template(), p: ti.templ
 
 
 class _Probe:
-    """A 5x5 cloth with dashpots and drag and scratch fields (allocated once: every new field
-    passed to a kernel compiles a new variant of it)."""
+    """A 5x5 cloth with dashpots, drag and a grab spring holding particle 12, and scratch fields
+    (allocated once: every new field passed to a kernel compiles a new variant of it)."""
 
     def __init__(self):
-        self.scene = ts.build_scene("cloth", {"nx": 5, "ny": 5, "damping": 0.3, "drag": 0.1})
+        self.scene = ts.build_scene("cloth", {"nx": 5, "ny": 5, "damping": 0.3, "drag": 0.1, "grab": True})
+        self.scene.system.term("grab").hold(12, [0.1, 1.2, 0.0])
         n = self.scene.particle_count
         self.state = self.scene.system.make_state()
         self.direction = ti.Vector.field(3, ti.f64, shape=n)
@@ -288,6 +292,7 @@ class _Probe:
 
 
 def test_spring_jacobians_match_central_differences(f64, rng):
+    # Springs, dashpots, drag and the grab spring together, through the system's sum.
     # Every spring stretched by 20%: the compression clamp is inactive, so df/dx is exact. The
     # dashpots' dependence on x (left out of df/dx) is proportional to relative velocity, so
     # df/dx is checked at rest; df/dv (dashpots and drag) at random velocities, where f is linear
@@ -344,6 +349,16 @@ def test_newton_krylov_fallback_reaches_the_same_backward_euler_state(f64):
         states.append(scene.state.to_numpy())
     np.testing.assert_allclose(states[1][0], states[0][0], atol=1e-9)
     np.testing.assert_allclose(states[1][1], states[0][1], atol=1e-7)
+
+
+def test_wind_and_grab_scenes_use_the_jacobian_path(f64):
+    # Wind declares zero Jacobians (not stiff: treated explicitly by the linearised step) and the
+    # grab spring exact ones, so these scenes keep CG instead of finite-difference GMRES.
+    scene = ts.build_scene("cloth", {"nx": 6, "ny": 6, "wind": True, "grab": True})
+    scene.system.term("grab").hold(20, [0.0, 1.5, 0.0])
+    integrator = create_integrator("implicit_euler", scene.system)
+    assert integrator.stats.solver == "pcg"
+    assert ts.run(scene, integrator, dt=1 / 60, steps=5).status is Status.OK
 
 
 # ---------------------------------------------------------------- options and the CLI

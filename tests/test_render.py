@@ -31,15 +31,24 @@ SIZE = (320, 200)
 _window_cache: dict = {}
 
 
+def _release_window():
+    window = _window_cache.pop("window", None)
+    _window_cache.clear()
+    if window is not None:
+        window.destroy()  # while its runtime lives: a window collected after ti.init crashes
+
+
 @pytest.fixture(scope="module")
 def runtime():
-    """One Taichi runtime for this module (CPU, f64): windows die with the runtime."""
+    """One Taichi runtime for this module (CPU, f64); the shared window goes with it."""
     ts.init(arch="cpu", precision="f64")
+    yield
+    _release_window()
 
 
 @pytest.fixture
 def window(runtime):
-    """A shared offscreen window, re-created if another test re-initialised Taichi."""
+    """A shared offscreen window (re-created after a test that re-initialised Taichi)."""
     prog = ti.lang.impl.get_runtime().prog
     if _window_cache.get("prog") is not prog:
         problem = vulkan.vulkan_problem()
@@ -47,6 +56,16 @@ def window(runtime):
             pytest.skip(f"no usable Vulkan: {problem}")
         _window_cache.update(prog=prog, window=open_window("taichi_sim tests", SIZE))
     return _window_cache["window"]
+
+
+@pytest.fixture
+def own_windows(runtime):
+    """For tests that open their own windows or call ti.init again: the shared window is
+    destroyed first (GGUI supports one window at a time; closing one breaks the others)."""
+    _release_window()
+    problem = vulkan.vulkan_problem()
+    if problem:
+        pytest.skip(f"no usable Vulkan: {problem}")
 
 
 def video_frames(path):
@@ -351,6 +370,56 @@ def test_non_finite_positions_never_reach_the_staging_fields(window):
     assert renderer.read_image().any()
 
 
+def test_torn_springs_drop_their_triangles_and_lines(window):
+    scene = ts.build_scene("cloth-tear", {"nx": 6, "ny": 6})
+    visual = describe(scene)
+    assert visual.tearing and visual.spheres is not None and visual.plane is not None
+    drawer = SceneDrawer(visual)
+    options = DrawOptions(mesh=True, springs=True)
+    drawer.sync(scene.state.x)
+    drawer.update(options, eye=(0.0, 3.0, 3.0))
+    lines = drawer.line_count
+    assert lines == len(visual.line_springs)
+    tri = drawer.tri_idx.to_numpy().reshape(-1, 3)
+    assert np.all(tri[:, 0] != tri[:, 1])
+    # tear the structural spring between particles 0 and 1 (grid (0,0)-(0,1))
+    ends = visual.springs
+    s = int(np.flatnonzero((np.minimum(ends[:, 0], ends[:, 1]) == 0) & (np.maximum(ends[:, 0], ends[:, 1]) == 1))[0])
+    alive = scene.springs.alive.to_numpy()
+    alive[s] = 0
+    scene.springs.alive.from_numpy(alive)
+    drawer.update(options, eye=(0.0, 3.0, 3.0))
+    assert drawer.line_count == lines - 1
+    tri = drawer.tri_idx.to_numpy().reshape(-1, 3)
+    gone = (tri[:, 0] == tri[:, 1]) & (tri[:, 1] == tri[:, 2])
+    edges = {frozenset(e) for t in visual.triangles[gone] for e in ((t[0], t[1]), (t[1], t[2]), (t[2], t[0]))}
+    assert gone.sum() == 1 and frozenset((0, 1)) in edges  # exactly the triangle on that edge
+    normals = drawer.normals.to_numpy()[:36]
+    assert np.all(np.isfinite(normals)) and np.allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-5)
+    renderer = Renderer(window, [visual], SIZE)
+    renderer.render([scene.state.x], options)
+    image = renderer.read_image()
+    assert (~background_mask(image)).mean() > 0.05  # floor, sphere and cloth are drawn
+
+
+def test_only_live_emitter_particles_are_drawn(window):
+    scene = ts.build_scene("sprinkler", {"capacity": 64, "rate": 200.0})
+    visual = describe(scene)
+    runner = Runner(scene, "symplectic_euler", 2e-3)
+    runner.advance(0.1)
+    drawer = SceneDrawer(visual)
+    drawer.sync(scene.state.x)
+    drawer.update(DrawOptions(particles=True), eye=(0.0, 1.0, 3.0))
+    live = scene.emitter.alive.to_numpy().astype(bool)
+    assert 0 < drawer.emitted_count == live.sum() < 64
+    drawn = drawer.emitted.to_numpy()[:drawer.emitted_count]
+    expected = scene.state.x.to_numpy()[visual.emitter.first:][live]
+    np.testing.assert_allclose(np.sort(drawn, axis=0), np.sort(expected, axis=0), rtol=1e-5, atol=1e-6)
+    renderer = Renderer(window, [visual], SIZE)
+    renderer.render([scene.state.x], DrawOptions(particles=True))
+    assert renderer.read_image().any()
+
+
 def test_side_by_side_panels_are_offset_and_labelled(window):
     session = Session("spring", ["euler", "symplectic_euler"], dt=0.02)
     renderer = Renderer(window, session.visuals(), SIZE)
@@ -376,17 +445,23 @@ def test_launcher_draws_panel_hud_and_help_offscreen(window):
     session = Session("simple", ["euler"], dt=0.1)
     session.show_help = True
     launcher = Launcher(session, SIZE, window=window)
-    for _ in range(3):
+    for _ in range(3):  # each frame is read back, as window.show() would present it
         launcher.draw_frame()
-    image = launcher.renderer.read_image()
+        image = launcher.renderer.read_image()
     assert session.runners[0].steps == 30
     assert not background_mask(image)[:, : SIZE[0] // 5].all()  # the control panel is drawn
     assert any("t = 3.000 s" in line for line in session.hud_lines())
+    assert launcher.renderer.drawers[0].trail_count == 3  # one sample per frame
+    session.reset()
+    session.toggle_pause()
+    launcher.draw_frame()
+    launcher.renderer.read_image()
+    assert launcher.renderer.drawers[0].trail_count == 1  # restarted, not joined to the old path
 
 
 # -- recording ------------------------------------------------------------------------------------
 
-def test_record_mp4_and_gif_read_back_with_the_right_frames(window, tmp_path):
+def test_record_mp4_and_gif_read_back_with_the_right_frames(own_windows, tmp_path):
     clip = Clip(scene="cloth", integrators=("symplectic_euler",), params={"nx": 8, "ny": 8},
                 seconds=0.5, fps=10, size=(96, 64))
     result = record(clip, tmp_path / "cloth.mp4", progress=False)
@@ -404,7 +479,7 @@ def test_record_mp4_and_gif_read_back_with_the_right_frames(window, tmp_path):
     assert sorted(os.listdir(tmp_path)) == ["cloth.mp4", "frames", "spring.gif", "still.png"]
 
 
-def test_showcase_table_and_a_short_recording(window, tmp_path):
+def test_showcase_table_and_a_short_recording(own_windows, tmp_path):
     for entry in SHOWCASE:
         assert entry.clip.integrators[0] in ts.INTEGRATORS and entry.clip.scene in ts.SCENES
         assert entry.clip.size[0] * entry.clip.size[1] <= 640 * 320 and entry.clip.fps <= 15
@@ -458,7 +533,8 @@ def test_showcase_takes_no_scene_and_demo_needs_a_display(monkeypatch, capsys, t
     assert "needs a display" in err and len(err.splitlines()) == 1
 
 
-def test_without_vulkan_record_says_what_to_install(monkeypatch, capsys, tmp_path):
+def test_without_vulkan_record_says_what_to_install(runtime, monkeypatch, capsys, tmp_path):
+    _release_window()  # the command below calls ti.init
     monkeypatch.setattr(vulkan, "ICD_DIRS", (str(tmp_path / "no-icds"),))
     monkeypatch.setattr(vulkan.platform, "system", lambda: "Linux")
     monkeypatch.delenv("VK_ICD_FILENAMES", raising=False)
@@ -475,7 +551,7 @@ def test_without_vulkan_record_says_what_to_install(monkeypatch, capsys, tmp_pat
     assert code == 0  # the simulation commands do not need Vulkan
 
 
-def test_record_command_writes_an_mp4(window, tmp_path, capsys):
+def test_record_command_writes_an_mp4(own_windows, tmp_path):
     out = tmp_path / "pendulum.mp4"
     assert main(["record", "pendulum", "--side-by-side", "euler,symplectic_euler", "--dt", "0.005",
                  "--seconds", "0.5", "--fps", "8", "--size", "64x48", "--out", str(out), "--quiet"]) == 0

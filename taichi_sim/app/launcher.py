@@ -50,6 +50,7 @@ class Launcher:
                  for v, off in zip(self.renderer.visuals, self.renderer.offsets) if v.grabber is not None]
         self.control = CameraControl(self.renderer.camera, self.renderer.home, hooks)
         self.generation = self.session.generation
+        self.resets = self.session.resets
 
     def run(self) -> None:
         """The interactive loop, until the window closes or Escape is pressed."""
@@ -67,6 +68,7 @@ class Launcher:
         for event in self.window.get_events(ti.ui.PRESS):
             if self._guard(apply_key, event.key, self.session, self.control) == "quit":
                 self.window.running = False
+        self.window.get_events(ti.ui.RELEASE)  # drained: GGUI queues them until read
         u, v = self.window.get_cursor_pos()
         over = u < PANEL[2] or (u > HUD[0] and v > 1.0 - HUD[3])
         self.control.update(u, v, left=self.window.is_pressed(ti.ui.LMB),
@@ -77,6 +79,9 @@ class Launcher:
         """Advance the session one frame and draw the scenes, the panel, the HUD and the help."""
         if self.session.generation != self.generation:
             self._rebuild()
+        elif self.session.resets != self.resets:
+            self.renderer.clear_trails()
+            self.resets = self.session.resets
         self.session.frame()
         if not self.control.user_moved:
             self.renderer.follow([r.last_good for r in self.session.runners])

@@ -91,7 +91,7 @@ def frame_labels(session: Session, renderer: Renderer, size: tuple[int, int]) ->
             y = float(np.clip((1.0 - v) * height - 0.3 * line, line, height - 2 * line))
             labels.append(Label(r.name, x, y))
             if r.frozen:
-                labels.append(Label(f"{r.status.value.replace('_', ' ')} at t = {r.t:.3g} s",
+                labels.append(Label(f"{r.status.value.replace('_', ' ')} at t = {r.failed_at:.3g} s",
                                     x, y + line, WARNING, anchor="mt"))
     t = max(r.t for r in runners)  # runs that froze stopped their clocks
     names = " vs ".join(r.name for r in runners)

@@ -19,7 +19,7 @@ from ..scene.scene import Scene
 ADVICE = "lower the step or pick a more stable integrator"
 
 #: A run whose energy rises above its start by more than this many times the scene's energy
-#: scale has diverged, even while its numbers are still finite.
+#: scale (see :func:`energy_scale`) has diverged, even while its numbers are still finite.
 ENERGY_GROWTH_LIMIT = 100.0
 
 #: Most integrator calls in one :meth:`Runner.advance` (an adaptive method crawling at tiny
@@ -34,12 +34,12 @@ class Runner:
         scene: the scene to step (the runner owns its state from now on).
         integrator: registry name of the method.
         dt: the step (s): every step of a fixed-step method, the first of an adaptive one.
-        label: shown next to the scene (default: the integrator's name).
 
     Attributes:
         t: simulated time (s); steps: accepted steps; f_evals: evaluations of f.
         status: ``Status.OK`` while running; anything else froze the run.
-        failure: what stopped the run ("diverged at t = 0.24 s (energy overflowed)"), else "".
+        failure: what stopped the run ("diverged at t = 0.24 s (energy overflowed)"), else "";
+            failed_at: the time (s) it names.
         message: ``failure`` with the advice (": lower the step or pick a more stable
             integrator"), else "".
         energy: total energy (J) at the last frame, or None when the system has none.
@@ -47,10 +47,10 @@ class Runner:
         last_good: (n, 3) float64 positions of the last frame whose state was finite.
     """
 
-    def __init__(self, scene: Scene, integrator: str, dt: float, *, label: str | None = None):
+    def __init__(self, scene: Scene, integrator: str, dt: float):
         self.scene = scene
-        self.label = label
         self.dt = float(dt)
+        self._integrators: dict = {}  # bound once per method: scratch fields, compiled kernels
         self.set_integrator(integrator)
         self.restart()
 
@@ -58,13 +58,17 @@ class Runner:
 
     @property
     def name(self) -> str:
-        """The label shown for this run."""
-        return self.label or self.integrator.name
+        """The label shown for this run: its integrator's name."""
+        return self.integrator.name
 
     def set_integrator(self, name: str) -> None:
-        """Switch method (keeps the state and time; a frozen run stays frozen until reset)."""
+        """Switch method (keeps the state and time; a frozen run stays frozen until reset).
+        Each method is bound to the system once and reused when switched back to."""
         integrator_class(name)  # unknown names raise ConfigError before anything changes
-        self.integrator = create_integrator(name, self.scene.system)
+        if name not in self._integrators:
+            self._integrators[name] = create_integrator(name, self.scene.system)
+        self.integrator = self._integrators[name]
+        self.system_changed()  # a method switched back to may hold a stale f
         self._h_next = self.dt
 
     def set_dt(self, dt: float) -> None:
@@ -87,6 +91,7 @@ class Runner:
         self.f_evals = 0
         self.status = Status.OK
         self.failure = self.message = ""
+        self.failed_at = 0.0
         self.sim_ms = 0.0
         self._pending = 0.0
         self._h_next = self.dt
@@ -101,7 +106,8 @@ class Runner:
         f = self.scene.features
         if f.get("tearing") or f.get("emitter"):
             self.scene = build_scene(self.scene.name, self.scene.params, seed=self.scene.seed)
-            self.set_integrator(self.integrator.name)
+            name, self._integrators = self.integrator.name, {}
+            self.set_integrator(name)
         else:
             self.scene.reset()
         self.restart()
@@ -176,7 +182,7 @@ class Runner:
         energy = self.scene.energy()
         if energy is not None and not math.isfinite(energy):
             self._freeze(Status.DIVERGED, self.t, "energy overflowed")
-        elif energy is not None and energy - self.energy0 > ENERGY_GROWTH_LIMIT * self.energy_scale:
+        elif self.energy_scale is not None and energy - self.energy0 > ENERGY_GROWTH_LIMIT * self.energy_scale:
             self._freeze(Status.DIVERGED, self.t, "energy blew up")
         else:
             self.last_good = x
@@ -184,15 +190,19 @@ class Runner:
 
     def _freeze(self, status: Status, t: float, detail: str) -> None:
         self.status = status
+        self.failed_at = t
         detail = f" ({detail})" if detail else ""
         self.failure = f"{status.value.replace('_', ' ')} at t = {t:.4g} s{detail}"
         self.message = f"{self.failure}: {ADVICE}"
 
 
-def energy_scale(scene: Scene, energy0: float | None) -> float:
-    """A typical energy (J) of ``scene``: the larger of |E(0)| and total mass x |g| x size."""
+def energy_scale(scene: Scene, energy0: float | None) -> float | None:
+    """A typical energy (J) of ``scene``: the larger of |E(0)| and total mass x |g| x size; None
+    when the energy has no scale to grow from (no energy, or an emitter feeding in particles)."""
+    if energy0 is None or scene.features.get("emitter"):
+        return None
     x0 = np.asarray(scene.x0, np.float64)
     size = float(np.linalg.norm(np.ptp(x0, axis=0))) if len(x0) > 1 else float(np.linalg.norm(x0))
     arrays = scene.arrays
     weight = float(np.sum(arrays.get("mass", 0.0))) * float(np.linalg.norm(arrays.get("gravity", 0.0)))
-    return max(abs(energy0 or 0.0), weight * size, 1e-12)
+    return max(abs(energy0), weight * size, 1e-12)

@@ -137,7 +137,8 @@ class Session:
         self.paused = False
         self.show_help = False
         self.show_setup = False
-        self.generation = 0
+        self.generation = 0  # bumped when the scenes are rebuilt: renderers must be too
+        self.resets = 0  # bumped by every reset: drawn trails must restart
         self.runners: list[Runner] = []
         self._build(integrators)
 
@@ -270,6 +271,7 @@ class Session:
 
     def reset(self) -> None:
         """Back to t = 0. Pending parameter changes apply now (the scenes are rebuilt)."""
+        self.resets += 1
         if self.pending:
             self.params.update(self.pending)
             self.pending = {}

@@ -45,6 +45,14 @@ SHOWCASE: tuple[Showcase, ...] = (
     Showcase("integrators", "the pendulum chain at h = 8 ms with explicit Euler (diverges and "
              "freezes), RK4 and symplectic Euler (both stable)",
              _clip("pendulum", ["euler", "rk4", "symplectic_euler"], dt=8e-3, size=(640, 300))),
+    Showcase("cloth-sphere", "a cloth drops onto a sphere above the ground",
+             _clip("cloth-sphere", ["symplectic_euler"], params={"nx": 24, "ny": 24})),
+    Showcase("cloth-tear", "a sphere drops through a cloth held at two sides and tears it",
+             _clip("cloth-tear", ["symplectic_euler"])),
+    Showcase("cloth-wind", "a flag on a pole in gusty wind: the two sides in two colours",
+             _clip("cloth-wind", ["symplectic_euler"], params={"nx": 24, "ny": 24})),
+    Showcase("sprinkler", "a sprinkler: particles coloured by age bounce on the ground",
+             _clip("sprinkler", ["symplectic_euler"])),
 )
 
 

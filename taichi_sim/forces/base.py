@@ -19,7 +19,10 @@ class ForceTerm:
     a (df/dv p)_i + b (df/dx p)_i (N) for a (n,) vec3 field ``p`` that is zero on pinned
     particles, and ``jacobian_diagonal_block(i, y, a, b, t)``, the 3x3 matrix
     a df_i/dv_i + b df_i/dx_i. Both are evaluated at state ``y``; ``a`` and ``b`` are scalars
-    (an implicit step of size tau uses a = tau, b = tau**2)."""
+    (an implicit step of size tau uses a = tau, b = tau**2). A term that is not stiff may
+    return zero (or approximate) Jacobians: a linearised implicit step then treats it
+    explicitly, while Newton iterations still converge to the exact implicit solution, since
+    their residual uses the true force."""
 
     couples_particles = False
     """Whether the force on one particle depends on others (springs). Such a term also provides

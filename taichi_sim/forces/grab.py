@@ -17,6 +17,7 @@ class GrabSpring(ForceTerm):
     """
 
     name = "grab"
+    has_jacobian = True  # on the grabbed particle: df/dx = -stiffness I, df/dv = -damping I
 
     def __init__(self, stiffness: float, damping: float):
         real = runtime.real()
@@ -41,3 +42,17 @@ class GrabSpring(ForceTerm):
         if i == self.particle[None]:
             f = self.stiffness[None] * (self.target[None] - y.x[i]) - self.damping[None] * y.v[i]
         return f
+
+    @ti.func
+    def jacobian_product(self, i, y, p, a, b, t):
+        out = ti.Vector.zero(y.x.dtype, 3)
+        if i == self.particle[None]:
+            out = -(a * self.damping[None] + b * self.stiffness[None]) * p[i]
+        return out
+
+    @ti.func
+    def jacobian_diagonal_block(self, i, y, a, b, t):
+        block = ti.Matrix.zero(y.x.dtype, 3, 3)
+        if i == self.particle[None]:
+            block = -(a * self.damping[None] + b * self.stiffness[None]) * ti.Matrix.identity(y.x.dtype, 3)
+        return block

@@ -15,12 +15,16 @@ capability flags (never by its class):
 * ``system.supports_jacobian`` (particle systems whose force terms all provide Jacobians): the
   velocity form of Baraff & Witkin (1998). With X = x0 + tau V, the unknown is V and the residual
   is g(V) = M (V - v0) - tau f(X, V); each Newton iteration solves A dV = -g with
-  A = M - tau df/dv - tau^2 df/dx, symmetric positive definite thanks to the spring Jacobians'
-  compression clamp (see :class:`taichi_sim.forces.Springs`). The first iteration linearises f
-  about the current state (x0, v0) instead of (x0 + tau v0, v0), which gives Baraff & Witkin's
-  step exactly: A dV = tau (f0 + tau df/dx v0). Pinned particles are filtered out of the solve
-  (identity rows) and keep their position bit for bit. A is applied matrix-free for conjugate
-  gradients, or assembled for a sparse Cholesky factorisation.
+  A = M - tau df/dv - tau^2 df/dx and analytic force Jacobians. A is kept symmetric positive
+  definite, so CG and Cholesky apply: a compressed spring's stiffness block drops its transverse
+  term (the factor 1 - r/|d| is clamped at 0; the exact, negative factor would make A indefinite
+  for stiff springs at large steps), and the dashpots' non-symmetric dependence on positions is
+  left out, as Baraff & Witkin do (see :class:`taichi_sim.forces.Springs`). Only the Jacobian is
+  approximated, never the force, so iterated Newton still solves the exact equations. The first
+  iteration linearises f about the current state (x0, v0) instead of (x0 + tau v0, v0), which
+  gives Baraff & Witkin's step exactly: A dV = tau (f0 + tau df/dx v0). Pinned particles are
+  filtered out of the solve (identity rows) and keep their position bit for bit. A is applied
+  matrix-free for conjugate gradients, or assembled for a sparse Cholesky factorisation.
 * otherwise (the circle ODE, or any system without that API): Newton-Krylov on the whole state,
   with the residual g(Y) = Y - y0 - tau f(Y) and GMRES on (I - tau df/dy) dY = -g. The
   Jacobian-vector products come from ``system.jacobian_product`` when the system has one
@@ -60,11 +64,19 @@ MAX_BACKTRACKS = 20  # step halvings before the line search gives up (smallest s
 MAX_REFINEMENTS = 2  # iterative-refinement steps of a direct solve that missed the tolerance
 
 
-def default_tolerance() -> float:
-    """Default relative tolerance of the linear and Newton solves: 1e-8 in f64; 1e-5 in f32,
-    about 100 f32 rounding units (a residual summing a dozen spring forces is not computed to
-    much better than that)."""
+def default_cg_tolerance() -> float:
+    """Default relative residual of a linear solve: 1e-8 in f64; 1e-5 in f32, about 100 f32
+    rounding units (a residual summing a dozen spring forces is not computed much better)."""
     return 1e-8 if runtime.precision() == "f64" else 1e-5
+
+
+def default_newton_tolerance() -> float:
+    """Default relative nonlinear residual of an iterated stage: 1e-6 in f64, far below a
+    step's truncation error at practical step sizes (velocities good to ~1e-6 of their scale),
+    yet usually reached within 20 iterations where compressed springs make Newton converge only
+    linearly (factor ~0.4 per iteration on a folding cloth, slower near buckling); 1e-5 in f32.
+    Ask for less when measuring accuracy."""
+    return 1e-6 if runtime.precision() == "f64" else 1e-5
 
 
 @dataclass
@@ -104,6 +116,25 @@ class _LinearOutcome:
     message: str = ""
 
 
+@dataclass
+class _StepWork:
+    """What one step has done so far, for its report."""
+
+    h: float
+    f_evals: int = 0
+    linear_iterations: int = 0
+    linear_residual: float = 0.0
+
+    def report(self, status: Status, message: str = "", *, accepted: bool = True) -> StepReport:
+        return StepReport(accepted=accepted, h=self.h if accepted else 0.0, next_h=self.h,
+                          f_evals=self.f_evals, status=status, linear_iterations=self.linear_iterations,
+                          linear_residual=self.linear_residual, message=message)
+
+    def failed(self, status: Status, message: str) -> StepReport:
+        """A step that left the state as it was."""
+        return self.report(status, message, accepted=False)
+
+
 class _ImplicitStageMethod(Integrator):
     """Shared Newton driver of :class:`ImplicitEuler` and :class:`ImplicitMidpoint`.
 
@@ -120,9 +151,9 @@ class _ImplicitStageMethod(Integrator):
         newton_tolerance: bound on the relative nonlinear residual |g| / |s|, where s adds up
             the magnitudes of the terms of g (momentum, each force piece; for a first-order
             system |Y| + |y0| + tau |f|), i.e. the residual relative to what it is computed
-            from. Default :func:`default_tolerance`.
+            from. Default :func:`default_newton_tolerance`.
         cg_tolerance: bound on the relative residual |rhs - A dY| / |rhs| of each linear solve
-            (CG or GMRES). Default :func:`default_tolerance`.
+            (CG or GMRES). Default :func:`default_cg_tolerance`.
         cg_max_iterations: Krylov iterations allowed per linear solve (default 1000).
     """
 
@@ -135,20 +166,22 @@ class _ImplicitStageMethod(Integrator):
                  cg_max_iterations: int = 1000):
         super().__init__(system)
         if linear_solver not in LINEAR_SOLVERS:
-            raise ConfigError(f"linear_solver must be one of {', '.join(LINEAR_SOLVERS)}, got {linear_solver!r}")
+            raise ConfigError(f"linear_solver must be one of {', '.join(LINEAR_SOLVERS)}, "
+                              f"got {linear_solver!r}")
         self.linear_solver = linear_solver
         self.newton_iterations = _positive_int("newton_iterations", self.default_newton_iterations
                                                if newton_iterations is None else newton_iterations)
         self.cg_max_iterations = _positive_int("cg_max_iterations", cg_max_iterations)
-        self.newton_tolerance = _tolerance("newton_tolerance", newton_tolerance)
-        self.cg_tolerance = _tolerance("cg_tolerance", cg_tolerance)
+        self.newton_tolerance = _tolerance("newton_tolerance", newton_tolerance, default_newton_tolerance)
+        self.cg_tolerance = _tolerance("cg_tolerance", cg_tolerance, default_cg_tolerance)
         if system.supports_jacobian:
             self._stage = _VelocityNewton(system, self.stage_fraction, linear_solver)
         elif linear_solver == "direct":
             raise ConfigError(f"linear_solver 'direct' needs a system with spring Jacobians; "
                               f"{type(system).__name__} has none (use 'cg')")
         else:
-            self._stage = _NewtonKrylov(system, self.stage_fraction, min(GMRES_RESTART, self.cg_max_iterations))
+            restart = min(GMRES_RESTART, self.cg_max_iterations)
+            self._stage = _NewtonKrylov(system, self.stage_fraction, restart)
         self.stats: LinearSolverStats = self._stage.stats
 
     def invalidate_pattern(self) -> None:
@@ -159,78 +192,86 @@ class _ImplicitStageMethod(Integrator):
     def step(self, state: State, t: float, h: float) -> StepReport:
         tau = self.stage_fraction * h
         t_stage = t + tau
-        stage, stats = self._stage, self.stats
+        stage = self._stage
+        work = _StepWork(h)
         linearised = self.newton_iterations == 1
-        f_evals, residual_norm = stage.begin(state, t_stage, tau, linearised)
-        iterations, linear_residual = 0, 0.0
-
-        def failed(status: Status, message: str) -> StepReport:
-            return StepReport(accepted=False, h=0.0, next_h=h, f_evals=f_evals, status=status,
-                              linear_iterations=iterations, linear_residual=linear_residual,
-                              message=message)
-
-        converged = linearised
+        work.f_evals, residual_norm = stage.begin(state, t_stage, tau, linearised)
+        merit = math.nan if linearised else stage.merit(state, tau)
         relative_residual = math.nan
-        merit = stage.merit(state, tau) if not linearised else math.nan
         for newton in range(1, self.newton_iterations + 1):
-            start = time.perf_counter()
-            # The first solve of a step is warm-started from the previous step's (CG only):
-            # later Newton corrections are small and unrelated to it.
-            outcome = stage.solve(tau, t_stage, self.cg_tolerance, self.cg_max_iterations, warm_start=newton == 1)
-            stats.solve_seconds += time.perf_counter() - start
-            stats.solves += 1
-            stats.iterations += outcome.iterations
-            f_evals += outcome.f_evals
-            iterations += outcome.iterations
-            linear_residual = outcome.residual
-            if not math.isfinite(outcome.residual):
-                return failed(Status.DIVERGED, f"{stats.solver} produced a non-finite residual")
-            if not outcome.converged:
-                return failed(Status.NOT_CONVERGED, outcome.message)
+            failure = self._solve_linear(tau, t_stage, work)
+            if failure is not None:
+                return failure
             if linearised:
                 if stage.advance(state, tau, 1.0) > 0:
-                    return failed(Status.DIVERGED, "non-finite state")
-                break
-            # Backtracking line search. Far from the solution a full Newton step overshoots
-            # (stiff springs swinging about a pin stretch quadratically along the linearised
-            # path). A step is accepted when it decreases the residual norm or, where the stage
-            # has one, the merit function whose gradient is the residual (the incremental
-            # potential, for which the Newton direction with an SPD matrix is a descent
-            # direction) by the Armijo fraction of the decrease the linear model predicts.
-            slope = stage.merit_slope()
-            fraction = 1.0
-            stage.advance(state, tau, fraction)
-            for backtrack in range(MAX_BACKTRACKS + 1):
-                new_norm, scale = stage.residual(state, t_stage, tau)
-                new_merit = stage.merit(state, tau)
-                f_evals += 1
-                accepted = (new_norm <= (1.0 - ARMIJO_SLOPE * fraction) * residual_norm
-                            or new_merit <= merit + ARMIJO_SLOPE * fraction * slope)
-                if accepted or backtrack == MAX_BACKTRACKS:
-                    break
-                stage.advance(state, tau, -0.5 * fraction)
-                fraction *= 0.5
+                    return work.failed(Status.DIVERGED, "non-finite state")
+                return self._commit(state, work)
+            accepted, new_norm, scale, new_merit = self._line_search(state, t_stage, tau, residual_norm,
+                                                                     merit, work)
             if not math.isfinite(new_norm):
-                return failed(Status.DIVERGED, f"non-finite nonlinear residual at Newton iteration {newton}")
+                return work.failed(Status.DIVERGED,
+                                   f"non-finite nonlinear residual at Newton iteration {newton}")
             relative_residual = new_norm / scale if scale > 0 else new_norm
             if relative_residual <= self.newton_tolerance:
-                converged = True
-                break
+                return self._commit(state, work)
             if not accepted:
-                return failed(Status.NOT_CONVERGED, f"Newton iteration {newton}: the line search found no "
-                              f"sufficient decrease (relative residual {relative_residual:.3g} > "
-                              f"newton_tolerance={self.newton_tolerance:.3g})")
+                return work.failed(Status.NOT_CONVERGED,
+                                   f"Newton iteration {newton}: the line search found no sufficient "
+                                   f"decrease (relative residual {relative_residual:.3g} > "
+                                   f"newton_tolerance={self.newton_tolerance:.3g})")
             residual_norm, merit = new_norm, new_merit
-        if not converged:
-            return failed(Status.NOT_CONVERGED,
-                          f"Newton reached newton_iterations={self.newton_iterations} with relative "
-                          f"residual {relative_residual:.3g} > newton_tolerance={self.newton_tolerance:.3g}")
-        if stage.commit(state, h) > 0:
-            return StepReport(accepted=True, h=h, next_h=h, f_evals=f_evals, status=Status.DIVERGED,
-                              linear_iterations=iterations, linear_residual=linear_residual,
-                              message="non-finite state")
-        return StepReport(accepted=True, h=h, next_h=h, f_evals=f_evals, linear_iterations=iterations,
-                          linear_residual=linear_residual)
+        return work.failed(Status.NOT_CONVERGED,
+                           f"Newton reached newton_iterations={self.newton_iterations} with relative "
+                           f"residual {relative_residual:.3g} > newton_tolerance={self.newton_tolerance:.3g}")
+
+    def _solve_linear(self, tau: float, t_stage: float, work: _StepWork) -> StepReport | None:
+        """One linear solve for the Newton step, counted; a failure report, or None."""
+        stats = self.stats
+        start = time.perf_counter()
+        outcome = self._stage.solve(tau, t_stage, self.cg_tolerance, self.cg_max_iterations)
+        stats.solve_seconds += time.perf_counter() - start
+        stats.solves += 1
+        stats.iterations += outcome.iterations
+        work.f_evals += outcome.f_evals
+        work.linear_iterations += outcome.iterations
+        work.linear_residual = outcome.residual
+        if not math.isfinite(outcome.residual):
+            return work.failed(Status.DIVERGED, f"{stats.solver} produced a non-finite residual")
+        if not outcome.converged:
+            return work.failed(Status.NOT_CONVERGED, outcome.message)
+        return None
+
+    def _line_search(self, state: State, t_stage: float, tau: float, residual_norm: float, merit: float,
+                     work: _StepWork) -> tuple[bool, float, float, float]:
+        """Take the Newton step, halving it until it is accepted (or MAX_BACKTRACKS).
+
+        Far from the solution a full Newton step can overshoot (stiff springs swinging about a
+        pin stretch quadratically along the linearised path). A step is accepted when it
+        decreases the residual norm or, where the stage has one, the merit function whose
+        gradient is the residual (the incremental potential, which the Newton direction descends
+        because A is positive definite) by the Armijo fraction of the decrease the linear model
+        predicts. Returns (accepted, |g|, |s|, merit) at the point reached.
+        """
+        stage = self._stage
+        slope = stage.merit_slope()
+        fraction = 1.0
+        stage.advance(state, tau, fraction)
+        for backtrack in range(MAX_BACKTRACKS + 1):
+            new_norm, scale = stage.residual(state, t_stage, tau)
+            new_merit = stage.merit(state, tau)
+            work.f_evals += 1
+            accepted = (new_norm <= (1.0 - ARMIJO_SLOPE * fraction) * residual_norm
+                        or new_merit <= merit + ARMIJO_SLOPE * fraction * slope)
+            if accepted or backtrack == MAX_BACKTRACKS:
+                break
+            stage.advance(state, tau, -0.5 * fraction)
+            fraction *= 0.5
+        return accepted, new_norm, scale, new_merit
+
+    def _commit(self, state: State, work: _StepWork) -> StepReport:
+        if self._stage.commit(state, work.h) > 0:
+            return work.report(Status.DIVERGED, "non-finite state", accepted=True)
+        return work.report(Status.OK)
 
 
 class ImplicitEuler(_ImplicitStageMethod):
@@ -256,15 +297,19 @@ class ImplicitMidpoint(_ImplicitStageMethod):
     and symmetric; it conserves quadratic invariants exactly (the energy of linear springs, the
     circle's radius) up to the solver tolerances, neither damping nor growing oscillations.
 
-    Solved by Newton iterations (default up to 10, to ``newton_tolerance``) on the midpoint
-    stage, a backward Euler stage of size h/2. Options: see :class:`_ImplicitStageMethod`.
+    Solved by Newton iterations (default up to 20, to ``newton_tolerance``) on the midpoint
+    stage, a backward Euler stage of size h/2. Where many springs are compressed (a folding
+    cloth) the clamped Jacobian makes Newton converge only linearly, slowly near buckling: at
+    large steps the cap may be reached (NOT_CONVERGED; e.g. the default cloth at h = 1/60 s after
+    about 1 s, while h = 1/120 s runs). Then lower the step, allow more iterations, or use
+    :class:`ImplicitEuler`. Options: see :class:`_ImplicitStageMethod`.
     """
 
     name = "implicit_midpoint"
     order = 2
     description = "implicit midpoint rule (Newton iterations; conserves quadratic invariants)"
     stage_fraction = 0.5
-    default_newton_iterations = 10
+    default_newton_iterations = 20
 
 
 def _positive_int(name: str, value) -> int:
@@ -273,9 +318,9 @@ def _positive_int(name: str, value) -> int:
     return int(value)
 
 
-def _tolerance(name: str, value) -> float:
+def _tolerance(name: str, value, default) -> float:
     if value is None:
-        return default_tolerance()
+        return default()
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 < value < 1:
         raise ConfigError(f"{name} must be a number in (0, 1), got {value!r}")
     return float(value)
@@ -321,8 +366,8 @@ class _VelocityNewton:
         residual_norm, _ = self.residual(y0, t, tau)
         return 1, residual_norm
 
-    def solve(self, tau: float, t: float, tolerance: float, max_iterations: int, warm_start: bool) -> _LinearOutcome:
-        return self.linear.solve(tau, tau * tau, t, tolerance, max_iterations, self.stats, warm_start)
+    def solve(self, tau: float, t: float, tolerance: float, max_iterations: int) -> _LinearOutcome:
+        return self.linear.solve(tau, tau * tau, t, tolerance, max_iterations, self.stats)
 
     def advance(self, y0: State, tau: float, fraction: float) -> int:
         """V += fraction dV, X = x0 + tau V; returns the number of non-finite particles."""
@@ -459,22 +504,18 @@ class _BlockJacobiCG:
         """Nothing to do: CG has no symbolic analysis."""
 
     def solve(self, a: float, b: float, t: float, tolerance: float, max_iterations: int,
-              stats: LinearSolverStats, warm_start: bool) -> _LinearOutcome:
-        """Solve from dV = 0, or from the last solution (``warm_start``: a step's velocity change
-        is close to the previous step's, which saves iterations)."""
-        rr, rz, bb = self._start(a, b, t, int(warm_start))
-        rhs_norm = math.sqrt(bb)
+              stats: LinearSolverStats) -> _LinearOutcome:
+        rr, rz = self._start(a, b, t)
+        rhs_norm = math.sqrt(rr)
         if rhs_norm == 0.0:
-            self.solution.fill(0.0)
             return _LinearOutcome(iterations=0, residual=0.0, converged=True)
         threshold = (tolerance * rhs_norm) ** 2
-        if rr <= threshold:
-            return _LinearOutcome(iterations=0, residual=math.sqrt(rr) / rhs_norm, converged=True)
         for iteration in range(1, max_iterations + 1):
             curvature = self._apply_matrix(a, b, t)
             if not curvature > 0.0:
                 # A is positive definite by construction; this means NaN/inf reached the solve.
-                return _LinearOutcome(iteration, math.nan, False, message=f"CG breakdown (p.Ap = {curvature:.3g})")
+                return _LinearOutcome(iteration, math.nan, False,
+                                      message=f"CG breakdown (p.Ap = {curvature:.3g})")
             rz_old = rz
             rr, rz = self._update(rz_old / curvature)
             if rr <= threshold or not math.isfinite(rr):
@@ -486,28 +527,23 @@ class _BlockJacobiCG:
             f"> cg_tolerance={tolerance:.3g}"))
 
     @ti.kernel
-    def _start(self, a: float, b: float, t: float, warm: ti.i32) -> (float, float, float):
+    def _start(self, a: float, b: float, t: float) -> (float, float):
         rr = 0.0
         rz = 0.0
-        bb = 0.0
         for i in self.r:
             inverse = ti.Matrix.zero(self.r.dtype, 3, 3)
             if self.system.free[i]:
                 inverse = self.system.system_matrix_diagonal_block(i, self.point, a, b, t).inverse()
             self.inverse_diagonal[i] = inverse
             r = self.rhs[i]
-            if warm:
-                r -= self.system.system_matrix_row(i, self.point, self.solution, a, b, t)
-            else:
-                self.solution[i] = ti.Vector.zero(self.r.dtype, 3)
             z = inverse @ r
+            self.solution[i] = ti.Vector.zero(self.r.dtype, 3)
             self.r[i] = r
             self.z[i] = z
             self.p[i] = z
             rr += r.dot(r)
             rz += r.dot(z)
-            bb += self.rhs[i].dot(self.rhs[i])
-        return rr, rz, bb
+        return rr, rz
 
     @ti.kernel
     def _apply_matrix(self, a: float, b: float, t: float) -> float:
@@ -560,8 +596,8 @@ class _SparseCholesky:
                               f"{runtime.backend()}); use 'cg'")
         self.system, self.point, self.rhs, self.solution = system, point, rhs, solution
         size = 3 * system.particle_count
-        self.builder = ti.linalg.SparseMatrixBuilder(size, size, max_num_triplets=system.system_matrix_triplet_capacity,
-                                                     dtype=runtime.real())
+        self.builder = ti.linalg.SparseMatrixBuilder(
+            size, size, max_num_triplets=system.system_matrix_triplet_capacity, dtype=runtime.real())
         self.solver = ti.linalg.SparseSolver(dtype=runtime.real(), solver_type="LLT")
         self.analysed_version: int | None = None
         self.residual = ti.Vector.field(3, runtime.real(), shape=system.particle_count)  # then the correction
@@ -570,7 +606,7 @@ class _SparseCholesky:
         self.analysed_version = None
 
     def solve(self, a: float, b: float, t: float, tolerance: float, max_iterations: int,
-              stats: LinearSolverStats, warm_start: bool) -> _LinearOutcome:
+              stats: LinearSolverStats) -> _LinearOutcome:
         self.system.assemble_system_matrix(self.point, a, b, t, self.builder)
         matrix = self.builder.build()
         version = self.system.jacobian_pattern_version
@@ -686,7 +722,7 @@ class _NewtonKrylov:
     def commit(self, y: State, h: float) -> int:
         return self._commit(y)
 
-    def solve(self, tau: float, t: float, tolerance: float, max_iterations: int, warm_start: bool) -> _LinearOutcome:
+    def solve(self, tau: float, t: float, tolerance: float, max_iterations: int) -> _LinearOutcome:
         """Restarted GMRES(restart) on (I - tau J) dY = -g, from dY = 0 (Saad & Schultz 1986)."""
         self._zero(self.step_row)
         rhs_norm = math.sqrt(self._dot(self.rhs_row, self.rhs_row))
@@ -724,7 +760,10 @@ class _NewtonKrylov:
                     hessenberg[j, k] = cos[j] * upper + sin[j] * lower
                     hessenberg[j + 1, k] = -sin[j] * upper + cos[j] * lower
                 radius = math.hypot(hessenberg[k, k], hessenberg[k + 1, k])
-                cos[k], sin[k] = (hessenberg[k, k] / radius, hessenberg[k + 1, k] / radius) if radius else (1.0, 0.0)
+                if radius:
+                    cos[k], sin[k] = hessenberg[k, k] / radius, hessenberg[k + 1, k] / radius
+                else:
+                    cos[k], sin[k] = 1.0, 0.0
                 hessenberg[k, k] = radius
                 hessenberg[k + 1, k] = 0.0
                 projected[k + 1] = -sin[k] * projected[k]
@@ -737,15 +776,17 @@ class _NewtonKrylov:
             if size:
                 # The rotated Hessenberg matrix is upper triangular; lstsq copes with a singular one.
                 weights = np.linalg.lstsq(np.triu(hessenberg[:size, :size]), projected[:size], rcond=None)[0]
-                self.coefficients.from_numpy(np.pad(weights, (0, self.restart - size)).astype(runtime.np_real()))
+                padded = np.pad(weights, (0, self.restart - size))
+                self.coefficients.from_numpy(padded.astype(runtime.np_real()))
                 self._add_combination(size)
-            if residual <= tolerance * rhs_norm or iterations >= max_iterations or not math.isfinite(residual):
+            if (residual <= tolerance * rhs_norm or iterations >= max_iterations
+                    or not math.isfinite(residual)):
                 break
-        relative = residual / rhs_norm
+        relative = float(residual / rhs_norm)
         converged = relative <= tolerance
-        return _LinearOutcome(iterations, float(relative), converged, f_evals=f_evals, message="" if converged else (
-            f"GMRES reached cg_max_iterations={max_iterations} with relative residual {relative:.3g} "
-            f"> cg_tolerance={tolerance:.3g}"))
+        message = "" if converged else (f"GMRES reached cg_max_iterations={max_iterations} with relative "
+                                        f"residual {relative:.3g} > cg_tolerance={tolerance:.3g}")
+        return _LinearOutcome(iterations, relative, converged, f_evals=f_evals, message=message)
 
     def _apply(self, source: int, target: int, t: float, tau: float) -> int:
         """Row ``target`` = (I - tau J) row ``source``; returns the f evaluations it took."""

@@ -86,6 +86,19 @@ def _colormap(s):
     return out
 
 
+def _unit_sphere(rings: int = 16, segments: int = 32) -> tuple[np.ndarray, np.ndarray]:
+    """A latitude-longitude unit sphere: vertices (m, 3) (also its normals) and triangles
+    (t, 3), wound counter-clockwise seen from outside."""
+    theta = np.linspace(0.0, np.pi, rings + 1)[:, None]
+    phi = np.linspace(0.0, 2.0 * np.pi, segments + 1)[None, :]
+    verts = np.stack(np.broadcast_arrays(np.sin(theta) * np.cos(phi), np.cos(theta),
+                                         -np.sin(theta) * np.sin(phi)), axis=-1).reshape(-1, 3)
+    idx = np.arange((rings + 1) * (segments + 1)).reshape(rings + 1, segments + 1)
+    a, b, c, d = idx[:-1, :-1], idx[1:, :-1], idx[:-1, 1:], idx[1:, 1:]
+    tris = np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3), np.stack([c, b, d], -1).reshape(-1, 3)])
+    return verts, tris
+
+
 @ti.data_oriented
 class SceneDrawer:
     """Staging fields and kernels for drawing one scene, shifted by ``offset`` (m).
@@ -182,14 +195,21 @@ class SceneDrawer:
             segs = np.concatenate(guides) + self.offset
             self.guide_vertices = ti.Vector.field(3, ti.f32, len(segs))
             self.guide_vertices.from_numpy(segs.astype(np.float32))
-        self.sphere_centers = None
+        self.sphere_vertices = None
         if v.spheres is not None:
+            # Triangle meshes, not GGUI particles: a particle is a flat impostor whose depth
+            # would cut through cloth draped over it. A touch smaller than the collider: cloth
+            # vertices rest on its surface, and the flat triangles between them would otherwise
+            # dip into the drawn sphere.
+            unit, tris = _unit_sphere()
             k = len(v.spheres.radii)
-            self.sphere_centers = ti.Vector.field(3, ti.f32, k)
-            self.sphere_radii = ti.field(ti.f32, k)
-            # A touch smaller than the collider: cloth vertices rest on its surface, and the flat
-            # triangles between them would otherwise dip into the drawn sphere.
-            self.sphere_radii.from_numpy((0.97 * v.spheres.radii).astype(np.float32))
+            self.sphere_shape = (0.98 * v.spheres.radii)[:, None, None] * unit[None]  # (K, m, 3)
+            m = len(unit)
+            self.sphere_vertices = ti.Vector.field(3, ti.f32, k * m)
+            self.sphere_normals = ti.Vector.field(3, ti.f32, k * m)
+            self.sphere_normals.from_numpy(np.tile(unit, (k, 1)).astype(np.float32))
+            self.sphere_indices = ti.field(ti.i32, k * tris.size)
+            self.sphere_indices.from_numpy((tris[None] + m * np.arange(k)[:, None, None]).ravel().astype(np.int32))
         self.floor = None
         if v.plane is not None:
             self.floor = self._floor_mesh()
@@ -278,9 +298,9 @@ class SceneDrawer:
             self._shade(ti.Vector([float(c) for c in eye], ti.f32), int(strain), float(options.strain_scale))
         if self.has_trail:
             self._push_trail()
-        if self.sphere_centers is not None:
-            centers = np.asarray(self.visual.spheres.centers(), np.float64).reshape(-1, 3) + self.offset
-            self.sphere_centers.from_numpy(centers.astype(np.float32))
+        if self.sphere_vertices is not None:
+            centers = np.asarray(self.visual.spheres.centers(), np.float64).reshape(-1, 1, 3) + self.offset
+            self.sphere_vertices.from_numpy((centers + self.sphere_shape).reshape(-1, 3).astype(np.float32))
         if self.emitter is not None and options.particles:
             self.emitted_count = self._gather_emitted()
 
@@ -292,9 +312,9 @@ class SceneDrawer:
             scene.mesh(verts, indices=tris, normals=nrm, per_vertex_color=col, two_sided=True)
         if self.guide_vertices is not None:
             scene.lines(self.guide_vertices, width=1.0, color=GUIDE)
-        if self.sphere_centers is not None:
-            scene.particles(self.sphere_centers, radius=float(v.spheres.radii[0]), color=SPHERE,
-                            per_vertex_radius=self.sphere_radii)
+        if self.sphere_vertices is not None:
+            scene.mesh(self.sphere_vertices, indices=self.sphere_indices, normals=self.sphere_normals,
+                       color=SPHERE)
         if self.surface and options.mesh:
             scene.mesh(self.pos, indices=self.tri_idx, normals=self.normals,
                        per_vertex_color=self.colors, two_sided=True)

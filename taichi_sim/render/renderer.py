@@ -124,6 +124,7 @@ class Renderer:
         return held
 
     def clear_trails(self) -> None:
+        """Forget every trail (after a reset, so no line joins the old path to the start)."""
         for d in self.drawers:
             d.clear_trail()
 

@@ -75,7 +75,9 @@ def check_output(path: str | os.PathLike, size: tuple[int, int], fps: float) -> 
     target = Path(os.fspath(path).rstrip("/" + os.sep) or ".")
     parent = target.parent
     if kind == "png":
-        if target.exists() and (not target.is_dir() or any(target.iterdir())):
+        if target.exists() and not target.is_dir():
+            raise ConfigError(f"frame folder {str(target)!r} is a file")
+        if target.exists() and any(target.iterdir()):
             raise ConfigError(f"frame folder {str(target)!r} exists and is not empty")
     elif target.is_dir():
         raise ConfigError(f"output path {str(target)!r} is a directory")

@@ -3,6 +3,9 @@
 GGUI renders with Vulkan. On a headless Linux machine Mesa's software driver (Debian package
 ``mesa-vulkan-drivers``) is enough for offscreen rendering; an on-screen window also needs a
 display (``DISPLAY`` or ``WAYLAND_DISPLAY``).
+
+Keep one window open at a time: in Taichi 1.7.4, closing (or garbage-collecting) a GGUI window
+breaks every other window still open, and a window must be closed before ``ti.init`` runs again.
 """
 from __future__ import annotations
 
@@ -69,8 +72,8 @@ def open_window(title: str, size: tuple[int, int], *, visible: bool = False):
 
 
 def vulkan_problem() -> str | None:
-    """None when an offscreen window opens here, else the one-line reason (for skips and the
-    launcher's choice between a window and recording). Taichi must be initialised."""
+    """None when an offscreen window opens here, else the one-line reason (for test skips).
+    Taichi must be initialised and no other window open (the probe window is closed)."""
     try:
         window = open_window("taichi_sim probe", (8, 8))
     except RenderUnavailable as exc:

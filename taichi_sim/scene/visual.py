@@ -6,9 +6,9 @@
 What it reads from the scene (every optional part may be None or absent; then nothing extra is
 drawn):
 
-- ``scene.state.x`` (positions, read every frame), ``scene.x0``, ``scene.name``,
-  ``scene.params``, ``scene.system.second_order``, ``scene.arrays["pinned"]`` and
-  ``scene.arrays["gravity"]``.
+- ``scene.x0``, ``scene.name``, ``scene.params``, ``scene.system.second_order``,
+  ``scene.arrays["pinned"]`` and ``scene.arrays["gravity"]`` (positions are read every frame by
+  the renderer from ``scene.state.x``).
 - ``scene.springs``: the springs term, with ``ends_np`` (S, 2), ``kind_np`` (S,) (0 structural,
   1 shear, 2 flex), ``rest`` (an (S,) field, m) and, when ``tearable``, ``alive`` (an (S,) int
   field, nonzero while intact). Springs are drawn as lines: a cloth's structural ones only.
@@ -20,12 +20,15 @@ drawn):
   moving sphere is drawn where it is) and ``radius`` (a (K,) field, m).
 - ``scene.plane``: a ground plane with ``point_np`` and ``normal_np`` ((3,) arrays).
 - ``scene.emitter``: a particle emitter with ``alive`` (a (capacity,) int field, nonzero for a
-  live particle), ``age`` (a (capacity,) float field, s), ``spec.lifetime`` (s), ``first`` (the
-  particle id of slot 0) and ``capacity``. Only live emitter particles are drawn.
+  live particle), ``age`` (a (capacity,) float field, s), ``first`` (the particle id of slot 0),
+  ``capacity`` and ``spec`` (its ``lifetime`` (s) colours particles by age; ``position``,
+  ``direction``, ``speed`` (m/s) and ``spread`` (degrees) frame the spray). Only live emitter
+  particles are drawn.
 - ``scene.grabber``: the mouse-grab API (``pick(origin, direction)``, ``grab(particle)``,
   ``drag_to(target)``, ``release()``), passed through for the launcher.
 - ``scene.view_bounds`` (optional): ``(lo, hi)``, two (3,) array-likes (m), the box the camera
-  frames at the start, overriding the box derived below.
+  frames at the start, overriding the one derived from the initial positions, pins, spheres,
+  spray and ground.
 
 A scene whose params hold integers ``nx`` and ``ny`` with ``nx * ny <= particle_count`` is a
 cloth grid: particle (i, j) has id ``i * ny + j`` (see :func:`taichi_sim.scene.cloth.grid_index`),
@@ -77,8 +80,8 @@ class SceneVisual:
 
     Attributes:
         name: the scene's preset name (used in labels).
-        positions: ``scene.state.x``, the (n,) vec3 field read every frame (m).
-        particle_count: n.
+        particle_count: n (the positions themselves are read every frame from the scene's
+            ``state.x`` field, or from an array the caller passes the renderer).
         first_order: whether the system is a first-order ODE (positions only).
         pinned: (n,) bool, pinned particles (drawn in a distinct colour).
         grid: (nx, ny) when particles ``0 .. nx*ny - 1`` form a cloth grid, else None.
@@ -101,7 +104,6 @@ class SceneVisual:
     """
 
     name: str
-    positions: Any
     particle_count: int
     first_order: bool
     pinned: np.ndarray
@@ -183,7 +185,7 @@ def describe(scene: Scene) -> SceneVisual:
     if emitter is not None:  # dead slots all sit at the nozzle: frame the spray's paths instead
         live[emitter.first:emitter.first + emitter.capacity] = False
         live[emitter.first] = True
-        extra.append(_spray(scene.emitter.spec, gravity))
+        extra.append(_spray(scene.emitter.spec, gravity, plane))
     lo, hi = _bounds(x0[live], pinned[live], hanging=bool(np.any(gravity != 0)),
                      swinging=not len(triangles), extra=extra, spheres=spheres, plane=plane)
     override = getattr(scene, "view_bounds", None)
@@ -197,13 +199,13 @@ def describe(scene: Scene) -> SceneVisual:
         radius = 0.3 * spacing
         view = (30.0, 30.0)
     else:
-        radius = 0.025 * size
+        radius = (0.005 if emitter is not None else 0.025) * size  # a spray is many small drops
         if len(rest):
             radius = min(radius, 0.15 * float(np.median(rest)))
         planar = bool(np.ptp(x0[:, 2]) == 0.0)
         view = (0.0, 0.0) if first_order else ((0.0, 8.0) if planar and emitter is None else (30.0, 20.0))
     return SceneVisual(
-        name=scene.name, positions=scene.state.x, particle_count=n, first_order=first_order,
+        name=scene.name, particle_count=n, first_order=first_order,
         pinned=pinned, grid=grid, triangles=triangles, mesh=mesh if len(triangles) else None,
         tearing=alive is not None, springs=springs, rest_length=rest, spring_alive=alive,
         line_springs=line_springs.astype(np.int64), spheres=spheres, plane=plane, emitter=emitter,
@@ -218,8 +220,9 @@ def _grid(params: dict, n: int) -> tuple[int, int] | None:
     return None
 
 
-def _spray(spec, gravity: np.ndarray) -> np.ndarray:
-    """Points (m) on the ballistic paths of the spray's axis and cone edges over a lifetime."""
+def _spray(spec, gravity: np.ndarray, plane: Plane | None) -> np.ndarray:
+    """Points (m) on the ballistic paths of the spray's axis and cone edges over a lifetime,
+    up to where they meet the ground plane."""
     axis = np.asarray(spec.direction, np.float64)
     axis /= np.linalg.norm(axis)
     helper = np.array([1.0, 0.0, 0.0]) if abs(axis[0]) < 0.9 else np.array([0.0, 0.0, 1.0])
@@ -229,8 +232,11 @@ def _spray(spec, gravity: np.ndarray) -> np.ndarray:
     c, s = math.cos(math.radians(spec.spread)), math.sin(math.radians(spec.spread))
     dirs = np.stack([axis, c * axis + s * u, c * axis - s * u, c * axis + s * w, c * axis - s * w])
     t = np.linspace(0.0, spec.lifetime, 40)[:, None, None]
-    paths = np.asarray(spec.position, np.float64) + spec.speed * dirs[None] * t + 0.5 * gravity * t**2
-    return paths.reshape(-1, 3)
+    paths = (np.asarray(spec.position, np.float64) + spec.speed * dirs[None] * t
+             + 0.5 * gravity * t**2).reshape(-1, 3)
+    if plane is not None:
+        paths = paths[(paths - plane.point) @ plane.normal >= 0.0]
+    return paths
 
 
 def _bounds(x0: np.ndarray, pinned: np.ndarray, *, hanging: bool, swinging: bool, extra,
