@@ -16,12 +16,9 @@ from ..errors import ConfigError
 from ..state import State, finite
 from ..systems.base import System
 from .base import Integrator, Status, StepReport
+from .explicit_rk import state_parts
+from .explicit_rk import weighted_stages
 from .tableau import DORMAND_PRINCE, FEHLBERG, ButcherTableau
-
-
-def _parts(state: State) -> tuple:
-    """The fields that make up ``state``: (x,) for a first-order system, (x, v) otherwise."""
-    return (state.x, state.v) if state.second_order else (state.x,)
 
 
 @ti.data_oriented
@@ -222,19 +219,13 @@ class EmbeddedRK(Integrator):
 
     @ti.func
     def _combination(self, weights: ti.template(), part: ti.template(), p):
-        """sum_j weights[j] k_j for component ``part`` (0: x, 1: v) of particle p; zero weights
-        compile away."""
-        total = ti.Vector.zero(self.stages[0].x.dtype, 3)
-        for j in ti.static(range(len(weights))):
-            if ti.static(weights[j] != 0.0):
-                total += weights[j] * ti.static(_parts(self.stages[j])[part])[p]
-        return total
+        return weighted_stages(self.stages, weights, part, p)
 
     @ti.kernel
     def _stage_input(self, y: ti.template(), i: ti.template(), h: float, out: ti.template()):
         for p in y.x:
             for part in ti.static(range(self.part_count)):
-                ti.static(_parts(out)[part])[p] = (ti.static(_parts(y)[part])[p]
+                ti.static(state_parts(out)[part])[p] = (ti.static(state_parts(y)[part])[p]
                                                    + h * self._combination(self.tableau.a[i], part, p))
 
     @ti.kernel
@@ -247,11 +238,11 @@ class EmbeddedRK(Integrator):
         for p in y.x:
             ok = True
             for part in ti.static(range(self.part_count)):
-                y_old = ti.static(_parts(y)[part])[p]
+                y_old = ti.static(state_parts(y)[part])[p]
                 if ti.static(not self.tableau.fsal):
-                    ti.static(_parts(self.candidate)[part])[p] = (
+                    ti.static(state_parts(self.candidate)[part])[p] = (
                         y_old + h * self._combination(self.tableau.b, part, p))
-                y_new = ti.static(_parts(self.candidate)[part])[p]
+                y_new = ti.static(state_parts(self.candidate)[part])[p]
                 error = ti.abs(h * self._combination(self.error_weights, part, p)) + roundoff * ti.abs(y_new)
                 scaled = error / (atol + rtol * ti.max(ti.abs(y_old), ti.abs(y_new)))
                 squares += scaled.dot(scaled)
@@ -265,11 +256,11 @@ class EmbeddedRK(Integrator):
         """y = y_new; an FSAL pair also keeps its last stage as the next first stage."""
         for p in y.x:
             for part in ti.static(range(self.part_count)):
-                y_new = ti.static(_parts(self.candidate)[part])[p]
-                ti.static(_parts(y)[part])[p] = y_new
+                y_new = ti.static(state_parts(self.candidate)[part])[p]
+                ti.static(state_parts(y)[part])[p] = y_new
                 if ti.static(self.tableau.fsal):
-                    ti.static(_parts(self.first_stage_point)[part])[p] = y_new
-                    ti.static(_parts(self.stages[0])[part])[p] = ti.static(_parts(self.stages[-1])[part])[p]
+                    ti.static(state_parts(self.first_stage_point)[part])[p] = y_new
+                    ti.static(state_parts(self.stages[0])[part])[p] = ti.static(state_parts(self.stages[-1])[part])[p]
 
     @ti.kernel
     def _differing_particles(self, y: ti.template()) -> ti.i32:
@@ -278,8 +269,8 @@ class EmbeddedRK(Integrator):
         for p in y.x:
             same = True
             for part in ti.static(range(self.part_count)):
-                kept = ti.static(_parts(self.first_stage_point)[part])[p]
-                if (ti.static(_parts(y)[part])[p] != kept).any():
+                kept = ti.static(state_parts(self.first_stage_point)[part])[p]
+                if (ti.static(state_parts(y)[part])[p] != kept).any():
                     same = False
             if not same:
                 count += 1
@@ -292,10 +283,10 @@ class EmbeddedRK(Integrator):
         f_squares = 0.0
         for p in y.x:
             for part in ti.static(range(self.part_count)):
-                y_p = ti.static(_parts(y)[part])[p]
+                y_p = ti.static(state_parts(y)[part])[p]
                 scale = atol + rtol * ti.abs(y_p)
                 y_scaled = y_p / scale
-                f_scaled = ti.static(_parts(self.stages[0])[part])[p] / scale
+                f_scaled = ti.static(state_parts(self.stages[0])[part])[p] / scale
                 y_squares += y_scaled.dot(y_scaled)
                 f_squares += f_scaled.dot(f_scaled)
         return y_squares, f_squares
@@ -305,8 +296,8 @@ class EmbeddedRK(Integrator):
         """stage_input = y + h f0."""
         for p in y.x:
             for part in ti.static(range(self.part_count)):
-                ti.static(_parts(self.stage_input)[part])[p] = (
-                    ti.static(_parts(y)[part])[p] + h * ti.static(_parts(self.stages[0])[part])[p])
+                ti.static(state_parts(self.stage_input)[part])[p] = (
+                    ti.static(state_parts(y)[part])[p] + h * ti.static(state_parts(self.stages[0])[part])[p])
 
     @ti.kernel
     def _slope_change_norm(self, y: ti.template(), rtol: float, atol: float) -> float:
@@ -314,9 +305,9 @@ class EmbeddedRK(Integrator):
         squares = 0.0
         for p in y.x:
             for part in ti.static(range(self.part_count)):
-                change = (ti.static(_parts(self.stages[1])[part])[p]
-                          - ti.static(_parts(self.stages[0])[part])[p])
-                scaled = change / (atol + rtol * ti.abs(ti.static(_parts(y)[part])[p]))
+                change = (ti.static(state_parts(self.stages[1])[part])[p]
+                          - ti.static(state_parts(self.stages[0])[part])[p])
+                scaled = change / (atol + rtol * ti.abs(ti.static(state_parts(y)[part])[p]))
                 squares += scaled.dot(scaled)
         return squares
 

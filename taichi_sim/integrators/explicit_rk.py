@@ -43,40 +43,39 @@ class ExplicitRK(Integrator):
     @ti.kernel
     def _stage_input(self, y: ti.template(), i: ti.template(), h: float):
         for p in y.x:
-            dx = ti.Vector.zero(y.x.dtype, 3)
-            for j in ti.static(range(i)):
-                if ti.static(self.tableau.a[i][j] != 0.0):
-                    dx += self.tableau.a[i][j] * self.stages[j].x[p]
-            self.stage_input.x[p] = y.x[p] + h * dx
-            if ti.static(y.second_order):
-                dv = ti.Vector.zero(y.x.dtype, 3)
-                for j in ti.static(range(i)):
-                    if ti.static(self.tableau.a[i][j] != 0.0):
-                        dv += self.tableau.a[i][j] * self.stages[j].v[p]
-                self.stage_input.v[p] = y.v[p] + h * dv
+            for part in ti.static(range(len(state_parts(y)))):
+                ti.static(state_parts(self.stage_input)[part])[p] = (
+                    ti.static(state_parts(y)[part])[p]
+                    + h * weighted_stages(self.stages, self.tableau.a[i], part, p))
 
     @ti.kernel
     def _advance(self, y: ti.template(), h: float) -> ti.i32:
         bad = 0
         for p in y.x:
-            dx = ti.Vector.zero(y.x.dtype, 3)
-            for j in ti.static(range(self.tableau.stage_count)):
-                if ti.static(self.tableau.b[j] != 0.0):
-                    dx += self.tableau.b[j] * self.stages[j].x[p]
-            x = y.x[p] + h * dx
-            y.x[p] = x
-            ok = finite(x)
-            if ti.static(y.second_order):
-                dv = ti.Vector.zero(y.x.dtype, 3)
-                for j in ti.static(range(self.tableau.stage_count)):
-                    if ti.static(self.tableau.b[j] != 0.0):
-                        dv += self.tableau.b[j] * self.stages[j].v[p]
-                v = y.v[p] + h * dv
-                y.v[p] = v
-                ok = ok and finite(v)
+            ok = True
+            for part in ti.static(range(len(state_parts(y)))):
+                value = ti.static(state_parts(y)[part])[p] + h * weighted_stages(self.stages, self.tableau.b, part, p)
+                ti.static(state_parts(y)[part])[p] = value
+                ok = ok and finite(value)
             if not ok:
                 bad += 1
         return bad
+
+
+def state_parts(state: State) -> tuple:
+    """The fields that make up ``state``: (x,) for a first-order system, (x, v) otherwise."""
+    return (state.x, state.v) if state.second_order else (state.x,)
+
+
+@ti.func
+def weighted_stages(stages: ti.template(), weights: ti.template(), part: ti.template(), p):
+    """sum_j weights[j] k_j for part ``part`` (0: x, 1: v) of particle p; the weights are
+    compile-time constants, so zero weights compile away."""
+    total = ti.Vector.zero(stages[0].x.dtype, 3)
+    for j in ti.static(range(len(weights))):
+        if ti.static(weights[j] != 0.0):
+            total += weights[j] * ti.static(state_parts(stages[j])[part])[p]
+    return total
 
 
 class Euler(ExplicitRK):
