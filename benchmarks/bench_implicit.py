@@ -4,17 +4,28 @@ solver, in f32 and f64.
 Run from the repository root (outside pytest):
 
     .venv/bin/python benchmarks/bench_implicit.py [--arch cpu] [--batches 7] [--batch-steps 10]
+        [--cg-tolerance TOL] [--preconditioner ssor|jacobi] [--no-warm-start] [--threads N]
+        [--accuracy]
 
 For every (precision, solver) the scene is built fresh, stepped ``--warmup`` times (kernel
 compilation, the direct solver's pattern analysis), then timed over ``--batches`` batches of
 ``--batch-steps`` steps. Reported: steps per second (median over batches, with the min-max
-range), linear-solver iterations per step, and for the direct solver the mean time of one
-numeric factorisation and of the one-off symbolic analysis.
+range), linear-solver iterations per step, the linear solver's wall time per step and per
+iteration (CG; the per-solve cache fill and start included), and for the direct solver the mean
+time of one numeric factorisation and of the one-off symbolic analysis. The 1-minute load
+average is printed first: other processes on the machine slow every figure.
+
+``--accuracy`` measures instead what the CG tolerance does to the result, in each precision:
+one step from the same state (t = 0.5 s) and 1 s of simulation, solved by CG at several
+tolerances and by the direct solver (the exact linear solve), against the method's own error
+(the direct solver at h against h/2).
 """
 import argparse
+import os
 import statistics
 import time
 
+import numpy as np
 import taichi as ti
 
 import taichi_sim as ts
@@ -25,10 +36,24 @@ DT = 1 / 60  # s
 PARAMS = {"nx": N, "ny": N, "stiffness": STIFFNESS, "shear_stiffness": STIFFNESS, "flex_stiffness": STIFFNESS}
 
 
+def init(precision: str, args) -> None:
+    ts.init(arch=args.arch, precision=precision, cpu_max_num_threads=args.threads)
+
+
+def integrator_options(args, solver: str = "cg") -> dict:
+    options = {"warm_start": not args.no_warm_start}
+    if args.cg_tolerance is not None:
+        options["cg_tolerance"] = args.cg_tolerance
+    if args.preconditioner is not None and solver == "cg":
+        options["preconditioner"] = args.preconditioner
+    return options
+
+
 def bench(precision: str, solver: str, args) -> dict:
-    ts.init(arch=args.arch, precision=precision)
+    init(precision, args)
     scene = ts.build_scene("cloth", PARAMS)
-    integrator = ts.create_integrator("implicit_euler", scene.system, linear_solver=solver)
+    integrator = ts.create_integrator("implicit_euler", scene.system, linear_solver=solver,
+                                      **integrator_options(args, solver))
     stats = integrator.stats
     t = 0.0
 
@@ -44,6 +69,7 @@ def bench(precision: str, solver: str, args) -> dict:
     advance(args.warmup)
     ti.sync()
     iterations0, factorize0, factorize_s0 = stats.iterations, stats.factorize_count, stats.factorize_seconds
+    solve_s0 = stats.solve_seconds
     rates = []
     for _ in range(args.batches):
         start = time.perf_counter()
@@ -52,15 +78,80 @@ def bench(precision: str, solver: str, args) -> dict:
         rates.append(args.batch_steps / (time.perf_counter() - start))
     timed_steps = args.batches * args.batch_steps
     factorizations = stats.factorize_count - factorize0
+    iterations = stats.iterations - iterations0
+    solve_s = stats.solve_seconds - solve_s0
     return {
-        "precision": precision, "solver": stats.solver, "rate": statistics.median(rates),
+        "precision": precision, "solver": f"{stats.solver}/{stats.preconditioner}" if stats.preconditioner
+        else stats.solver, "rate": statistics.median(rates),
         "rate_min": min(rates), "rate_max": max(rates),
-        "iterations": (stats.iterations - iterations0) / timed_steps,
+        "iterations": iterations / timed_steps,
+        "solve_ms": 1e3 * solve_s / timed_steps,
+        "iteration_ms": 1e3 * solve_s / iterations if stats.solver == "pcg" and iterations else None,
         "factorize_ms": (1e3 * (stats.factorize_seconds - factorize_s0) / factorizations
                          if factorizations else None),
         "analyze_ms": 1e3 * stats.analyze_seconds if stats.analyze_count else None,
         "analyze_count": stats.analyze_count, "backend": ts.runtime.backend(),
+        "tolerance": integrator.cg_tolerance,
     }
+
+
+def run_steps(scene, integrator, steps: int, h: float, t0: float = 0.0) -> None:
+    t = t0
+    for _ in range(steps):
+        report = integrator.step(scene.state, t, h)
+        if report.status is not ts.Status.OK:
+            raise RuntimeError(f"{report.status.value} at t = {t:.3f} s: {report.message}")
+        t += h
+
+
+def accuracy(precision: str, args) -> None:
+    """What the CG tolerance changes, against exact linear solves (the direct solver)."""
+    init(precision, args)
+    scene = ts.build_scene("cloth", PARAMS)
+    steps = round(1.0 / DT)
+    tight = 1e-8 if precision == "f64" else 1e-5
+    tolerances = (1e-2, 1e-3, 1e-4, tight)
+    integrators = {"direct": ts.create_integrator("implicit_euler", scene.system, linear_solver="direct",
+                                                  cg_tolerance=tight)}
+    for tol in tolerances:
+        integrators[tol] = ts.create_integrator("implicit_euler", scene.system,
+                                                **(integrator_options(args) | {"cg_tolerance": tol}))
+
+    def trajectory(key, h: float = DT, count: int = steps):
+        scene.reset()
+        integrators[key].reset()
+        run_steps(scene, integrators[key], count, h)
+        return scene.state.to_numpy()
+
+    def one_step(key, x, v):
+        scene.state.from_numpy(x, v)
+        integrators[key].reset()
+        report = integrators[key].step(scene.state, 0.5, DT)
+        return scene.state.v.to_numpy() - v, report
+
+    # One step from the state at t = 0.5 s (reached with exact solves).
+    x_mid, v_mid = trajectory("direct", DT, steps // 2)
+    change_exact, _ = one_step("direct", x_mid, v_mid)
+    # 1 s: exact solves at h, and at h / 2 for the method's own error.
+    x_exact, v_exact = trajectory("direct")
+    x_half, _ = trajectory("direct", DT / 2, 2 * steps)
+
+    def deviation(a, b) -> str:
+        d = np.linalg.norm(a - b, axis=1)
+        return f"rms {np.sqrt(np.mean(d ** 2)):.2e} max {d.max():.2e}"
+
+    print(f"\n{precision}: 1 s of the benchmark cloth (60 steps) from rest; one step from t = 0.5 s")
+    print(f"  method error (direct, h against h/2): positions {deviation(x_exact, x_half)} m")
+    print(f"  {'cg_tolerance':>12}{'it/step':>9}  {'one step: |dv - dv_exact| / |dv_exact|':>40}"
+          f"  {'after 1 s: |x - x_exact| (m)':>30}")
+    for tol in tolerances:
+        change, report = one_step(tol, x_mid, v_mid)
+        relative = np.linalg.norm(change - change_exact) / np.linalg.norm(change_exact)
+        stats = integrators[tol].stats
+        iterations0, solves0 = stats.iterations, stats.solves
+        x, _ = trajectory(tol)
+        per_step = (stats.iterations - iterations0) / (stats.solves - solves0)
+        print(f"  {tol:>12.0e}{per_step:>9.1f}  {relative:>40.2e}  {deviation(x, x_exact):>30}")
 
 
 def main() -> None:
@@ -70,19 +161,38 @@ def main() -> None:
     parser.add_argument("--batches", type=int, default=7, help="timed batches (the median is reported)")
     parser.add_argument("--batch-steps", type=int, default=10, help="steps per timed batch")
     parser.add_argument("--solvers", default="cg,direct", help="comma-separated: cg, direct")
+    parser.add_argument("--precisions", default="f32,f64", help="comma-separated: f32, f64")
+    parser.add_argument("--cg-tolerance", type=float, default=None,
+                        help="relative residual of each linear solve (default: the integrator's)")
+    parser.add_argument("--preconditioner", choices=("ssor", "jacobi"), default=None,
+                        help="CG's preconditioner (default: the integrator's, ssor on a CPU)")
+    parser.add_argument("--no-warm-start", action="store_true", help="start every CG solve from zero")
+    parser.add_argument("--threads", type=int, default=None, help="CPU threads (default: all cores)")
+    parser.add_argument("--accuracy", action="store_true",
+                        help="measure the effect of the CG tolerance on the result instead of speed")
     args = parser.parse_args()
+    precisions = args.precisions.split(",")
+    print(f"load average (1 min) {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores")
+    if args.accuracy:
+        for precision in precisions:
+            accuracy(precision, args)
+        return
     print(f"implicit_euler, {N} x {N} cloth ({N * N} particles), stiffness {STIFFNESS:g} N/m, dt = 1/60 s; "
-          f"median of {args.batches} batches x {args.batch_steps} steps after {args.warmup} warm-up steps")
-    print(f"{'precision':<10}{'solver':<10}{'backend':<9}{'steps/s':>9}{'(min-max)':>16}{'iter/step':>11}"
-          f"{'factorize':>12}{'analyze':>10}")
-    for precision in ("f32", "f64"):
+          f"median of {args.batches} batches x {args.batch_steps} steps after {args.warmup} warm-up steps; "
+          f"warm start {'off' if args.no_warm_start else 'on'}")
+    print(f"{'precision':<10}{'solver':<13}{'backend':<9}{'tolerance':>10}{'steps/s':>9}{'(min-max)':>16}"
+          f"{'iter/step':>11}{'solve/step':>12}{'ms/iter':>9}{'factorize':>12}{'analyze':>10}")
+    for precision in precisions:
         for solver in args.solvers.split(","):
             r = bench(precision, solver, args)
             spread = f"({r['rate_min']:.1f}-{r['rate_max']:.1f})"
             factorize = f"{r['factorize_ms']:.1f} ms" if r["factorize_ms"] is not None else "-"
             analyze = f"{r['analyze_ms']:.1f} ms" if r["analyze_ms"] is not None else "-"
-            print(f"{r['precision']:<10}{r['solver']:<10}{r['backend']:<9}{r['rate']:>9.1f}{spread:>16}"
-                  f"{r['iterations']:>11.1f}{factorize:>12}{analyze:>10}")
+            per_iteration = f"{r['iteration_ms']:.3f}" if r["iteration_ms"] is not None else "-"
+            print(f"{r['precision']:<10}{r['solver']:<13}{r['backend']:<9}{r['tolerance']:>10.0e}"
+                  f"{r['rate']:>9.1f}{spread:>16}{r['iterations']:>11.1f}{r['solve_ms']:>9.2f} ms"
+                  f"{per_iteration:>9}{factorize:>12}{analyze:>10}")
+    print(f"load average (1 min) {os.getloadavg()[0]:.2f}")
 
 
 if __name__ == "__main__":

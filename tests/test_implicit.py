@@ -10,6 +10,7 @@ from taichi_sim.cli import main
 from taichi_sim.errors import ConfigError
 from taichi_sim.forces import ForceTerm
 from taichi_sim.integrators import Status, create_integrator
+from taichi_sim.integrators.implicit import LINEARISED_CG_TOLERANCE
 
 from helpers import fitted_order, spring_exact
 
@@ -361,13 +362,212 @@ def test_wind_and_grab_scenes_use_the_jacobian_path(f64):
     assert ts.run(scene, integrator, dt=1 / 60, steps=5).status is Status.OK
 
 
+@ti.kernel
+def _cached_and_direct_rows(system: ti.template(), y: ti.template(), p: ti.template(), diagonal: ti.template(),
+                            cached: ti.template(), split: ti.template(), direct: ti.template(), a: float, b: float):
+    for i in cached:
+        diagonal[i] = system.cache_system_matrix_row(i, y, a, b, 0.0)
+    for i in cached:
+        cached[i] = system.cached_system_matrix_row(i, y, p, a, b, 0.0, diagonal[i])
+        split[i] = ti.Vector.zero(ti.f64, 3)
+        if system.free[i]:
+            split[i] = (diagonal[i] @ p[i] + system.cached_triangle_product(i, p, -1)
+                        + system.cached_triangle_product(i, p, 1))
+        direct[i] = system.system_matrix_row(i, y, p, a, b, 0.0)
+
+
+def test_cached_system_matrix_equals_the_direct_evaluation(f64, rng):
+    # The cache (A_ii and each spring's coefficients, filled once per Newton iteration) must give
+    # the same A p as the gather that rebuilds every spring's block: springs (stretched and
+    # compressed, so the clamp acts on some), dashpots, drag, the grab spring, pinned particles
+    # and a torn spring.
+    scene = ts.build_scene("cloth", {"nx": 6, "ny": 6, "damping": 0.3, "drag": 0.1, "grab": True, "tear": True})
+    scene.system.term("grab").hold(14, [0.1, 1.2, 0.0])
+    springs = scene.system.term("springs")
+    alive = springs.alive.to_numpy()
+    alive[7] = 0
+    springs.alive.from_numpy(alive)
+    scene.system.bind_jacobian_cache()
+    n = scene.particle_count
+    x = scene.x0 + rng.normal(scale=0.05, size=(n, 3))
+    v = rng.normal(size=(n, 3))
+    p = rng.normal(size=(n, 3))
+    p[scene.arrays["pinned"]] = 0.0
+    state = scene.system.make_state()
+    state.from_numpy(x, v)
+    direction = ti.Vector.field(3, ti.f64, shape=n)
+    direction.from_numpy(p)
+    diagonal = ti.Matrix.field(3, 3, ti.f64, shape=n)
+    cached = ti.Vector.field(3, ti.f64, shape=n)
+    split = ti.Vector.field(3, ti.f64, shape=n)  # A_ii p_i + (L p)_i + (U p)_i, as SSOR's sweeps see A
+    direct = ti.Vector.field(3, ti.f64, shape=n)
+    h = 1 / 60
+    _cached_and_direct_rows(scene.system, state, direction, diagonal, cached, split, direct, h, h * h)
+    expected = direct.to_numpy()
+    assert np.abs(expected).max() > 0
+    np.testing.assert_allclose(cached.to_numpy(), expected, rtol=0, atol=1e-13 * np.abs(expected).max())
+    np.testing.assert_allclose(split.to_numpy(), expected, rtol=0, atol=1e-13 * np.abs(expected).max())
+
+
+def test_default_cg_tolerance_is_loose_only_for_the_one_step_method(f64):
+    # Baraff-Witkin's linearised step is first order; the exact backward Euler solve, the midpoint
+    # rule and GMRES on a generic system need accurate solves for their Newton iterations.
+    cloth = ts.build_scene("cloth", {"nx": 4, "ny": 4}).system
+    circle = ts.build_scene("simple").system
+    assert create_integrator("implicit_euler", cloth).cg_tolerance == LINEARISED_CG_TOLERANCE == 1e-3
+    assert create_integrator("implicit_euler", cloth, newton_iterations=3).cg_tolerance == 1e-8
+    assert create_integrator("implicit_midpoint", cloth).cg_tolerance == 1e-8
+    assert create_integrator("implicit_midpoint", cloth, newton_iterations=1).cg_tolerance == 1e-8
+    assert create_integrator("implicit_euler", circle).cg_tolerance == 1e-8
+    assert create_integrator("implicit_euler", cloth, cg_tolerance=1e-6).cg_tolerance == 1e-6
+
+
+def test_default_cg_tolerance_in_f32(f32):
+    cloth = ts.build_scene("cloth", {"nx": 4, "ny": 4}).system
+    assert create_integrator("implicit_euler", cloth).cg_tolerance == 1e-3
+    assert create_integrator("implicit_midpoint", cloth).cg_tolerance == 1e-5
+
+
+def test_tight_cg_tolerance_is_met(f64):
+    # What the CLI test checked for CG before the one-step default became 1e-3, through the API.
+    scene = ts.build_scene("cloth", {"nx": 8, "ny": 8})
+    integrator = create_integrator("implicit_euler", scene.system, cg_tolerance=1e-9)
+    for k in range(5):
+        report = integrator.step(scene.state, k * 0.0166, 0.0166)
+        assert report.status is Status.OK and 0 < report.linear_residual <= 1e-9
+
+
+def _cloth_run(integrator, scene, steps, h=1 / 60):
+    iterations = []
+    for k in range(steps):
+        report = integrator.step(scene.state, k * h, h)
+        assert report.status is Status.OK, report.message
+        iterations.append(report.linear_iterations)
+    return iterations, scene.state.to_numpy()
+
+
+def test_warm_start_saves_iterations_and_meets_the_tolerance(f64):
+    # Starting CG from the velocity change extrapolated from the last two steps: fewer iterations on
+    # a smoothly moving cloth (about 0.7 of a cold start here), and each solve still meets the
+    # tolerance. One step from the same state, warm and cold: A - M is positive semi-definite, so
+    # |A^-1| <= 1/min(m) and two solutions with relative residuals r1, r2 of A dv = b differ by at
+    # most (r1 + r2) |b| / min(m).
+    params = {"nx": 16, "ny": 16, "stiffness": 1e4, "shear_stiffness": 1e4, "flex_stiffness": 1e4}
+    scene = ts.build_scene("cloth", params)
+    integrators = {warm: create_integrator("implicit_euler", scene.system, warm_start=warm) for warm in (False, True)}
+    iterations = {}
+    for warm, integrator in integrators.items():
+        scene.reset()
+        iterations[warm] = _cloth_run(integrator, scene, 40)[0]
+    cold, warm = iterations[False], iterations[True]
+    assert warm[0] == cold[0], "the first step has nothing to start from"
+    assert sum(warm[1:]) < 0.85 * sum(cold[1:])
+    x, v = scene.state.to_numpy()  # after the warm run, at t = 40 h
+    changes, bounds = {}, []
+    for warm, integrator in integrators.items():
+        scene.state.from_numpy(x, v)
+        if not warm:
+            integrator.reset()
+        report = integrator.step(scene.state, 40 / 60, 1 / 60)
+        assert report.status is Status.OK and report.linear_residual <= integrator.cg_tolerance
+        changes[warm] = scene.state.v.to_numpy() - v
+        bounds.append(report.linear_residual * np.linalg.norm(integrator._stage.rhs.to_numpy()))
+    assert report.linear_iterations < cold[-1]
+    difference = np.linalg.norm(changes[True] - changes[False])
+    assert 0 < difference <= sum(bounds) / scene.arrays["mass"].min()
+
+
+def test_runs_are_bit_reproducible_and_a_new_run_starts_cold(f64):
+    # The CG iterations sum their dot products serially (a fixed order): the same run twice gives
+    # the same bits. A run from t = 0 after one that ended elsewhere does not warm-start from it.
+    scene = ts.build_scene("cloth", {"nx": 10, "ny": 10})
+    integrator = create_integrator("implicit_euler", scene.system)
+    first = _cloth_run(integrator, scene, 8)
+    scene.reset()
+    second = _cloth_run(integrator, scene, 8)
+    assert first[0] == second[0]
+    for a, b in zip(first[1], second[1]):
+        assert np.array_equal(a.view(np.uint64), b.view(np.uint64))
+    integrator.reset()  # also forgets the previous step
+    scene.reset()
+    assert _cloth_run(integrator, scene, 1)[0] == first[0][:1]
+
+
+def test_warm_start_with_zero_right_hand_side_gives_zero_change(f64):
+    # At rest at the rest length without gravity nothing moves: rhs = 0, and a warm guess left from
+    # earlier motion must not leak into the step.
+    scene = ts.build_scene("spring", {"gravity": 0.0, "stretch": 0.5})
+    integrator = create_integrator("implicit_euler", scene.system)
+    _cloth_run(integrator, scene, 3, h=0.01)
+    x, v = scene.state.to_numpy()
+    x[1] = [0.0, -1.0, 0.0]  # at the rest length, at rest
+    scene.state.from_numpy(x, np.zeros_like(v))
+    report = integrator.step(scene.state, 0.03, 0.01)
+    assert report.status is Status.OK and report.linear_iterations == 0
+    x1, v1 = scene.state.to_numpy()
+    assert np.array_equal(x1, x) and np.all(v1 == 0.0)
+
+
+def test_gpu_style_iteration_loop_matches_the_in_kernel_loop(f64):
+    # GPU backends run one launch per CG iteration (block Jacobi) instead of the whole solve in one
+    # kernel; on the CPU both are available and must take the same iterations to the same solution
+    # (the dot products are summed in a different order, so only to rounding).
+    results = {}
+    for in_kernel in (True, False):
+        scene = ts.build_scene("cloth", {"nx": 10, "ny": 10, "jitter": 0.01}, seed=3)
+        integrator = create_integrator("implicit_euler", scene.system, cg_tolerance=1e-10,
+                                       preconditioner="jacobi")
+        integrator._stage.linear.in_kernel_loop = in_kernel
+        results[in_kernel] = _cloth_run(integrator, scene, 3)
+    (it_kernel, (x_kernel, v_kernel)), (it_python, (x_python, v_python)) = results[True], results[False]
+    assert all(abs(a - b) <= 1 for a, b in zip(it_kernel, it_python))
+    np.testing.assert_allclose(v_python, v_kernel, rtol=0, atol=1e-8)
+    np.testing.assert_allclose(x_python, x_kernel, rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("precision", ["f32", "f64"])
+def test_ssor_and_jacobi_reach_the_same_step_within_their_tolerances(precision):
+    # One step from rest, as in test_direct_and_cg_agree_to_their_tolerances: A - M is positive
+    # semi-definite, so two solutions with relative residuals r1, r2 differ by at most
+    # (r1 + r2) |b| / min(m), b = h f0. SSOR (Eisenstat's trick) reports the true residual
+    # |b - A dv| like block Jacobi, and needs fewer iterations.
+    ts.init(arch="cpu", precision=precision)
+    h = 1 / 60
+    params = {"nx": 16, "ny": 16, "jitter": 0.01, "stiffness": 1e4, "shear_stiffness": 1e4, "flex_stiffness": 1e4}
+    changes, reports = {}, {}
+    for preconditioner in ("jacobi", "ssor"):
+        scene = ts.build_scene("cloth", params, seed=3)
+        force = ti.Vector.field(3, ts.runtime.real(), shape=scene.particle_count)
+        scene.system.forces(scene.state, force)
+        rhs_norm = h * np.linalg.norm(force.to_numpy().astype(np.float64))
+        integrator = create_integrator("implicit_euler", scene.system, preconditioner=preconditioner)
+        assert integrator.stats.preconditioner == preconditioner
+        reports[preconditioner] = integrator.step(scene.state, 0.0, h)
+        assert reports[preconditioner].status is Status.OK
+        assert reports[preconditioner].linear_residual <= integrator.cg_tolerance
+        changes[preconditioner] = scene.state.v.to_numpy().astype(np.float64)
+    assert reports["ssor"].linear_iterations < 0.6 * reports["jacobi"].linear_iterations
+    bound = (reports["ssor"].linear_residual + reports["jacobi"].linear_residual) * rhs_norm
+    assert np.linalg.norm(changes["ssor"] - changes["jacobi"]) <= bound / scene.arrays["mass"].min()
+
+
+def test_ssor_is_the_cpu_default_and_meets_tight_tolerances(f64):
+    scene = ts.build_scene("cloth", {"nx": 12, "ny": 12, "pin": "edge"})
+    integrator = create_integrator("implicit_midpoint", scene.system)
+    assert (integrator.stats.solver, integrator.stats.preconditioner) == ("pcg", "ssor")
+    for k in range(5):
+        report = integrator.step(scene.state, k / 60, 1 / 60)
+        assert report.status is Status.OK and report.linear_residual <= integrator.cg_tolerance == 1e-8
+
+
 # ---------------------------------------------------------------- options and the CLI
 
 def test_bad_options_are_config_errors(f64):
     system = ts.build_scene("spring").system
     for options in ({"linear_solver": "lu"}, {"newton_iterations": 0}, {"newton_iterations": 1.5},
                     {"cg_tolerance": 0.0}, {"newton_tolerance": 2.0}, {"cg_max_iterations": 0},
-                    {"tolerance": 1e-6}):
+                    {"tolerance": 1e-6}, {"warm_start": 1}, {"preconditioner": "ilu"},
+                    {"preconditioner": "jacobi", "linear_solver": "direct"}):
         with pytest.raises(ConfigError):
             create_integrator("implicit_euler", system, **options)
 
@@ -385,7 +585,10 @@ def test_cli_cloth_records_linear_solver_work(tmp_path, solver):
     assert code == 0
     data = np.load(path)
     assert str(data["status"]) == "ok" and int(data["linear_iterations"]) >= 5
-    assert 0 <= float(data["linear_residual"]) < 1e-8
+    # The CLI has no option for cg_tolerance, so CG runs at the default of the one-step
+    # Baraff-Witkin method; test_tight_cg_tolerance_is_met keeps the 1e-8 check for CG.
+    bound = 1e-8 if solver == "direct" else LINEARISED_CG_TOLERANCE
+    assert 0 <= float(data["linear_residual"]) < bound
 
 
 @pytest.mark.parametrize("name", ["implicit_euler", "implicit_midpoint"])

@@ -167,6 +167,69 @@ class ParticleSystem(System):
                 block -= term.jacobian_diagonal_block(i, y, a, b, t)
         return block
 
+    # The cached form of A, for solvers that apply it many times at one state (Krylov
+    # iterations): fill once per Newton iteration with :meth:`cache_system_matrix_row`, which
+    # returns A_ii and stores each coupling term's off-diagonal blocks of row i (see
+    # :meth:`taichi_sim.forces.Springs.bind_jacobian_cache`); then
+    # (A p)_i = A_ii p_i + sum_j A_ij p_j by :meth:`cached_system_matrix_row`, a pure gather.
+    # A term that does not couple particles has a block-diagonal Jacobian, entirely in A_ii.
+
+    def bind_jacobian_cache(self) -> None:
+        """Allocate the caches of the terms that have one (once; an integrator calls it when
+        bound)."""
+        for term in self.terms:
+            if getattr(term, "caches_jacobian", False):
+                term.bind_jacobian_cache()
+
+    @ti.func
+    def cache_system_matrix_row(self, i, y, a, b, t):
+        """A_ii (3x3) at state ``y``, as :meth:`system_matrix_diagonal_block`, while storing the
+        off-diagonal blocks of row i for :meth:`cached_system_matrix_row` (nothing is stored
+        for a pinned particle: its row is the identity's)."""
+        block = ti.Matrix.identity(y.x.dtype, 3)
+        if self.free[i]:
+            block *= self.mass[i]
+            for term in ti.static(self.terms):
+                if ti.static(getattr(term, "caches_jacobian", False)):
+                    block -= term.cache_jacobian_row(i, y, a, b, t, self.free)
+                else:
+                    block -= term.jacobian_diagonal_block(i, y, a, b, t)
+        return block
+
+    @ti.func
+    def cached_system_matrix_row(self, i, y, p, a, b, t, diagonal):
+        """(A p)_i from ``diagonal`` = A_ii and the blocks stored by :meth:`cache_system_matrix_row`
+        at the same ``y``, ``a``, ``b``, ``t`` (a coupling term without a cache is evaluated at
+        ``y``); zero for a pinned particle. ``p``: (n,) vec3 field, zero on pinned particles."""
+        out = ti.Vector.zero(y.x.dtype, 3)
+        if self.free[i]:
+            out = diagonal @ p[i]
+            for term in ti.static(self.terms):
+                if ti.static(getattr(term, "caches_jacobian", False)):
+                    out += term.cached_coupling_product(i, p, 0)
+                elif ti.static(term.couples_particles):
+                    out -= (term.jacobian_product(i, y, p, a, b, t)
+                            - term.jacobian_diagonal_block(i, y, a, b, t) @ p[i])
+        return out
+
+    @property
+    def caches_all_couplings(self) -> bool:
+        """Whether every term that couples particles caches its blocks, so that
+        :meth:`cached_triangle_product` is available (Gauss-Seidel-type sweeps need it)."""
+        return all(getattr(term, "caches_jacobian", False) for term in self.terms if term.couples_particles)
+
+    @ti.func
+    def cached_triangle_product(self, i, p, side: ti.template()):
+        """sum of A_ij p_j over j < i (``side`` -1) or j > i (+1), from the blocks
+        :meth:`cache_system_matrix_row` stored; zero for a pinned particle. Only when
+        :attr:`caches_all_couplings`."""
+        out = ti.Vector.zero(p.dtype, 3)
+        if self.free[i]:
+            for term in ti.static(self.terms):
+                if ti.static(getattr(term, "caches_jacobian", False)):
+                    out += term.cached_coupling_product(i, p, side)
+        return out
+
     @ti.func
     def force_and_scale(self, i, y, t):
         """(net force on particle i (N, 3-vector), the sum of the magnitudes of the pieces it
