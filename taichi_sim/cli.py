@@ -118,6 +118,54 @@ def build_parser() -> argparse.ArgumentParser:
     dest.add_argument("--showcase", metavar="DIR",
                       help="record the showcase (a GIF and a PNG per entry) into DIR")
     rec.add_argument("--quiet", action="store_true", help="no summary line or progress bar")
+
+    bench = sub.add_parser("bench", help="measure accuracy, stability and speed (CSV, JSON and PNG into --out)")
+    bench_sub = bench.add_subparsers(dest="bench_command", parser_class=_Parser, required=True,
+                                     metavar="{work-precision,stability,throughput,all}")
+    bench_parsers = {
+        "work-precision": bench_sub.add_parser("work-precision", help="error against cost, observed orders"),
+        "stability": bench_sub.add_parser("stability", help="largest stable step against C/omega_max"),
+        "throughput": bench_sub.add_parser("throughput", help="particle-steps/s by grid, precision, "
+                                           "feature; against the Taichi and warp peers"),
+        "all": bench_sub.add_parser("all", help="the three benchmarks, one after the other"),
+    }
+    for name, p in bench_parsers.items():
+        p.add_argument("--out", required=True, metavar="DIR", help=f"folder for {name}.csv, .json and .png")
+        p.add_argument("--quick", action="store_true", help="tiny sizes and few repeats (smoke test)")
+        p.add_argument("--quiet", action="store_true", help="no tables or progress bar")
+        if name != "all":
+            p.add_argument("--integrators", metavar="A,B,...", help="integrators to measure (default: all)")
+    wp = bench_parsers["work-precision"]
+    wp.add_argument("--scenes", metavar="A,B,...", help="of simple,spring,pendulum,cloth (default: all)")
+    wp.add_argument("--repeats", type=_positive_int, help="timed runs per point (default 5; --quick 1)")
+    wp.add_argument("--budget", type=_positive_float, metavar="S",
+                    help="seconds per (scene, integrator) before finer steps are skipped (default 120)")
+    st = bench_parsers["stability"]
+    st.add_argument("--systems", metavar="A,B,...", help="of oscillator,chain,cloth (default: all)")
+    st.add_argument("--periods", type=_positive_float, help="periods of the fastest mode per trial (default 1000)")
+    st.add_argument("--rel-tol", type=_positive_float, help="relative width of the final bracket (default 1e-3)")
+    st.add_argument("--max-steps", type=_positive_int, help="most steps of one trial (default 20000)")
+    tp = bench_parsers["throughput"]
+    tp.add_argument("--sizes", metavar="N,N,...", help="grid sides (default 32,64,128,256,512; --quick 8,16)")
+    tp.add_argument("--precisions", metavar="f32,f64", help="default both (--quick f32)")
+    tp.add_argument("--dt", type=_positive_float, help="step in s (default 1e-4)")
+    tp.add_argument("--repeats", type=_positive_int, help="timed batches (default 7; --quick 5)")
+    tp.add_argument("--batch-seconds", type=_positive_float, help="length of a timed batch (default 0.25 s)")
+    tp.add_argument("--features-size", type=_positive_int, help="grid side of the features comparison")
+    tp.add_argument("--no-features", action="store_true", help="skip the features comparison")
+    tp.add_argument("--no-peers", action="store_true", help="skip the Taichi and warp peers")
+
+    adv = sub.add_parser("advise", help="predicted stability limits and the cheapest integrator for a target error")
+    adv.add_argument("scene")
+    adv.add_argument("--set", dest="assignments", action="append", type=_assignment, default=[],
+                     metavar="NAME=VALUE", help="scene parameter (repeatable); see `taichi-sim list`")
+    adv.add_argument("--target-error", type=_positive_float, metavar="E",
+                     help="largest position error (m) wanted at --t-end: recommend an integrator and step")
+    adv.add_argument("--t-end", type=_positive_float, default=1.0, help="simulated time in s (default 1)")
+    adv.add_argument("--integrators", metavar="A,B,...", help="candidates for the recommendation (default: all)")
+    adv.add_argument("--precision", choices=("f32", "f64"), default="f64")
+    adv.add_argument("--arch", choices=("cpu", "gpu"), default="cpu")
+    adv.add_argument("--seed", type=int, default=0, help="random seed for scenes with randomness")
     return parser
 
 
@@ -141,6 +189,7 @@ def cmd_list(args) -> int:
 
 def cmd_simulate(args) -> int:
     from . import io, runtime
+    from .bench.theory import stability_warning
     from .integrators import check_options, create_integrator
     from .run import check_run_args, run
     from .scene import build_scene, scene_preset
@@ -163,6 +212,9 @@ def cmd_simulate(args) -> int:
     if adaptive and scene.post_step and "max_step" not in options:
         options["max_step"] = 10 * preset.default_dt  # events act only between steps
     integrator = create_integrator(integrator_name, scene.system, **options)
+    warning = stability_warning(scene, integrator_name, None if adaptive else dt)
+    if warning:  # warn, never refuse
+        print(f"taichi-sim: warning: {warning}", file=sys.stderr)
     result = run(scene, integrator, dt=dt, steps=args.steps, t_end=args.t_end,
                  energy_every=args.energy_every, progress=None if not args.quiet else False)
     path = io.save_npz(args.out, io.run_arrays(scene, result, integrator=integrator, dt=dt))
@@ -174,6 +226,18 @@ def cmd_simulate(args) -> int:
               f"{result.f_evals} f-evals, {result.wall_time:.3f} s on {runtime.backend()}, "
               f"status {result.status.value} -> {path}")
     return 0 if result.status.value == "ok" else 1
+
+
+def cmd_bench(args) -> int:
+    from .bench.commands import bench_main
+
+    return bench_main(args)
+
+
+def cmd_advise(args) -> int:
+    from .bench.commands import advise_main
+
+    return advise_main(args)
 
 
 def _session_args(args) -> dict:
@@ -297,7 +361,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.command is None:
             return cmd_default()
         return {"list": cmd_list, "simulate": cmd_simulate, "demo": cmd_demo,
-                "record": cmd_record}[args.command](args)
+                "record": cmd_record, "bench": cmd_bench, "advise": cmd_advise}[args.command](args)
     except ConfigError as exc:
         print(f"taichi-sim: error: {exc}", file=sys.stderr)
         return EXIT_USAGE

@@ -197,7 +197,8 @@ def describe(scene: Scene) -> SceneVisual:
     if len(triangles):
         spacing = float(np.median(rest[line_springs])) if len(line_springs) else 0.02 * size
         radius = 0.3 * spacing
-        view = (30.0, 30.0)
+        # A vertical cloth (a flag) is seen from the front, a horizontal one from above.
+        view = (20.0, 8.0) if scene.params.get("orientation") == "vertical" else (30.0, 30.0)
     else:
         radius = (0.005 if emitter is not None else 0.025) * size  # a spray is many small drops
         if len(rest):

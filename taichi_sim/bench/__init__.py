@@ -1,0 +1,16 @@
+"""Measure the speed/accuracy trade-offs of the integrators (``taichi-sim bench ...``, ``advise``).
+
+Modules:
+
+* :mod:`.theory`: the fastest mode omega_max of a scene (a cheap Gershgorin bound, power
+  iteration on the linearised stiffness matrix) and the predicted stability limits C / omega_max
+  (DESIGN.md section 5). ``simulate`` uses it to warn about a step beyond the limit.
+* :mod:`.workprec`: work-precision sweeps (error against cost) and observed orders.
+* :mod:`.stability`: the largest stable step per integrator, found by bisection, against theory.
+* :mod:`.throughput`: particle-steps per second against grid size, precision and scene
+  features, with the Taichi and warp peers timed in their own subprocesses.
+* :mod:`.advise`: the stability table and a recommended (integrator, step) for a target error.
+
+Importing this package does not call ``ti.init``; matplotlib (plots) and scipy (reference
+solutions, a cross-check of omega_max) are optional (``pip install 'taichi_sim[bench]'``).
+"""

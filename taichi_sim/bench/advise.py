@@ -1,0 +1,175 @@
+"""``taichi-sim advise``: the predicted stability limit of every integrator on a scene and, for a
+target error, the cheapest (integrator, step) expected to meet it.
+
+Stability: h_max = C / omega_max (:mod:`.theory`), with omega_max from power iteration on the
+scene's linearised stiffness at its initial positions (the sharp value; the Gershgorin bound,
+which ``simulate`` uses for its warning, is shown too). Explicit Euler, trapezoid and midpoint
+have no limit on an undamped oscillation (they grow at every step); for them the table gives
+the step at which the fastest mode's energy doubles over the run (``--t-end``).
+
+Target error (the largest position error, m, at ``--t-end``): for each fixed-step method a
+short pilot run of the scene itself at a step h1 (the scene's default step, at most half the
+stability limit) and at h1 / 2, over T_p = min(T, 200 h1), gives by Richardson extrapolation the
+error of the finer run, e ~ |x(h1) - x(h1/2)| / (2^p - 1) with p the declared order, and an
+error constant K = e / ((h1/2)^p T_p), assuming the error grows linearly in time (phase error of
+oscillations; collisions, tearing and chaotic motion grow faster, so treat the advice as a
+starting point and check it with a run at half the step). The step meeting the target is
+h* = (E / (K T))^(1/p), capped at 0.9 of the stability limit; when h* is more than twice or
+less than half of h1 the pilot is repeated at h1 = h* (up to three rounds), because the
+asymptotic rate need not hold that far from where it was measured. The cost is T / h* steps times the
+f evaluations (plus linear-solver iterations) per step and the wall time per step of a short
+probe run (10 steps) at h* itself (an implicit method works harder at larger steps). Adaptive methods are not ranked (their step follows ``--rtol``).
+"""
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from .theory import horizon_limit, omega_max_bound, omega_max_power, stability_constant
+
+PILOT_STEPS = 200
+PILOT_ROUNDS = 3
+PROBE_STEPS = 10  # steps at the chosen step size that measure its cost per step
+SAFETY = 0.9
+
+
+def evals_per_step(cls) -> float | None:
+    """f evaluations per step of an integrator class as declared (None: varies, implicit)."""
+    if cls.name == "symplectic_euler":
+        return 1.0
+    tableau = getattr(cls, "tableau", None)
+    if tableau is None:
+        return None
+    return float(tableau.stage_count - (1 if cls.adaptive and tableau.fsal else 0))
+
+
+def scene_omegas(scene, *, power_iterations: int = 300) -> dict:
+    """omega_max of a built scene: power iteration (sharp) and the Gershgorin bound."""
+    from .theory import is_circle
+
+    if is_circle(scene):
+        return {"omega_max": 1.0, "omega_bound": 1.0, "method": "exact (circle ODE)"}
+    if not scene.system.second_order:
+        return {"omega_max": None, "omega_bound": None, "method": "unknown system"}
+    arrays = scene.arrays
+    omega, info = omega_max_power(arrays, scene.x0, max_iterations=power_iterations, tol=1e-10)
+    return {"omega_max": omega, "omega_bound": omega_max_bound(arrays),
+            "method": f"power iteration ({info['iterations']} iterations, last relative change "
+                      f"{info['change']:.1g})"}
+
+
+def stability_table(scene, omegas: dict, t_end: float) -> list[dict]:
+    """One row per integrator: order, f-evals/step, predicted largest stable step."""
+    from ..integrators import INTEGRATORS
+
+    omega, bound = omegas["omega_max"], omegas["omega_bound"]
+    rows = []
+    for name, cls in INTEGRATORS.items():
+        row = {"integrator": name, "order": cls.order, "evals_per_step": evals_per_step(cls),
+               "C": stability_constant(name), "limit": None, "limit_bound": None, "note": ""}
+        if cls.requires_second_order and not scene.system.second_order:
+            row["note"] = "needs a particle system"
+        elif cls.adaptive:
+            row["note"] = "adaptive: the step follows --rtol"
+        elif row["C"] is None or omega is None:
+            row["note"] = "no prediction"
+        elif omega == 0:
+            row.update(limit=math.inf, limit_bound=math.inf, note="nothing oscillates: no limit")
+        elif math.isinf(row["C"]):
+            row.update(limit=math.inf, limit_bound=math.inf, note="unconditionally stable")
+        elif row["C"] == 0:
+            reach = horizon_limit(name, omega, t_end)
+            row.update(limit=0.0, limit_bound=0.0, horizon_limit=reach,
+                       note=f"grows at every step; energy of the fastest mode doubles over {t_end:g} s "
+                            f"above h = {reach:.3g} s")
+        else:
+            row.update(limit=row["C"] / omega, limit_bound=row["C"] / bound)
+        rows.append(row)
+    return rows
+
+
+def _final_positions(scene, integrator, dt, t_end):
+    from ..run import run
+
+    scene.reset()
+    integrator.reset()
+    result = run(scene, integrator, dt=dt, t_end=t_end, energy_every=0, progress=False)
+    x, _ = scene.state.to_numpy()
+    return result, np.asarray(x, float)
+
+
+def recommend(scene, table: list[dict], target_error: float, t_end: float,
+              integrators: list[str] | None = None, progress=None) -> list[dict]:
+    """Pilot runs and predicted cost of each fixed-step method for ``target_error`` (module
+    docstring); sorted cheapest first, failures last."""
+    from ..integrators import create_integrator, integrator_class
+    from ..run import run
+
+    rows = []
+    for entry in table:
+        name = entry["integrator"]
+        if integrators is not None and name not in integrators:
+            continue
+        cls = integrator_class(name)
+        if entry["note"].startswith(("needs", "adaptive", "no prediction")):
+            continue
+        limit = entry["limit"]
+        if limit == 0.0:  # grows every step: the horizon sets the usable step
+            limit = entry.get("horizon_limit") or scene.default_dt
+        cap = SAFETY * limit if math.isfinite(limit) else math.inf
+        h1 = min(scene.default_dt, 0.5 * limit if math.isfinite(limit) else scene.default_dt, t_end / 20)
+        row = {"integrator": name, "order": cls.order}
+        p = cls.order
+        try:
+            integrator = create_integrator(name, scene.system)
+            for _ in range(PILOT_ROUNDS):
+                # Richardson at (h1, h1/2) over a short horizon; again at the new step when the
+                # prediction moved far from where it was measured (the asymptotic rate may not
+                # hold that far).
+                t_pilot = min(t_end, PILOT_STEPS * h1)
+                coarse, x1 = _final_positions(scene, integrator, h1, t_pilot)
+                fine, x2 = _final_positions(scene, integrator, h1 / 2, t_pilot)
+                if coarse.status.value != "ok" or fine.status.value != "ok" or not np.isfinite(x1).all():
+                    break
+                error = float(np.linalg.norm(x1 - x2, axis=1).max()) / (2**p - 1)
+                constant = error / ((h1 / 2) ** p * t_pilot)
+                h = (target_error / (constant * t_end)) ** (1 / p) if constant > 0 else math.inf
+                h = min(h, cap, t_end)
+                if 0.5 <= h / h1 <= 2.0 or h == cap:
+                    break
+                h1 = min(h, 0.5 * cap) if math.isfinite(cap) else h
+        except Exception as exc:
+            rows.append({**row, "status": "error", "note": f"{type(exc).__name__}: {exc}".splitlines()[0][:200]})
+            continue
+        finally:
+            if progress is not None:
+                progress.update(1)
+        row.update(pilot_h=h1, pilot_t=t_pilot)
+        if coarse.status.value != "ok" or fine.status.value != "ok" or not np.isfinite(x1).all():
+            rows.append({**row, "status": "failed", "note": fine.message or coarse.message})
+            continue
+        steps = math.ceil(t_end / h - 1e-9)
+        # Cost per step at h itself (an implicit method's Newton and CG work grows with h).
+        probe_steps = min(steps, PROBE_STEPS)
+        try:
+            scene.reset()
+            integrator.reset()
+            start = time.perf_counter()
+            probe = run(scene, integrator, dt=h, steps=probe_steps, energy_every=0, progress=False)
+            wall = time.perf_counter() - start
+        except Exception as exc:
+            rows.append({**row, "status": "error", "note": f"{type(exc).__name__}: {exc}".splitlines()[0][:200]})
+            continue
+        if probe.status.value != "ok":
+            rows.append({**row, "status": "failed", "h": h, "note": probe.message})
+            continue
+        per_step = (probe.f_evals + probe.linear_iterations) / max(probe.steps, 1)
+        rows.append({**row, "status": "ok", "error_constant": constant, "h": h, "steps": steps,
+                     "limited_by": "stability" if h == cap else ("t_end" if h == t_end else "accuracy"),
+                     "cost_per_step": per_step, "cost": steps * per_step,
+                     "wall_s": steps * wall / max(probe.steps, 1),
+                     "predicted_error": constant * h**p * t_end})
+    rows.sort(key=lambda r: (r["status"] != "ok", r.get("cost", math.inf)))
+    return rows

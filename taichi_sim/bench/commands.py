@@ -1,0 +1,285 @@
+"""What ``taichi-sim bench ...`` and ``taichi-sim advise`` do (the CLI parses, this runs)."""
+from __future__ import annotations
+
+import math
+import sys
+
+from ..errors import ConfigError
+from . import common
+
+BENCH_NAMES = ("work-precision", "stability", "throughput")
+
+
+def _names(text: str | None, allowed, what: str) -> list[str] | None:
+    if text is None:
+        return None
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    if not names:
+        raise ConfigError(f"--{what} needs at least one name")
+    unknown = [n for n in names if n not in allowed]
+    if unknown:
+        raise ConfigError(f"unknown {what[:-1] if what.endswith('s') else what} {unknown[0]!r} "
+                          f"(choose from {', '.join(allowed)})")
+    return names
+
+
+def _meta(name: str, args, config: dict) -> dict:
+    return {"benchmark": name, "command": common.command_line(), "quick": bool(args.quick),
+            "machine": common.machine_info(), "config": config,
+            "note": "timings come from a machine that may be shared with other work: compare them "
+                    "within one run, not across runs"}
+
+
+def bench_main(args) -> int:
+    """Dispatch ``taichi-sim bench NAME``; every name checks its options before any work."""
+    which = list(BENCH_NAMES) if args.bench_command == "all" else [args.bench_command]
+    plans = [(name, PLANNERS[name](args)) for name in which]  # validate every option first
+    out = common.prepare_out_dir(args.out)
+    for name, run in plans:
+        run(out)
+    return 0
+
+
+def _plan_work_precision(args):
+    from ..integrators import INTEGRATORS
+    from .workprec import PROBLEMS, QUICK_PROBLEMS
+
+    problems = QUICK_PROBLEMS if args.quick else PROBLEMS
+    scenes = _names(getattr(args, "scenes", None), list(problems), "scenes") or list(problems)
+    integrators = _names(getattr(args, "integrators", None), list(INTEGRATORS), "integrators") or list(INTEGRATORS)
+    repeats = getattr(args, "repeats", None) or (1 if args.quick else 5)
+    budget = getattr(args, "budget", None) or (20.0 if args.quick else 120.0)
+
+    def run(out):
+        from .. import runtime
+        from . import plots
+        from .workprec import run_work_precision, task_count
+
+        runtime.init(arch="cpu", precision="f64")
+        chosen = {s: problems[s] for s in scenes}
+        with common.progress_bar(task_count(chosen, integrators), "work-precision", args.quiet) as bar:
+            rows, details = run_work_precision(chosen, integrators, repeats=repeats, budget_s=budget, progress=bar)
+        payload = {**_meta("work-precision", args, {"scenes": scenes, "integrators": integrators,
+                                                     "repeats": repeats, "budget_s": budget,
+                                                     "precision": "f64", "backend": runtime.backend()}),
+                   **details}
+        paths = common.write_outputs(out, "work-precision", rows, payload, lambda f: plots.work_precision(rows, details, f))
+        if not args.quiet:
+            print_orders(details, scenes, integrators)
+        common.report_written(paths, args.quiet)
+
+    return run
+
+
+def print_orders(details: dict, scenes: list[str], integrators: list[str]) -> None:
+    fits = {(o["scene"], o["integrator"]): o for o in details["orders"]}
+    header = ["integrator", "declared"] + scenes
+    table = []
+    for name in integrators:
+        row = [name, next((o["declared"] for o in details["orders"] if o["integrator"] == name), "")]
+        for scene in scenes:
+            o = fits.get((scene, name), {})
+            value = o.get("observed")
+            row.append(f"{value:.3f}" + (" (cost)" if o.get("basis") == "cost" else "")
+                       if isinstance(value, float) and math.isfinite(value) else "-")
+        table.append(row)
+    print("Observed orders (slope of the state error against h; adaptive: against cost):")
+    print(common.format_table(header, table))
+    fixed = [o for o in details["orders"] if o.get("basis") == "h" and isinstance(o.get("observed"), float)
+             and math.isfinite(o["observed"])]
+    within = [o for o in fixed if abs(o["observed"] - o["declared"]) <= 0.1]
+    print(f"fixed-step fits within +-0.1 of the declared order: {len(within)} of {len(fixed)}"
+          + "".join(f"; {o['integrator']} on {o['scene']}: {o['observed']:.3f}" for o in fixed if o not in within))
+
+
+def _plan_stability(args):
+    from ..integrators import INTEGRATORS
+    from .stability import QUICK_SYSTEMS, SYSTEMS
+
+    systems = QUICK_SYSTEMS if args.quick else SYSTEMS
+    names = _names(getattr(args, "systems", None), list(systems), "systems") or list(systems)
+    integrators = _names(getattr(args, "integrators", None), list(INTEGRATORS), "integrators") or list(INTEGRATORS)
+    periods = getattr(args, "periods", None) or (100.0 if args.quick else 1000.0)
+    rel_tol = getattr(args, "rel_tol", None) or (1e-2 if args.quick else 1e-3)
+    max_steps = getattr(args, "max_steps", None) or 20000
+
+    def run(out):
+        from .. import runtime
+        from . import plots
+        from .stability import run_stability, task_count
+
+        runtime.init(arch="cpu", precision="f64")
+        chosen = {s: systems[s] for s in names}
+        with common.progress_bar(task_count(chosen, integrators), "stability", args.quiet) as bar:
+            rows, details = run_stability(chosen, integrators, periods=periods, rel_tol=rel_tol,
+                                          max_steps=max_steps, progress=bar)
+        payload = {**_meta("stability", args, {"systems": names, "integrators": integrators, "periods": periods,
+                                                "rel_tol": rel_tol, "max_steps": max_steps, "precision": "f64"}),
+                   **details}
+        paths = common.write_outputs(out, "stability", rows, payload, lambda f: plots.stability(rows, details, f))
+        if not args.quiet:
+            print_stability(rows)
+        common.report_written(paths, args.quiet)
+
+    return run
+
+
+def print_stability(rows: list[dict]) -> None:
+    table = []
+    for r in rows:
+        if r["kind"] == "n/a":
+            continue
+        bracket = (f"{r['ratio']:.4f} - {r['ratio_above']:.4f}" if isinstance(r.get("ratio"), float)
+                   and isinstance(r.get("ratio_above"), float) else r.get("ratio"))
+        table.append([r["system"], f"{r['stiffness']:g}", r.get("omega_max"), r["integrator"], r.get("predicted"),
+                      r.get("measured"), bracket,
+                      r["kind"] if r["kind"] != "error" else f"error: {r.get('note', '')[:80]}"])
+    print("Largest stable step (measured by bisection) against C / omega_max:")
+    print(common.format_table(["system", "k (N/m)", "omega_max", "integrator", "C/omega_max (s)",
+                               "largest stable (s)", "limit / prediction in", "kind"], table))
+    for name in ("symplectic_euler", "rk4"):
+        mine = [r for r in rows if r["integrator"] == name and r.get("kind") == "limit"
+                and isinstance(r.get("ratio"), float)]
+        if mine:
+            lo = min(r["ratio"] for r in mine)
+            hi = max(r.get("ratio_above") or r["ratio"] for r in mine)
+            print(f"{name}: limit / prediction between {lo:.4f} and {hi:.4f} over {len(mine)} systems "
+                  f"({'all' if lo >= 0.95 and hi <= 1.05 else 'NOT all'} within 5 %)")
+
+
+def _int_list(text: str, what: str) -> list[int]:
+    try:
+        values = [int(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise ConfigError(f"--{what} expects comma-separated integers, got {text!r}") from None
+    if not values or min(values) < 2:
+        raise ConfigError(f"--{what} expects integers >= 2, got {text!r}")
+    return values
+
+
+def _plan_throughput(args):
+    from ..integrators import INTEGRATORS
+    from .throughput import ThroughputConfig
+
+    sizes = _int_list(args.sizes, "sizes") if getattr(args, "sizes", None) else \
+        ([8, 16] if args.quick else [32, 64, 128, 256, 512])
+    precisions = _names(getattr(args, "precisions", None), ["f32", "f64"], "precisions") or \
+        (["f32"] if args.quick else ["f32", "f64"])
+    integrators = _names(getattr(args, "integrators", None), list(INTEGRATORS), "integrators") or list(INTEGRATORS)
+    features_size = getattr(args, "features_size", None)
+    if features_size is None:
+        features_size = 128 if 128 in sizes else sizes[min(len(sizes) - 1, 2)]
+    if getattr(args, "no_features", False):
+        features_size = None
+    config = ThroughputConfig(sizes=tuple(sizes), precisions=tuple(precisions), integrators=tuple(integrators),
+                              dt=getattr(args, "dt", None) or 1e-4,
+                              repeats=getattr(args, "repeats", None) or (5 if args.quick else 7),
+                              batch_seconds=getattr(args, "batch_seconds", None) or (0.02 if args.quick else 0.25),
+                              features_size=features_size, peers=not getattr(args, "no_peers", False))
+
+    def run(out):
+        from . import plots
+        from .throughput import run_throughput, task_count
+
+        with common.progress_bar(task_count(config), "throughput", args.quiet) as bar:
+            rows, details = run_throughput(config, progress=bar)
+        cfg = {k: getattr(config, k) for k in ("sizes", "precisions", "integrators", "dt", "repeats",
+                                               "batch_seconds", "max_step_seconds", "features_size", "peers")}
+        payload = {**_meta("throughput", args, cfg), **details}
+        paths = common.write_outputs(out, "throughput", rows, payload, lambda f: plots.throughput(rows, details, f))
+        if not args.quiet:
+            print_throughput(rows, details)
+        common.report_written(paths, args.quiet)
+
+    return run
+
+
+def print_throughput(rows: list[dict], details: dict) -> None:
+    table = []
+    for r in rows:
+        if r.get("kind") == "feature":
+            continue
+        rate = r.get("particle_steps_per_s")
+        label = f"{r.get('name')} (alternated with the peers)" if r.get("kind") == "duel" else r.get("name")
+        table.append([r.get("precision"), r.get("n"), label, r.get("step_s") and 1e3 * r["step_s"],
+                      rate, r.get("spring_evals_per_s"), r.get("first_step_s"),
+                      r.get("status") if r.get("status") == "ok" else f"{r.get('status')}: {r.get('note', '')}"])
+    print("Throughput (median ms per step; particle-steps/s; spring evaluations/s, each spring once per f):")
+    print(common.format_table(["precision", "n", "method", "ms/step", "particle-steps/s", "spring-evals/s",
+                               "first step (s)", "status"], table))
+    feats = [r for r in rows if r.get("kind") == "feature"]
+    if feats:
+        print("\nFeatures (symplectic Euler, same grid):")
+        print(common.format_table(["precision", "n", "scene", "ms/step", "particle-steps/s", "status"],
+                                  [[r["precision"], r["n"], r["name"], r.get("step_s") and 1e3 * r["step_s"],
+                                    r.get("particle_steps_per_s"), r.get("status")] for r in feats]))
+    print("\nOur symplectic Euler against the peers (particle-steps/s ratio) and rk4 per-step cost:")
+    summary = details.get("summary", [])
+    print(common.format_table(["precision", "n", "ours / taichi example", "ours / warp", "rk4 / symplectic"],
+                              [[s["precision"], s["n"], s.get("ratio_vs_taichi"), s.get("ratio_vs_warp"),
+                                s.get("rk4_over_symplectic")] for s in summary]))
+    for t in details.get("targets", []):
+        print(f"target: {t['target']}: {t['value']:.3g} -> {'met' if t['met'] else 'NOT met'}")
+    for s in summary:
+        for key in ("taichi", "warp"):
+            if s.get(f"{key}_unavailable"):
+                print(f"peer unavailable ({key}, {s['precision']}, n = {s['n']}): {s[f'{key}_unavailable']}")
+
+
+PLANNERS = {"work-precision": _plan_work_precision, "stability": _plan_stability, "throughput": _plan_throughput}
+
+
+def advise_main(args) -> int:
+    """``taichi-sim advise SCENE``: the stability table and, with --target-error, a recommendation."""
+    from .. import runtime
+    from ..integrators import INTEGRATORS
+    from ..scene import build_scene, scene_preset
+    from ..scene.params import resolve
+    from .advise import recommend, scene_omegas, stability_table
+
+    preset = scene_preset(args.scene)
+    params = dict(args.assignments)
+    resolve(preset.params, preset.name, params)  # ConfigError before any Taichi work
+    integrators = _names(args.integrators, list(INTEGRATORS), "integrators")
+    if args.target_error is not None and not (math.isfinite(args.target_error) and args.target_error > 0):
+        raise ConfigError(f"--target-error must be a finite number > 0, got {args.target_error}")
+    runtime.init(arch=args.arch, precision=args.precision)
+    scene = build_scene(args.scene, params, seed=args.seed)
+    omegas = scene_omegas(scene)
+    table = stability_table(scene, omegas, args.t_end)
+    springs = scene.features.get("springs", 0)
+    print(f"{scene.name}: {scene.particle_count} particles, {springs} springs; omega_max = "
+          f"{_fmt(omegas['omega_max'])} rad/s ({omegas['method']}), Gershgorin bound {_fmt(omegas['omega_bound'])} rad/s")
+    print(common.format_table(
+        ["integrator", "order", "f-evals/step", "C", "max stable step (s)", "with the bound (s)", "note"],
+        [[r["integrator"], r["order"], r["evals_per_step"] if r["evals_per_step"] is not None else "varies",
+          _fmt(r["C"]), "none" if r["C"] == 0 else _fmt(r["limit"]),
+          "none" if r["C"] == 0 else _fmt(r["limit_bound"]), r["note"]] for r in table]))
+    if args.target_error is None:
+        return 0
+    with common.progress_bar(len(table), "pilot runs", False) as bar:
+        rows = recommend(scene, table, args.target_error, args.t_end, integrators, progress=bar)
+    print(f"\nFor a position error of {args.target_error:g} m at t = {args.t_end:g} s (pilot runs, Richardson "
+          f"estimate; see `taichi_sim.bench.advise`):")
+    print(common.format_table(
+        ["integrator", "order", "step (s)", "limited by", "steps", "cost (f-evals + lin. its)", "wall (s)", "status"],
+        [[r["integrator"], r["order"], r.get("h"), r.get("limited_by"), r.get("steps"), r.get("cost"),
+          r.get("wall_s"), r["status"] if r["status"] == "ok" else f"{r['status']}: {r.get('note', '')}"]
+         for r in rows]))
+    best = next((r for r in rows if r["status"] == "ok"), None)
+    if best is None:
+        print("no fixed-step integrator could be recommended", file=sys.stderr)
+        return 1
+    print(f"recommended: --integrator {best['integrator']} --dt {best['h']:.3g} ({best['steps']} steps, "
+          f"about {best['cost']:.3g} f-evaluations, {best['wall_s']:.3g} s on this machine)")
+    return 0
+
+
+def _fmt(value) -> str:
+    if value is None:
+        return "-"
+    if isinstance(value, float):
+        if math.isinf(value):
+            return "unbounded"
+        return f"{value:.6g}"
+    return str(value)

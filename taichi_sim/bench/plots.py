@@ -1,0 +1,205 @@
+"""The bench figures (matplotlib, imported only here; the Agg backend is selected by the caller)."""
+from __future__ import annotations
+
+import math
+
+COLORS = {"euler": "#d62728", "trapezoid": "#ff7f0e", "midpoint": "#bcbd22", "rk4": "#1f77b4",
+          "symplectic_euler": "#2ca02c", "rk45": "#9467bd", "rkf45": "#8c564b",
+          "implicit_euler": "#e377c2", "implicit_midpoint": "#17becf"}
+DPI = 72
+
+
+def _log_axes(ax, x=True, y=True):
+    from matplotlib.ticker import NullFormatter
+
+    if x:
+        ax.set_xscale("log")
+        ax.xaxis.set_minor_formatter(NullFormatter())
+    if y:
+        ax.set_yscale("log")
+        ax.yaxis.set_minor_formatter(NullFormatter())
+
+
+def _color(name):
+    return COLORS.get(name, "#7f7f7f")
+
+
+def _finite(v):
+    return isinstance(v, (int, float)) and v is not None and math.isfinite(v) and v > 0
+
+
+def work_precision(rows: list[dict], details: dict, out) -> None:
+    import matplotlib.pyplot as plt
+    from matplotlib.transforms import blended_transform_factory
+
+    scenes = list(details["problems"])
+    panels = [("cost", "pos_error", "f evaluations (+ linear iterations)", "position error at T (m)"),
+              ("wall_s", "pos_error", "wall time (s, median)", "position error at T (m)"),
+              ("cost", "energy_error", "f evaluations (+ linear iterations)", "relative energy error at T"),
+              ("cost", "strain_error", "f evaluations (+ linear iterations)", "max spring strain error at T")]
+    fig, axes = plt.subplots(len(scenes), len(panels), figsize=(4.2 * len(panels), 3.3 * len(scenes)),
+                             squeeze=False)
+    orders = {(o["scene"], o["integrator"]): o for o in details.get("orders", [])}
+    for i, scene in enumerate(scenes):
+        scene_rows = [r for r in rows if r["scene"] == scene]
+        names = list(dict.fromkeys(r["integrator"] for r in scene_rows))
+        for j, (xkey, ykey, xlabel, ylabel) in enumerate(panels):
+            ax = axes[i][j]
+            top = blended_transform_factory(ax.transData, ax.transAxes)
+            drawn = False
+            for name in names:
+                mine = [r for r in scene_rows if r["integrator"] == name]
+                good = [(r[xkey], r[ykey]) for r in mine
+                        if r.get("status") == "ok" and _finite(r.get(xkey)) and _finite(r.get(ykey))]
+                good.sort()
+                o = orders.get((scene, name), {})
+                label = name
+                if o.get("observed") is not None and _finite(o.get("observed")):
+                    label += f" (p={o['observed']:.2f})"
+                if good:
+                    ax.plot(*zip(*good), "o-", color=_color(name), ms=3.5, lw=1.2, label=label)
+                    drawn = True
+                failed = [r[xkey] for r in mine if r.get("status") not in ("ok", "not applicable", "skipped")
+                          and _finite(r.get(xkey))]
+                if failed:  # failures are shown, at the top edge, not dropped
+                    ax.plot(failed, [0.97] * len(failed), "x", color=_color(name), ms=7, mew=2,
+                            transform=top, clip_on=False)
+                    drawn = True
+            if drawn:
+                _log_axes(ax)
+            else:
+                ax.text(0.5, 0.5, "no springs" if ykey == "strain_error" else "no data", ha="center",
+                        va="center", transform=ax.transAxes, color="gray")
+                ax.set_xticks([])
+                ax.set_yticks([])
+            ax.grid(True, which="major", alpha=0.3)
+            ax.set_xlabel(xlabel, fontsize=8)
+            ax.set_ylabel(ylabel, fontsize=8)
+            ax.tick_params(labelsize=7)
+            problem = details["problems"][scene]
+            if j == 0:
+                ax.set_title(f"{scene}: {problem['truth']}, T = {problem['t_end']:.3g} s", fontsize=9,
+                             loc="left")
+                handles, labels = ax.get_legend_handles_labels()
+        axes[i][-1].legend(handles, labels, fontsize=7, loc="center left", bbox_to_anchor=(1.03, 0.5),
+                           title="observed order p", title_fontsize=7)
+    fig.suptitle("Work-precision (x at the top edge: run failed, e.g. diverged)", fontsize=11)
+    fig.tight_layout(rect=(0, 0, 0.86, 0.98))
+    fig.savefig(out, format="png", dpi=DPI)
+    plt.close(fig)
+
+
+def stability(rows: list[dict], details: dict, out) -> None:
+    import matplotlib.pyplot as plt
+
+    systems = list(details["systems"])
+    fig, axes = plt.subplots(1, len(systems), figsize=(5.4 * len(systems), 5.6), squeeze=False)
+    for ax, system in zip(axes[0], systems):
+        mine = [r for r in rows if r["system"] == system and _finite(r.get("omega_max"))]
+        omegas = sorted({r["omega_max"] for r in mine})
+        names = list(dict.fromkeys(r["integrator"] for r in mine))
+        for name in names:
+            pts = [r for r in mine if r["integrator"] == name]
+            c = pts[0].get("C") if pts else None
+            if c is not None and math.isfinite(c) and c > 0 and omegas:
+                ax.plot(omegas, [c / w for w in omegas], "--", color=_color(name), lw=1, alpha=0.8)
+            limits = [(r["omega_max"], r["measured"]) for r in pts if r["kind"] == "limit" and _finite(r.get("measured"))]
+            if limits:
+                label = name
+                ratios = [r["ratio"] for r in pts if _finite(r.get("ratio"))]
+                if ratios:
+                    top = max([r["ratio_above"] for r in pts if _finite(r.get("ratio_above"))] or ratios)
+                    label += f" (limit in [{min(ratios):.4f}, {top:.4f}] C/w)"
+                ax.plot(*zip(*limits), "o", color=_color(name), ms=6, label=label)
+            solver = [(r["omega_max"], r["measured"]) for r in pts if r["kind"] == "solver limit"]
+            if solver:
+                ax.plot(*zip(*solver), "o", color=_color(name), ms=7, mfc="none", mew=1.5,
+                        label=f"{name} (solver fails above this h)")
+            uncond = [(r["omega_max"], r["measured"]) for r in pts if r["kind"] == "unconditional"]
+            if uncond:
+                ax.plot(*zip(*uncond), "^", color=_color(name), ms=7, label=f"{name} (stable at 1000/w)")
+            horizon = [(r["omega_max"], r["measured"]) for r in pts if r["kind"] == "horizon" and _finite(r.get("measured"))]
+            if horizon:
+                ax.plot(*zip(*horizon), "s", color=_color(name), ms=6, mfc="none",
+                        label=f"{name} (growth < 2 over the horizon)")
+            none = [(r["omega_max"], r.get("smallest_tried_s")) for r in pts if r["kind"] == "none"]
+            none = [(w, h) for w, h in none if _finite(h)]
+            if none:
+                ax.plot(*zip(*none), "v", color=_color(name), ms=6, mfc="none",
+                        label=f"{name} (unstable down to this h)")
+        _log_axes(ax)
+        ax.grid(True, alpha=0.3)
+        ax.set_xlabel("omega_max (rad/s, power iteration)", fontsize=8)
+        ax.set_ylabel("largest stable step h (s)", fontsize=8)
+        ax.set_title(f"{system}: {details['systems'][system].get('description', '')}", fontsize=9)
+        ax.legend(fontsize=6.5, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=2, frameon=False)
+        ax.tick_params(labelsize=7)
+    fig.suptitle(f"Stability: measured (markers) against C / omega_max (dashed), "
+                 f"{details['periods']:g} periods of the fastest mode", fontsize=10)
+    fig.tight_layout(rect=(0, 0, 1, 0.95))
+    fig.savefig(out, format="png", dpi=DPI)
+    plt.close(fig)
+
+
+def throughput(rows: list[dict], details: dict, out) -> None:
+    import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
+
+    fig, axes = plt.subplots(1, 3, figsize=(16, 5.6))
+    ax, ax_first, ax_feat = axes
+    styles = {"f32": "-", "f64": "--"}
+    ours = [r for r in rows if r.get("kind") == "ours" and r.get("status") == "ok"]
+    peers = [r for r in rows if r.get("kind") == "peer" and r.get("status") == "ok"]
+    handles = {}
+    for (name, precision) in dict.fromkeys((r["name"], r["precision"]) for r in ours):
+        pts = sorted((r["n"], r["particle_steps_per_s"], r["first_step_s"]) for r in ours
+                     if r["name"] == name and r["precision"] == precision)
+        ns, rates, firsts = zip(*pts)
+        ax.plot(ns, rates, styles.get(precision, "-"), marker="o", ms=3.5, color=_color(name), lw=1.2)
+        ax_first.plot(ns, firsts, styles.get(precision, "-"), marker="o", ms=3.5, color=_color(name), lw=1.2)
+        handles.setdefault(name, Line2D([], [], color=_color(name), marker="o", ms=3.5, label=name))
+    for (name, precision) in dict.fromkeys((r["name"], r["precision"]) for r in peers):
+        pts = sorted((r["n"], r["particle_steps_per_s"], r.get("first_step_s") or math.nan) for r in peers
+                     if r["name"] == name and r["precision"] == precision)
+        ns, rates, firsts = zip(*pts)
+        color = "black" if name.startswith("taichi") else "#777777"
+        marker = "s" if name.startswith("taichi") else "D"
+        ax.plot(ns, rates, styles.get(precision, "-"), marker=marker, ms=5, color=color, lw=2.2)
+        ax_first.plot(ns, firsts, styles.get(precision, "-"), marker=marker, ms=5, color=color, lw=2.2)
+        handles.setdefault(name, Line2D([], [], color=color, marker=marker, ms=5, lw=2.2, label=f"peer: {name}"))
+    for precision, style in styles.items():
+        handles[precision] = Line2D([], [], color="gray", ls=style, label=precision)
+    for a in (ax, ax_first):
+        a.set_xscale("log", base=2)
+        _log_axes(a, x=False)
+        a.set_xlabel("grid side n (n x n cloth, 12-neighbour springs)", fontsize=8)
+        a.grid(True, alpha=0.3)
+        a.tick_params(labelsize=7)
+    ax.set_ylabel("particle-steps per second (median)", fontsize=8)
+    ax.set_title("Throughput (solid f32, dashed f64)", fontsize=9)
+    ax_first.set_ylabel("compile + first step (s)", fontsize=8)
+    ax_first.set_title("First step (kernel compilation)", fontsize=9)
+    fig.legend(handles=list(handles.values()), loc="lower center", ncol=7, fontsize=7, frameon=False)
+    feats = [r for r in rows if r.get("kind") == "feature" and r.get("status") == "ok"]
+    if feats:
+        labels = list(dict.fromkeys(r["name"] for r in feats))
+        precisions = list(dict.fromkeys(r["precision"] for r in feats))
+        width = 0.8 / len(precisions)
+        for k, precision in enumerate(precisions):
+            values = [next((1e3 * r["step_s"] for r in feats if r["name"] == label and r["precision"] == precision),
+                           0.0) for label in labels]
+            ax_feat.barh([i + k * width for i in range(len(labels))], values, height=width,
+                         label=precision, color=["#2ca02c", "#98df8a"][k % 2])
+        ax_feat.set_yticks([i + width * (len(precisions) - 1) / 2 for i in range(len(labels))])
+        ax_feat.set_yticklabels(labels, fontsize=7)
+        ax_feat.invert_yaxis()
+        ax_feat.set_xlabel("ms per symplectic Euler step (median)", fontsize=8)
+        ax_feat.set_title(f"Features on/off, {feats[0]['n']} x {feats[0]['n']} cloth", fontsize=9)
+        ax_feat.legend(fontsize=7)
+        ax_feat.tick_params(labelsize=7)
+        ax_feat.grid(True, axis="x", alpha=0.3)
+    else:
+        ax_feat.axis("off")
+    fig.tight_layout(rect=(0, 0.09, 1, 1))
+    fig.savefig(out, format="png", dpi=DPI)
+    plt.close(fig)

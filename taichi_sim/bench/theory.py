@@ -1,0 +1,245 @@
+"""Stability theory of the integrators on a spring network (DESIGN.md section 5).
+
+Every method here is stable on an undamped linear oscillator of angular frequency omega while
+theta = h omega stays below a constant C of the method; a spring network linearised about a
+configuration is a set of such oscillators, and the fastest one, omega_max, sets the limit
+h_max = C / omega_max.
+
+omega_max^2 is the largest eigenvalue of M^-1 K, where K (3n x 3n) is the Hessian of the spring
+energy with the pinned particles' rows and columns removed: spring s = (i, j) with stiffness k,
+rest length r and d = x_i - x_j contributes the 3x3 block
+
+    B_s = k (u u^T + tau (I - u u^T)),   u = d / |d|,   tau = max(0, 1 - r / |d|)
+
+(+B_s on the (i, i) and (j, j) blocks, -B_s on (i, j) and (j, i)); at rest length tau = 0. The
+transverse factor is clamped at 0 exactly as the implicit integrators clamp it, so this is the
+stiffness those integrators see. M^-1 K has the eigenvalues of the symmetric S = W K W with
+W = M^-1/2 (zero on pinned particles), so:
+
+* :func:`omega_max_bound`: block Gershgorin on S, a cheap upper bound,
+  omega_max^2 <= max over free i of ( sum_s k_s / m_i + sum_{s, j free} k_s / sqrt(m_i m_j) ),
+  because ||B_s|| = k_s (tau <= 1). With equal masses and no pinned neighbour this is
+  DESIGN.md's 2 (sum of attached k) / m; a pinned neighbour counts once, so the single spring
+  of the ``spring`` scene gives exactly sqrt(k / m).
+* :func:`omega_max_power`: power iteration on S; its Rayleigh quotient rises to the sharp value
+  from below.
+
+Gravity and drag add no stiffness; dashpots, drag and wind damp (they shift eigenvalues off the
+imaginary axis) and are left out: the limits are those of the undamped network. The circle ODE
+(``simple``) has omega = 1.
+"""
+from __future__ import annotations
+
+import math
+from typing import Mapping
+
+import numpy as np
+
+# theta = h omega_max below which each method is stable on the imaginary axis. 0: never stable
+# there (|R(i theta)| > 1 for every theta > 0; only damping or a finite horizon gives a limit);
+# inf: A-stable (unconditional). Adaptive methods choose their own step (not listed: None).
+STABILITY_CONSTANT: dict[str, float] = {
+    "euler": 0.0,
+    "trapezoid": 0.0,
+    "midpoint": 0.0,
+    "rk4": 2.0 * math.sqrt(2.0),
+    "symplectic_euler": 2.0,
+    "implicit_euler": math.inf,
+    "implicit_midpoint": math.inf,
+}
+
+# |R(i theta)|^2 per step of the methods that grow on the imaginary axis (DESIGN.md section 5).
+GROWTH_PER_STEP_SQUARED = {
+    "euler": lambda theta: 1.0 + theta**2,
+    "trapezoid": lambda theta: 1.0 + theta**4 / 4.0,
+    "midpoint": lambda theta: 1.0 + theta**4 / 4.0,
+}
+
+
+def stability_constant(name: str) -> float | None:
+    """C of integrator ``name`` (h_max = C / omega_max), or None for an adaptive or unknown method."""
+    return STABILITY_CONSTANT.get(name)
+
+
+def predicted_limit(name: str, omega_max: float | None) -> float | None:
+    """The largest stable step (s) of ``name`` for a system whose fastest mode is ``omega_max``
+    (rad/s): C / omega_max; inf when unconditional or when nothing oscillates; 0 when the
+    method is never stable on the imaginary axis; None when not applicable (adaptive, unknown
+    omega)."""
+    c = stability_constant(name)
+    if c is None or omega_max is None or not math.isfinite(omega_max):
+        return None
+    if math.isinf(c) or omega_max <= 0:
+        return math.inf
+    return c / omega_max
+
+
+def horizon_limit(name: str, omega: float, t_end: float, growth: float = 2.0) -> float | None:
+    """For a method that grows on the imaginary axis, the largest step (s) whose energy growth
+    |R(i h omega)|^(2 t_end / h) over ``t_end`` s stays within ``growth``; None for the others."""
+    rate = GROWTH_PER_STEP_SQUARED.get(name)
+    if rate is None or omega <= 0:
+        return None
+
+    def grows(h):
+        return (t_end / h) * math.log(rate(h * omega)) > math.log(growth)
+
+    lo, hi = 1e-12 / omega, 10.0 / omega
+    if not grows(hi):
+        return hi
+    for _ in range(200):
+        mid = math.sqrt(lo * hi)
+        lo, hi = (lo, mid) if grows(mid) else (mid, hi)
+        if hi / lo < 1 + 1e-10:
+            break
+    return lo
+
+
+def spring_network(arrays: Mapping[str, np.ndarray]):
+    """(ends (S, 2), stiffness (S,), rest (S,), mass (n,), free (n,)) of the live springs with
+    k > 0 of a scene's ``arrays`` (the npz model keys)."""
+    mass = np.asarray(arrays["mass"], float)
+    free = ~np.asarray(arrays["pinned"], bool)
+    if "springs" not in arrays or len(arrays["springs"]) == 0:
+        return np.zeros((0, 2), int), np.zeros(0), np.zeros(0), mass, free
+    ends = np.asarray(arrays["springs"], int).reshape(-1, 2)
+    k = np.asarray(arrays["stiffness"], float)
+    rest = np.asarray(arrays["rest_length"], float)
+    keep = k > 0
+    if "alive" in arrays:
+        keep &= np.asarray(arrays["alive"], bool)
+    return ends[keep], k[keep], rest[keep], mass, free
+
+
+def omega_max_bound(arrays: Mapping[str, np.ndarray]) -> float:
+    """Block-Gershgorin upper bound on omega_max (rad/s) of a particle scene (module docstring);
+    0 when no free particle is held by a spring."""
+    ends, k, _, mass, free = spring_network(arrays)
+    n = len(mass)
+    if len(k) == 0 or not free.any():
+        return 0.0
+    i, j = ends[:, 0], ends[:, 1]
+    diagonal = np.bincount(i, k, n) + np.bincount(j, k, n)
+    coupling = k / np.sqrt(mass[i] * mass[j])
+    off = np.bincount(i, coupling * free[j], n) + np.bincount(j, coupling * free[i], n)
+    row = diagonal / mass + off
+    return float(math.sqrt(max(float(np.max(row[free])), 0.0)))
+
+
+class _StiffnessOperator:
+    """y = S p for S = W K W (module docstring), p and y of shape (n, 3), in numpy."""
+
+    def __init__(self, arrays: Mapping[str, np.ndarray], x: np.ndarray):
+        ends, k, rest, mass, free = spring_network(arrays)
+        x = np.asarray(x, float).reshape(len(mass), 3)
+        d = x[ends[:, 0]] - x[ends[:, 1]]
+        length = np.linalg.norm(d, axis=1)
+        live = length > 0  # a zero-length spring exerts no force: no stiffness
+        ends, k, rest, d, length = ends[live], k[live], rest[live], d[live], length[live]
+        self.u = d / length[:, None]
+        tau = np.maximum(1.0 - rest / length, 0.0)
+        # B_s w = k (tau w + (1 - tau) u (u . w)): no 3x3 blocks stored
+        self.k_tau, self.k_axial = k * tau, k * (1.0 - tau)
+        self.i, self.j = ends[:, 0], ends[:, 1]
+        self.weight = np.where(free, 1.0 / np.sqrt(mass), 0.0)
+        self.n = len(mass)
+        self.free = free
+
+    def __call__(self, p: np.ndarray) -> np.ndarray:
+        q = p * self.weight[:, None]
+        w = q[self.i] - q[self.j]
+        force = self.k_tau[:, None] * w + (self.k_axial * np.einsum("sa,sa->s", self.u, w))[:, None] * self.u
+        out = np.empty_like(q)
+        for c in range(3):
+            out[:, c] = np.bincount(self.i, force[:, c], self.n) - np.bincount(self.j, force[:, c], self.n)
+        return out * self.weight[:, None]
+
+
+def omega_max_power(arrays: Mapping[str, np.ndarray], x: np.ndarray, *, tol: float = 1e-12,
+                    max_iterations: int = 3000, seed: int = 0) -> tuple[float, dict]:
+    """omega_max (rad/s) by power iteration on S linearised at positions ``x`` ((n, 3), m).
+
+    Stops when the Rayleigh quotient changes by less than ``tol`` (relative) over 10 iterations,
+    or after ``max_iterations``. Returns (omega, info) with info = {"iterations", "change"}
+    (the last relative change of the eigenvalue estimate). The estimate never exceeds the true
+    value: an unconverged one predicts a slightly optimistic (too large) step.
+    """
+    op = _StiffnessOperator(arrays, x)
+    if len(op.i) == 0 or not op.free.any():
+        return 0.0, {"iterations": 0, "change": 0.0}
+    rng = np.random.default_rng(seed)
+    p = rng.standard_normal((op.n, 3)) * op.free[:, None]
+    p /= np.linalg.norm(p)
+    history = []
+    lam, change, it = 0.0, math.inf, 0
+    for it in range(1, max_iterations + 1):
+        y = op(p)
+        lam = float(np.vdot(p, y))  # Rayleigh quotient (|p| = 1)
+        norm = float(np.linalg.norm(y))
+        if norm == 0.0:
+            break
+        p = y / norm
+        history.append(lam)
+        if len(history) > 10:
+            change = abs(history[-1] - history[-11]) / max(abs(history[-1]), 1e-300)
+            if change < tol:
+                break
+    return math.sqrt(max(lam, 0.0)), {"iterations": it, "change": change}
+
+
+def omega_max_eigsh(arrays: Mapping[str, np.ndarray], x: np.ndarray) -> float | None:
+    """omega_max by scipy's Lanczos (``eigsh``) on the same operator: an independent check of
+    :func:`omega_max_power`; None without scipy."""
+    try:
+        from scipy.sparse.linalg import LinearOperator, eigsh
+    except ImportError:
+        return None
+    op = _StiffnessOperator(arrays, x)
+    if len(op.i) == 0 or not op.free.any():
+        return 0.0
+    size = 3 * op.n
+    if size <= 60:  # small: the dense matrix, column by column
+        dense = np.stack([op(e.reshape(op.n, 3)).ravel() for e in np.eye(size)], axis=1)
+        return math.sqrt(max(float(np.linalg.eigvalsh(0.5 * (dense + dense.T)).max()), 0.0))
+    linear = LinearOperator((size, size), matvec=lambda v: op(v.reshape(op.n, 3)).ravel(), dtype=float)
+    value = eigsh(linear, k=1, which="LA", return_eigenvectors=False, tol=1e-12,
+                  v0=np.ones(size) * np.repeat(op.free, 3))[0]
+    return math.sqrt(max(float(value), 0.0))
+
+
+def is_circle(scene) -> bool:
+    return not scene.system.second_order and type(scene.system).__name__ == "CircleSystem"
+
+
+def scene_omega_max(scene, method: str = "bound", **options) -> float | None:
+    """omega_max (rad/s) of a built scene: 1 for the circle ODE; for a particle scene the
+    Gershgorin ``"bound"`` or the ``"power"`` iteration at the scene's initial positions; None
+    for a first-order system it does not know."""
+    if is_circle(scene):
+        return 1.0
+    if not scene.system.second_order:
+        return None
+    arrays = scene.arrays
+    if method == "bound":
+        return omega_max_bound(arrays)
+    if method == "power":
+        return omega_max_power(arrays, scene.x0, **options)[0]
+    raise ValueError(f"unknown omega_max method {method!r}")
+
+
+def stability_warning(scene, integrator_name: str, dt: float | None) -> str | None:
+    """One line for ``simulate`` when ``dt`` exceeds the predicted stability limit of
+    ``integrator_name`` on ``scene`` (with the cheap bound on omega_max, so the limit is
+    conservative), else None. Methods with no finite positive limit (adaptive, implicit, or
+    never stable on the imaginary axis) get no warning."""
+    c = stability_constant(integrator_name)
+    if dt is None or c is None or c == 0.0 or math.isinf(c):
+        return None
+    omega = scene_omega_max(scene, "bound")
+    if not omega:
+        return None
+    limit = c / omega
+    if dt <= limit:
+        return None
+    return (f"dt = {dt:g} s exceeds the predicted stability limit {limit:.3g} s of {integrator_name} "
+            f"for this scene (omega_max = {omega:.4g} rad/s, limit {c:.3g} / omega_max); expect divergence")

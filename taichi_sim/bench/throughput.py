@@ -1,0 +1,258 @@
+"""Throughput: particle-steps per second against grid size, integrator, precision and features,
+with the peers timed in the same run.
+
+Every measurement runs in a subprocess (one per precision and grid size:
+:mod:`.throughput_worker`; one per peer and grid size: :mod:`.peer_taichi`, :mod:`.peer_warp`),
+so each precision gets its own ``ti.init``, memory is returned between sizes, and the Taichi
+example's own ``ti.init`` at import stays out of ours. The machine may be shared, so nothing is
+timed in one long stretch: the integrators (and feature variants) of one worker are timed in
+rounds, one batch each per round; and for the head-to-head, our symplectic Euler and the peers
+run as served processes (:mod:`.protocol`) whose batches the driver alternates. Ratios to the
+peers come from that duel (kind ``duel``); the rk4 / symplectic Euler ratio from the sweep. Ours: the ``cloth`` scene (structural,
+shear and flex springs: the 12-neighbour set, with dashpots, gravity and drag; two corners
+pinned), ``integrator.step`` in a loop with the scene's post-step events, from the initial state
+in each batch. Reported per configuration: the median over ``repeats`` batches of the time per
+step (each batch about ``batch_seconds`` long, after a first step that compiles, reported
+separately as ``first_step_s``), particle-steps per second (n^2 particles, pinned ones
+included, as the peers count them) and spring evaluations per second (each spring counted once
+per force evaluation, for us and the peers alike; our gather and the Taichi example compute
+each spring from both ends, warp once with atomics).
+"""
+from __future__ import annotations
+
+import json
+import statistics
+import subprocess
+import sys
+import tempfile
+from dataclasses import dataclass, replace
+
+from .common import memory_bytes
+
+BYTES_PER_PARTICLE = 4096  # generous: state, scratch of the largest method, 6 springs each, incidence
+
+
+@dataclass(frozen=True)
+class ThroughputConfig:
+    sizes: tuple[int, ...]
+    precisions: tuple[str, ...]
+    integrators: tuple[str, ...]
+    dt: float = 1e-4
+    repeats: int = 7
+    batch_seconds: float = 0.25
+    max_step_seconds: float = 2.0
+    features_size: int | None = 128
+    peers: bool = True
+    peer_precisions: tuple[str, ...] = ("f32", "f64")
+    worker_timeout_s: float = 3600.0
+
+
+def _run_streaming(module: str, args: list[str], *, timeout: float, on_record=None) -> tuple[list[dict], str | None]:
+    """Run ``python -m module args``; collect its ``@@ {json}`` records (``tick`` records only
+    call ``on_record``). Returns (records, error or None)."""
+    from .protocol import MARK, child_env
+
+    records: list[dict] = []
+    with tempfile.TemporaryFile(mode="w+") as errors:
+        proc = subprocess.Popen([sys.executable, "-m", module, *args], stdout=subprocess.PIPE,
+                                stderr=errors, text=True, env=child_env())
+        try:
+            for line in proc.stdout:
+                if line.startswith(MARK):
+                    record = json.loads(line[len(MARK):])
+                    if record.get("done"):
+                        continue
+                    if on_record is not None:
+                        on_record(record)
+                    if "tick" not in record:
+                        records.append(record)
+            proc.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+            return records, f"timed out after {timeout:g} s"
+        if proc.returncode != 0:
+            errors.seek(0)
+            tail = [line for line in errors.read().strip().splitlines() if line.strip()][-1:] or ["?"]
+            return records, f"exit status {proc.returncode}: {tail[0][:300]}"
+    return records, None
+
+
+def duel(contenders: list[tuple[str, list[str], dict]], repeats: int) -> list[dict]:
+    """Time served contenders ((module, args, base record) each) batch by batch in turn, for
+    ``repeats`` rounds: one record each, with the median of its batches."""
+    from .protocol import Served
+
+    served, records = [], []
+    for module, args, base in contenders:
+        child = Served(module, args)
+        try:
+            ready = child.start()
+        except RuntimeError as exc:
+            records.append({**base, "status": "unavailable", "note": str(exc)})
+            child.close()
+            continue
+        ready.pop("ready", None)
+        ready["kind"] = base["kind"]
+        if ready.get("status") != "ok":
+            records.append({**base, **ready})
+            child.close()
+            continue
+        served.append((child, ready, []))
+    try:
+        for _ in range(repeats):
+            for child, ready, samples in served:
+                if ready.get("status") == "ok":
+                    try:
+                        samples.append(child.batch()["step_s"])
+                    except RuntimeError as exc:
+                        ready.update(status="error", note=str(exc))
+    finally:
+        for child, _, _ in served:
+            child.close()
+    for _, ready, samples in served:
+        if samples and ready.get("status") == "ok":
+            step_s = statistics.median(samples)
+            records.append({**ready, "step_s": step_s, "step_min_s": min(samples), "step_max_s": max(samples),
+                            "particle_steps_per_s": ready["particles"] / step_s,
+                            "spring_evals_per_s": ready["springs"] * ready.get("f_evals_per_step", 1.0) / step_s,
+                            "repeats": len(samples)})
+        else:
+            records.append(ready)
+    return records
+
+
+def fits_in_memory(n: int) -> bool:
+    available = memory_bytes("MemAvailable")
+    return available is None or n * n * BYTES_PER_PARTICLE < 0.5 * available
+
+
+def _contenders(config: ThroughputConfig, precision: str, n: int) -> list[tuple[str, list[str], dict]]:
+    """Ours (symplectic Euler, served) and the peers that apply to this precision."""
+    timing = ["--n", str(n), "--batch-seconds", str(config.batch_seconds), "--serve"]
+    spec = {"mode": "serve", "precision": precision, "size": n, "integrator": "symplectic_euler", "dt": config.dt,
+            "batch_seconds": config.batch_seconds, "max_step_seconds": config.max_step_seconds}
+    out = [("taichi_sim.bench.throughput_worker", [json.dumps(spec)],
+            {"kind": "duel", "name": "symplectic_euler", "precision": precision, "n": n})]
+    if precision in config.peer_precisions:
+        out.append(("taichi_sim.bench.peer_taichi", timing + ["--precision", precision],
+                    {"kind": "peer", "name": "taichi example", "precision": precision, "n": n}))
+    if precision == "f32":
+        out.append(("taichi_sim.bench.peer_warp", timing,
+                    {"kind": "peer", "name": "warp benchmark_cloth", "precision": precision, "n": n}))
+    return out
+
+
+def task_count(config: ThroughputConfig) -> int:
+    from .throughput_worker import FEATURE_VARIANTS
+
+    total = 0
+    for precision in config.precisions:
+        for n in config.sizes:
+            total += len(config.integrators)
+            if n == config.features_size:
+                total += len(FEATURE_VARIANTS)
+            if config.peers:
+                total += len(_contenders(config, precision, n))
+    return total
+
+
+def run_throughput(config: ThroughputConfig, progress=None) -> tuple[list[dict], dict]:
+    """All measurements of ``config`` (module docstring). Returns (rows, details)."""
+    from .throughput_worker import FEATURE_VARIANTS
+
+    rows: list[dict] = []
+
+    def tick(_record=None):
+        if progress is not None:
+            progress.update(1)
+
+    for precision in config.precisions:
+        for n in config.sizes:
+            features = n == config.features_size
+            if not fits_in_memory(n):
+                for name in config.integrators:
+                    rows.append({"kind": "ours", "name": name, "precision": precision, "n": n,
+                                 "status": "skipped", "note": "not enough memory"})
+                for _ in range(task_count(replace(config, precisions=(precision,), sizes=(n,)))):
+                    tick()
+                continue
+            spec = {"mode": "sweep", "precision": precision, "size": n, "integrators": list(config.integrators),
+                    "dt": config.dt, "repeats": config.repeats, "batch_seconds": config.batch_seconds,
+                    "max_step_seconds": config.max_step_seconds, "features": features}
+            ticks = []
+            records, error = _run_streaming("taichi_sim.bench.throughput_worker", [json.dumps(spec)],
+                                            timeout=config.worker_timeout_s,
+                                            on_record=lambda r: (ticks.append(1), tick()) if "tick" in r else None)
+            rows.extend(records)
+            if error is not None:
+                done = {r["name"] for r in records if r.get("kind") == "ours"}
+                for name in config.integrators:
+                    if name not in done:
+                        rows.append({"kind": "ours", "name": name, "precision": precision, "n": n,
+                                     "status": "error", "note": error})
+                for _ in range(len(config.integrators) + (len(FEATURE_VARIANTS) if features else 0) - len(ticks)):
+                    tick()
+            if config.peers:
+                contenders = _contenders(config, precision, n)
+                rows.extend(duel(contenders, config.repeats))
+                for _ in contenders:
+                    tick()
+    summary = summarize(rows)
+    return rows, {"summary": summary, "targets": check_targets(summary)}
+
+
+def summarize(rows: list[dict]) -> list[dict]:
+    """Per (precision, n): our symplectic Euler against each peer, and rk4's cost per step
+    relative to symplectic Euler's."""
+    def ok(r):
+        return r.get("status") == "ok" and r.get("step_s")
+
+    out = []
+    keys = sorted({(r["precision"], r["n"]) for r in rows if "n" in r}, key=lambda k: (k[0], k[1]))
+    for precision, n in keys:
+        same = [r for r in rows if r.get("precision") == precision and r.get("n") == n]
+        ours = {r["name"]: r for r in same if r.get("kind") == "ours" and ok(r)}
+        dueled = next((r for r in same if r.get("kind") == "duel" and ok(r)), None)
+        peers = {r["name"]: r for r in same if r.get("kind") == "peer"}
+        entry = {"precision": precision, "n": n}
+        symplectic = ours.get("symplectic_euler")
+        if symplectic:
+            entry["symplectic_particle_steps_per_s"] = symplectic["particle_steps_per_s"]
+            entry["symplectic_spring_evals_per_s"] = symplectic["spring_evals_per_s"]
+            if "rk4" in ours:
+                entry["rk4_over_symplectic"] = ours["rk4"]["step_s"] / symplectic["step_s"]
+        against = dueled or symplectic  # batches alternated with the peers', when they ran
+        if dueled:
+            entry["duel_particle_steps_per_s"] = dueled["particle_steps_per_s"]
+        for name, peer in peers.items():
+            key = "taichi" if name.startswith("taichi") else "warp"
+            if ok(peer):
+                entry[f"{key}_particle_steps_per_s"] = peer["particle_steps_per_s"]
+                if against:
+                    entry[f"ratio_vs_{key}"] = against["particle_steps_per_s"] / peer["particle_steps_per_s"]
+            else:
+                entry[f"{key}_unavailable"] = peer.get("note", peer.get("status"))
+        out.append(entry)
+    return out
+
+
+TARGET_N, TARGET_PRECISION = 128, "f32"
+
+
+def check_targets(summary: list[dict]) -> list[dict]:
+    """The issue's throughput targets, at f32 on the 128 x 128 cloth (where measured)."""
+    entry = next((s for s in summary if s["precision"] == TARGET_PRECISION and s["n"] == TARGET_N), None)
+    if entry is None:
+        return []
+    out = []
+    ratios = [entry[k] for k in ("ratio_vs_taichi", "ratio_vs_warp") if k in entry]
+    if ratios:
+        worst = min(ratios)
+        out.append({"target": "symplectic Euler particle-steps/s >= the best peer's (f32, 128 x 128)",
+                    "value": worst, "met": worst >= 1.0, "goal_2x_met": worst >= 2.0})
+    if "rk4_over_symplectic" in entry:
+        value = entry["rk4_over_symplectic"]
+        out.append({"target": "rk4 time per step <= 4.5 x symplectic Euler's (f32, 128 x 128)",
+                    "value": value, "met": value <= 4.5})
+    return out

@@ -1,0 +1,169 @@
+"""One throughput worker: ``python -m taichi_sim.bench.throughput_worker SPEC_JSON``.
+
+Runs in its own process so that each precision gets its own ``ti.init`` and each grid size
+its own memory. SPEC_JSON keys: precision ("f32" | "f64"), size (grid side n: an n x n cloth),
+dt (s), batch_seconds (target length of a timed batch), max_step_seconds (above this a batch
+is one step), arch ("cpu" | "gpu"), and:
+
+* ``mode: "sweep"`` (default): ``integrators`` (names), ``repeats``, ``features`` (bool).
+  Every integrator on the ``cloth`` scene (and, with features, symplectic Euler on the cloth
+  with each extra switched on or off) is compiled and warmed up, then timed in ``repeats``
+  rounds, one batch of each configuration per round, so that load changes on the machine hit
+  all of them alike. One ``@@ {json}`` line per configuration (and ``@@ {"tick": ...}`` lines
+  while warming up, for the progress bar).
+* ``mode: "serve"``: ``integrator``: one configuration, served batch by batch
+  (:mod:`taichi_sim.bench.protocol`) so the driver can alternate it with the peers.
+"""
+import json
+import statistics
+import sys
+import time
+
+from taichi_sim.bench.protocol import emit, serve
+
+# name, extra parameters: the same cloth with one feature switched on (or off)
+FEATURE_VARIANTS = (
+    ("cloth", {}),
+    ("cloth, no dashpots", {"damping": 0.0}),
+    ("cloth + wind", {"wind": True}),
+    ("cloth + sphere", {"sphere": True}),
+    ("cloth + tearing", {"tear": True}),
+    ("cloth + wind + sphere + tearing", {"wind": True, "sphere": True, "tear": True}),
+)
+
+
+class Timed:
+    """One (scene, integrator) configuration: compiled and warmed up at construction; each
+    :meth:`batch` times ``steps`` steps (plus the scene's post-step events) from the initial
+    state."""
+
+    def __init__(self, scene, integrator, *, dt: float, batch_seconds: float, max_step_seconds: float):
+        import taichi as ti
+
+        self.ti, self.scene, self.integrator, self.dt = ti, scene, integrator, dt
+        self.events = bool(scene.post_step)
+        self.f_evals = self.linear = self.steps_done = 0
+        self.worst = "ok"
+        scene.reset()
+        integrator.reset()
+        start = time.perf_counter()
+        self._advance(1)  # compiles
+        self.first = time.perf_counter() - start
+        start = time.perf_counter()
+        self._advance(1)
+        one = time.perf_counter() - start
+        self.steps = 1 if one > max_step_seconds else max(1, min(2000, int(batch_seconds / max(one, 1e-7))))
+        self.warm = (self.f_evals / 2, self.linear / 2)  # per step, until batches say more
+        self.f_evals = self.linear = self.steps_done = 0
+        self.samples: list[float] = []
+
+    def _advance(self, steps: int) -> None:
+        from taichi_sim.integrators import Status
+
+        scene, integrator, t = self.scene, self.integrator, 0.0
+        for _ in range(steps):
+            report = integrator.step(scene.state, t, self.dt)
+            self.f_evals += report.f_evals
+            self.linear += report.linear_iterations
+            if report.status is not Status.OK:
+                self.worst = report.status.value
+            if report.accepted:
+                t += report.h
+                if self.events and scene.after_step(t, report.h):
+                    integrator.reset()
+        self.ti.sync()
+        self.steps_done += steps
+
+    def batch(self) -> dict:
+        self.scene.reset()
+        self.integrator.reset()
+        start = time.perf_counter()
+        self._advance(self.steps)
+        step_s = (time.perf_counter() - start) / self.steps
+        self.samples.append(step_s)
+        return {"step_s": step_s}
+
+    def info(self) -> dict:
+        n = self.scene.particle_count
+        springs = int(self.scene.features.get("springs", 0))
+        if self.steps_done:
+            per_step, linear = self.f_evals / self.steps_done, self.linear / self.steps_done
+        else:
+            per_step, linear = self.warm
+        return {"particles": n, "springs": springs, "f_evals_per_step": per_step,
+                "linear_iterations_per_step": linear,
+                "first_step_s": self.first, "batch_steps": self.steps}
+
+    def record(self) -> dict:
+        info = self.info()
+        step_s = statistics.median(self.samples)
+        return {**info, "step_s": step_s, "step_min_s": min(self.samples), "step_max_s": max(self.samples),
+                "particle_steps_per_s": info["particles"] / step_s,
+                "spring_evals_per_s": info["springs"] * info["f_evals_per_step"] / step_s,
+                "repeats": len(self.samples), "status": self.worst}
+
+
+def _error(exc: Exception) -> str:
+    return f"{type(exc).__name__}: {exc}".strip().splitlines()[0][:300]
+
+
+def main(argv=None) -> int:
+    spec = json.loads((argv or sys.argv[1:])[0])
+    import taichi_sim as ts
+
+    ts.init(arch=spec.get("arch", "cpu"), precision=spec["precision"])
+    n = int(spec["size"])
+    base = {"precision": spec["precision"], "n": n, "dt": spec["dt"], "backend": ts.runtime.backend()}
+    timing = {k: spec[k] for k in ("dt", "batch_seconds", "max_step_seconds")}
+    start = time.perf_counter()
+    scene = ts.build_scene("cloth", {"nx": n, "ny": n})
+    build = time.perf_counter() - start
+
+    if spec.get("mode") == "serve":
+        name = spec["integrator"]
+        try:
+            timed = Timed(scene, ts.create_integrator(name, scene.system), **timing)
+        except Exception as exc:
+            emit({**base, "kind": "ours", "name": name, "status": "error", "note": _error(exc)})
+            return 0
+        serve({**base, "kind": "ours", "name": name, "build_s": build, **timed.info(), "status": "ok"}, timed.batch)
+        return 0
+
+    configs = []  # (record, Timed or None)
+    for name in spec["integrators"]:
+        record = {**base, "kind": "ours", "name": name, "build_s": build}
+        try:
+            configs.append((record, Timed(scene, ts.create_integrator(name, scene.system), **timing)))
+        except Exception as exc:  # keep measuring the others
+            configs.append(({**record, "status": "error", "note": _error(exc)}, None))
+        emit({"tick": name})
+    if spec.get("features"):
+        for label, extra in FEATURE_VARIANTS:
+            record = {**base, "kind": "feature", "name": label, "integrator": "symplectic_euler"}
+            try:
+                start = time.perf_counter()
+                variant = ts.build_scene("cloth", {"nx": n, "ny": n, **extra})
+                record["build_s"] = time.perf_counter() - start
+                record["features"] = {k: v for k, v in variant.features.items() if v}
+                configs.append((record, Timed(variant, ts.create_integrator("symplectic_euler", variant.system),
+                                              **timing)))
+            except Exception as exc:
+                configs.append(({**record, "status": "error", "note": _error(exc)}, None))
+            emit({"tick": label})
+    for _ in range(int(spec["repeats"])):  # interleaved: one batch of each per round
+        for record, timed in configs:
+            if timed is not None and "note" not in record:
+                try:
+                    timed.batch()
+                except Exception as exc:
+                    record.update(status="error", note=_error(exc))
+    for record, timed in configs:
+        if timed is not None and "note" not in record:
+            record.update(timed.record())
+        emit(record)
+    emit({"done": True})
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
