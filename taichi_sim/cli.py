@@ -90,6 +90,9 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--max-step", type=_positive_float,
                      help="largest step of an adaptive method in s (default: unbounded, or 10x the "
                           "scene's default dt when the scene has collisions, tearing or emission)")
+    sim.add_argument("--cg-tolerance", type=_positive_float,
+                     help="relative residual at which CG stops (implicit methods; default 1e-3 for "
+                          "one-step implicit_euler, else 1e-8 in f64 / 1e-5 in f32)")
     sim.add_argument("--newton-iterations", type=_positive_int,
                      help="Newton iterations per implicit step")
     sim.add_argument("--seed", type=int, default=0, help="random seed for scenes with randomness")
@@ -197,7 +200,8 @@ def cmd_simulate(args) -> int:
     preset = scene_preset(args.scene)
     integrator_name = args.integrator or preset.default_integrator
     options = {name: getattr(args, name)
-               for name in ("rtol", "atol", "linear_solver", "newton_iterations", "max_step")
+               for name in ("rtol", "atol", "linear_solver", "newton_iterations", "max_step",
+                            "cg_tolerance")
                if getattr(args, name) is not None}
     adaptive = check_options(integrator_name, options).adaptive
     dt = args.dt if args.dt is not None or adaptive else preset.default_dt

@@ -601,3 +601,14 @@ def test_cli_runs_implicit_methods_on_the_circle(tmp_path, name):
     assert str(data["status"]) == "ok" and "linear_iterations" in data and "linear_residual" in data
     expected = 1.0 if name == "implicit_midpoint" else (1 + 0.01) ** -5
     assert np.linalg.norm(data["x"][0]) == pytest.approx(expected, rel=1e-10)
+
+
+def test_cli_cg_tolerance_is_honoured(tmp_path):
+    from taichi_sim.cli import main
+
+    path = tmp_path / "tight.npz"
+    assert main(["simulate", "cloth", "--integrator", "implicit_euler", "--dt", "0.0166", "--steps", "3",
+                 "--set", "nx=8", "--set", "ny=8", "--cg-tolerance", "1e-9", "--out", str(path),
+                 "--quiet"]) == 0
+    data = np.load(path)
+    assert float(data["linear_residual"]) < 1e-9
