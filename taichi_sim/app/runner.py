@@ -81,8 +81,7 @@ class Runner:
     def system_changed(self) -> None:
         """Call after changing a parameter of the running system (a stiffness, the wind):
         methods that cache f between steps forget it."""
-        if hasattr(self.integrator, "reset"):
-            self.integrator.reset()
+        self.integrator.reset()
 
     def restart(self) -> None:
         """Back to t = 0 from the scene's current state (call after ``scene.reset()``)."""
@@ -159,7 +158,8 @@ class Runner:
             self.t += report.h
             self._pending -= report.h
             self.steps += 1
-            self.scene.after_step(self.t, report.h)
+            if self.scene.after_step(self.t, report.h):
+                self.system_changed()
         if calls >= MAX_CALLS_PER_ADVANCE:
             self._pending = 0.0
         if not self.frozen:

@@ -1,5 +1,5 @@
 """Force terms: composable pieces of a particle system's eval_f (DESIGN.md section 4)."""
-from __future__ import annotations
+import taichi as ti
 
 
 class ForceTerm:
@@ -42,3 +42,18 @@ class ForceTerm:
         dissipates nothing. R is quadratic in the velocities with -dR/dv_i the term's
         dissipative force on i (so the term dissipates power 2R)."""
         return None
+
+
+class ZeroJacobian:
+    """Mixin for a term whose Jacobians the implicit integrators may take as zero (a constant
+    force, or a force that is not stiff and so is treated explicitly by a linearised step)."""
+
+    has_jacobian = True
+
+    @ti.func
+    def jacobian_product(self, i, y, p, a, b, t):
+        return ti.Vector.zero(y.x.dtype, 3)
+
+    @ti.func
+    def jacobian_diagonal_block(self, i, y, a, b, t):
+        return ti.Matrix.zero(y.x.dtype, 3, 3)

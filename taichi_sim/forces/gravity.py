@@ -3,11 +3,11 @@ import numpy as np
 import taichi as ti
 
 from .. import runtime
-from .base import ForceTerm
+from .base import ForceTerm, ZeroJacobian
 
 
 @ti.data_oriented
-class Gravity(ForceTerm):
+class Gravity(ZeroJacobian, ForceTerm):
     """Uniform gravity: force m_i * g on every particle; potential energy -m_i g . x_i summed
     over the particles that move (pinned or inactive ones would add a constant).
 
@@ -16,7 +16,6 @@ class Gravity(ForceTerm):
     """
 
     name = "gravity"
-    has_jacobian = True  # a constant force: both Jacobians are zero
 
     def __init__(self, g, mass_field, free_field):
         self.g = ti.Vector.field(3, runtime.real(), shape=())
@@ -34,13 +33,6 @@ class Gravity(ForceTerm):
     def force(self, i, y, mass_i, t):
         return mass_i * self.g[None]
 
-    @ti.func
-    def jacobian_product(self, i, y, p, a, b, t):
-        return ti.Vector.zero(y.x.dtype, 3)
-
-    @ti.func
-    def jacobian_diagonal_block(self, i, y, a, b, t):
-        return ti.Matrix.zero(y.x.dtype, 3, 3)
 
     def energy(self, y) -> float:
         return float(self._energy(y))

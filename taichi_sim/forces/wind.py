@@ -4,13 +4,13 @@ import numpy as np
 import taichi as ti
 
 from .. import runtime
-from .base import ForceTerm
+from .base import ForceTerm, ZeroJacobian
 
 GUST_WAVES = 3
 
 
 @ti.data_oriented
-class Wind(ForceTerm):
+class Wind(ZeroJacobian, ForceTerm):
     """A gusting wind acting aerodynamically on the triangles of a mesh.
 
     Wind velocity at point x and time t (m/s)::
@@ -35,10 +35,9 @@ class Wind(ForceTerm):
 
     name = "wind"
     # Wind is not stiff (its velocity derivative, ~2 c A |u.n| per triangle, is about 1% of m/h
-    # for cloth at 60 Hz), so implicit methods get zero Jacobians: a linearised step treats it
-    # explicitly, and Newton iterations still converge to the exact solution (their residual
-    # uses the true force).
-    has_jacobian = True
+    # for cloth at 60 Hz), so implicit methods get zero Jacobians (ZeroJacobian): a linearised
+    # step treats it explicitly, and Newton iterations still converge to the exact solution
+    # (their residual uses the true force).
 
     def __init__(self, mesh, *, speed: float, heading: float, gust: float, gust_frequency: float,
                  drag_coefficient: float, seed: int = 0, enabled: bool = True):
@@ -110,10 +109,3 @@ class Wind(ForceTerm):
                         f += (self.drag_coefficient[None] * twice_area / 6.0) * un * ti.abs(un) * n
         return f
 
-    @ti.func
-    def jacobian_product(self, i, y, p, a, b, t):
-        return ti.Vector.zero(y.x.dtype, 3)
-
-    @ti.func
-    def jacobian_diagonal_block(self, i, y, a, b, t):
-        return ti.Matrix.zero(y.x.dtype, 3, 3)
