@@ -335,17 +335,21 @@ class SceneDrawer:
 
     # -- kernels ------------------------------------------------------------------------------
 
+    @ti.func
+    def _line_intact(self, s):
+        """Whether drawn spring line ``s`` has not torn."""
+        intact = True
+        if ti.static(self.tearing):
+            intact = self.alive[self.line_ids[s]] != 0
+        return intact
+
     @ti.kernel
     def _build_lines(self) -> ti.i32:
         """Compact the intact drawn springs into ``line_idx``; returns how many."""
         k = 0
         ti.loop_config(serialize=True)
         for s in range(self.line_total):
-            live = 1
-            if ti.static(self.tearing):
-                if self.alive[self.line_ids[s]] == 0:
-                    live = 0
-            if live:
+            if self._line_intact(s):
                 self.line_idx[2 * k] = self.line_ends[s][0]
                 self.line_idx[2 * k + 1] = self.line_ends[s][1]
                 k += 1
@@ -357,11 +361,7 @@ class SceneDrawer:
         for i in range(self.padded):
             self.strain[i] = 0.0
         for s in range(self.line_total):
-            live = 1
-            if ti.static(self.tearing):
-                if self.alive[self.line_ids[s]] == 0:
-                    live = 0
-            if live:
+            if self._line_intact(s):
                 a, b = self.line_ends[s][0], self.line_ends[s][1]
                 e = ((self.pos[a] - self.pos[b]).norm() - self.line_rest[s]) / self.line_rest[s]
                 ti.atomic_max(self.strain[a], e)
