@@ -1,16 +1,19 @@
-"""Benchmark: implicit Euler (Baraff-Witkin) on a 64 x 64 cloth: CG against the sparse direct
-solver, in f32 and f64.
+"""Benchmark: implicit Euler (exact, and the one-step Baraff-Witkin linearisation) on a 64 x 64
+cloth at dt = 1/60 s: CG against the sparse direct solver, in f32 and f64, at one or several
+stiffnesses.
 
 Run from the repository root (outside pytest):
 
     .venv/bin/python benchmarks/bench_implicit.py [--arch cpu] [--batches 7] [--batch-steps 10]
+        [--integrators implicit_euler,implicit_euler_linearised] [--stiffness 1e4,1e8]
         [--cg-tolerance TOL] [--preconditioner ssor|jacobi] [--no-warm-start] [--threads N]
         [--accuracy]
 
-For every (precision, solver) the scene is built fresh, stepped ``--warmup`` times (kernel
+For every (integrator, stiffness, precision, solver) the scene is built fresh, stepped ``--warmup`` times (kernel
 compilation, the direct solver's pattern analysis), then timed over ``--batches`` batches of
 ``--batch-steps`` steps. Reported: steps per second (median over batches, with the min-max
-range), linear-solver iterations per step, the linear solver's wall time per step and per
+range), linear-solver iterations per step, Newton iterations and solved substeps per step (the exact
+method), the linear solver's wall time per step and per
 iteration (CG; the per-solve cache fill and start included), and for the direct solver the mean
 time of one numeric factorisation and of the one-off symbolic analysis. The 1-minute load
 average is printed first: other processes on the machine slow every figure.
@@ -31,9 +34,12 @@ import taichi as ti
 import taichi_sim as ts
 
 N = 64
-STIFFNESS = 1e4  # N/m, structural, shear and flex alike
+STIFFNESS = 1e4  # N/m, structural, shear and flex alike (the default; --stiffness)
 DT = 1 / 60  # s
-PARAMS = {"nx": N, "ny": N, "stiffness": STIFFNESS, "shear_stiffness": STIFFNESS, "flex_stiffness": STIFFNESS}
+
+
+def cloth_params(stiffness: float = STIFFNESS) -> dict:
+    return {"nx": N, "ny": N, "stiffness": stiffness, "shear_stiffness": stiffness, "flex_stiffness": stiffness}
 
 
 def init(precision: str, args) -> None:
@@ -41,7 +47,7 @@ def init(precision: str, args) -> None:
 
 
 def integrator_options(args, solver: str = "cg") -> dict:
-    options = {"warm_start": not args.no_warm_start}
+    options = {"warm_start": not args.no_warm_start, "linear_solver": solver}
     if args.cg_tolerance is not None:
         options["cg_tolerance"] = args.cg_tolerance
     if args.preconditioner is not None and solver == "cg":
@@ -49,11 +55,10 @@ def integrator_options(args, solver: str = "cg") -> dict:
     return options
 
 
-def bench(precision: str, solver: str, args) -> dict:
+def bench(name: str, stiffness: float, precision: str, solver: str, args) -> dict:
     init(precision, args)
-    scene = ts.build_scene("cloth", PARAMS)
-    integrator = ts.create_integrator("implicit_euler", scene.system, linear_solver=solver,
-                                      **integrator_options(args, solver))
+    scene = ts.build_scene("cloth", cloth_params(stiffness))
+    integrator = ts.create_integrator(name, scene.system, **integrator_options(args, solver))
     stats = integrator.stats
     t = 0.0
 
@@ -69,7 +74,7 @@ def bench(precision: str, solver: str, args) -> dict:
     advance(args.warmup)
     ti.sync()
     iterations0, factorize0, factorize_s0 = stats.iterations, stats.factorize_count, stats.factorize_seconds
-    solve_s0 = stats.solve_seconds
+    solve_s0, newton0, substeps0 = stats.solve_seconds, stats.newton_iterations, stats.substeps
     rates = []
     for _ in range(args.batches):
         start = time.perf_counter()
@@ -81,8 +86,11 @@ def bench(precision: str, solver: str, args) -> dict:
     iterations = stats.iterations - iterations0
     solve_s = stats.solve_seconds - solve_s0
     return {
+        "integrator": name, "stiffness": stiffness,
         "precision": precision, "solver": f"{stats.solver}/{stats.preconditioner}" if stats.preconditioner
         else stats.solver, "rate": statistics.median(rates),
+        "newton": (stats.newton_iterations - newton0) / timed_steps,
+        "substeps": (stats.substeps - substeps0) / timed_steps,
         "rate_min": min(rates), "rate_max": max(rates),
         "iterations": iterations / timed_steps,
         "solve_ms": 1e3 * solve_s / timed_steps,
@@ -91,7 +99,7 @@ def bench(precision: str, solver: str, args) -> dict:
                          if factorizations else None),
         "analyze_ms": 1e3 * stats.analyze_seconds if stats.analyze_count else None,
         "analyze_count": stats.analyze_count, "backend": ts.runtime.backend(),
-        "tolerance": integrator.cg_tolerance,
+        "tolerance": integrator.cg_tolerance if integrator.fixed_cg_tolerance else None,
     }
 
 
@@ -107,14 +115,15 @@ def run_steps(scene, integrator, steps: int, h: float, t0: float = 0.0) -> None:
 def accuracy(precision: str, args) -> None:
     """What the CG tolerance changes, against exact linear solves (the direct solver)."""
     init(precision, args)
-    scene = ts.build_scene("cloth", PARAMS)
+    scene = ts.build_scene("cloth", cloth_params())
     steps = round(1.0 / DT)
     tight = 1e-8 if precision == "f64" else 1e-5
     tolerances = (1e-2, 1e-3, 1e-4, tight)
-    integrators = {"direct": ts.create_integrator("implicit_euler", scene.system, linear_solver="direct",
+    linearised = "implicit_euler_linearised"
+    integrators = {"direct": ts.create_integrator(linearised, scene.system, linear_solver="direct",
                                                   cg_tolerance=tight)}
     for tol in tolerances:
-        integrators[tol] = ts.create_integrator("implicit_euler", scene.system,
+        integrators[tol] = ts.create_integrator(linearised, scene.system,
                                                 **(integrator_options(args) | {"cg_tolerance": tol}))
 
     def trajectory(key, h: float = DT, count: int = steps):
@@ -140,7 +149,8 @@ def accuracy(precision: str, args) -> None:
         d = np.linalg.norm(a - b, axis=1)
         return f"rms {np.sqrt(np.mean(d ** 2)):.2e} max {d.max():.2e}"
 
-    print(f"\n{precision}: 1 s of the benchmark cloth (60 steps) from rest; one step from t = 0.5 s")
+    print(f"\n{precision}: implicit_euler_linearised, 1 s of the benchmark cloth (60 steps) from rest; "
+          f"one step from t = 0.5 s")
     print(f"  method error (direct, h against h/2): positions {deviation(x_exact, x_half)} m")
     print(f"  {'cg_tolerance':>12}{'it/step':>9}  {'one step: |dv - dv_exact| / |dv_exact|':>40}"
           f"  {'after 1 s: |x - x_exact| (m)':>30}")
@@ -160,6 +170,10 @@ def main() -> None:
     parser.add_argument("--warmup", type=int, default=5, help="untimed steps first")
     parser.add_argument("--batches", type=int, default=7, help="timed batches (the median is reported)")
     parser.add_argument("--batch-steps", type=int, default=10, help="steps per timed batch")
+    parser.add_argument("--integrators", default="implicit_euler,implicit_euler_linearised",
+                        help="comma-separated: implicit_euler, implicit_euler_linearised")
+    parser.add_argument("--stiffness", default=f"{STIFFNESS:g}",
+                        help="comma-separated spring stiffnesses (N/m), e.g. 1e4,1e8")
     parser.add_argument("--solvers", default="cg,direct", help="comma-separated: cg, direct")
     parser.add_argument("--precisions", default="f32,f64", help="comma-separated: f32, f64")
     parser.add_argument("--cg-tolerance", type=float, default=None,
@@ -177,21 +191,30 @@ def main() -> None:
         for precision in precisions:
             accuracy(precision, args)
         return
-    print(f"implicit_euler, {N} x {N} cloth ({N * N} particles), stiffness {STIFFNESS:g} N/m, dt = 1/60 s; "
-          f"median of {args.batches} batches x {args.batch_steps} steps after {args.warmup} warm-up steps; "
-          f"warm start {'off' if args.no_warm_start else 'on'}")
-    print(f"{'precision':<10}{'solver':<13}{'backend':<9}{'tolerance':>10}{'steps/s':>9}{'(min-max)':>16}"
-          f"{'iter/step':>11}{'solve/step':>12}{'ms/iter':>9}{'factorize':>12}{'analyze':>10}")
-    for precision in precisions:
-        for solver in args.solvers.split(","):
-            r = bench(precision, solver, args)
-            spread = f"({r['rate_min']:.1f}-{r['rate_max']:.1f})"
-            factorize = f"{r['factorize_ms']:.1f} ms" if r["factorize_ms"] is not None else "-"
-            analyze = f"{r['analyze_ms']:.1f} ms" if r["analyze_ms"] is not None else "-"
-            per_iteration = f"{r['iteration_ms']:.3f}" if r["iteration_ms"] is not None else "-"
-            print(f"{r['precision']:<10}{r['solver']:<13}{r['backend']:<9}{r['tolerance']:>10.0e}"
-                  f"{r['rate']:>9.1f}{spread:>16}{r['iterations']:>11.1f}{r['solve_ms']:>9.2f} ms"
-                  f"{per_iteration:>9}{factorize:>12}{analyze:>10}")
+    print(f"{N} x {N} cloth ({N * N} particles), dt = 1/60 s; median of {args.batches} batches x "
+          f"{args.batch_steps} steps after {args.warmup} warm-up steps; warm start "
+          f"{'off' if args.no_warm_start else 'on'}")
+    print(f"{'integrator':<27}{'k (N/m)':>8} {'precision':<10}{'solver':<13}{'tolerance':>10}{'steps/s':>9}"
+          f"{'(min-max)':>16}{'newton':>8}{'substeps':>9}{'iter/step':>11}{'solve/step':>12}{'ms/iter':>9}"
+          f"{'factorize':>12}{'analyze':>10}")
+    for name in args.integrators.split(","):
+        for stiffness in (float(k) for k in args.stiffness.split(",")):
+            for precision in precisions:
+                for solver in args.solvers.split(","):
+                    try:
+                        r = bench(name, stiffness, precision, solver, args)
+                    except RuntimeError as exc:
+                        print(f"{name:<27}{stiffness:>8.0e} {precision:<10}{solver:<13}  failed: {exc}")
+                        continue
+                    spread = f"({r['rate_min']:.1f}-{r['rate_max']:.1f})"
+                    factorize = f"{r['factorize_ms']:.1f} ms" if r["factorize_ms"] is not None else "-"
+                    analyze = f"{r['analyze_ms']:.1f} ms" if r["analyze_ms"] is not None else "-"
+                    per_iteration = f"{r['iteration_ms']:.3f}" if r["iteration_ms"] is not None else "-"
+                    tolerance = f"{r['tolerance']:.0e}" if r["tolerance"] is not None else "adaptive"
+                    print(f"{name:<27}{stiffness:>8.0e} {r['precision']:<10}{r['solver']:<13}{tolerance:>10}"
+                          f"{r['rate']:>9.1f}{spread:>16}{r['newton']:>8.1f}{r['substeps']:>9.2f}"
+                          f"{r['iterations']:>11.1f}{r['solve_ms']:>9.2f} ms{per_iteration:>9}{factorize:>12}"
+                          f"{analyze:>10}")
     print(f"load average (1 min) {os.getloadavg()[0]:.2f}")
 
 

@@ -86,6 +86,11 @@ def np_real():
     return np.float64 if precision() == "f64" else np.float32
 
 
+def machine_epsilon() -> float:
+    """Unit round-off scale of the current precision: numpy's eps of its float dtype."""
+    return float(np.finfo(np_real()).eps)
+
+
 def _require_init() -> None:
     if _current["precision"] is None:
         raise RuntimeError("call taichi_sim.init(arch=..., precision=...) before building scenes")

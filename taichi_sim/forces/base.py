@@ -33,6 +33,23 @@ class ForceTerm:
     adds over all particles, and ``topology_version``, an int bumped whenever the set of
     blocks it adds changes (a direct solver re-analyses the sparsity pattern then)."""
 
+    variational = True
+    """Whether the term's force is minus the gradient of its potential :meth:`energy` in x plus
+    minus the gradient of its :meth:`dissipation` in v, with a dissipation that does not depend
+    on x. The implicit methods' incremental potential is exact (its gradient is their
+    residual) only when every term is; wind (no potential) and spring dashpots (a dissipation
+    whose direction depends on x) are not."""
+
+    # Terms with potential energy or dissipation also attribute them to particles, as
+    # ``@ti.func energy_at(i, y, free_i)`` and ``@ti.func dissipation_at(i, y, free_i)`` (J and
+    # W; ``free_i`` nonzero when particle i moves): summed over all particles they give
+    # :meth:`energy` and :meth:`dissipation`, so one gather kernel can evaluate everything a
+    # Newton iteration's merit needs (see taichi_sim.integrators.implicit.velocity_stage).
+
+    source = False
+    """Whether the term can put energy into the system (wind): then a system's energy may rise
+    under any integrator, and the implicit methods do not require it to fall."""
+
     def energy(self, y) -> float | None:
         """Potential energy (J) of this term at state ``y``, or None if the term is dissipative."""
         return None

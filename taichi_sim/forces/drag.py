@@ -25,6 +25,13 @@ class Drag(ForceTerm):
     def force(self, i, y, mass_i, t):
         return -self.k[None] * y.v[i]
 
+    @ti.func
+    def dissipation_at(self, i, y, free_i):
+        rate = ti.cast(0.0, y.x.dtype)
+        if free_i:
+            rate = 0.5 * self.k[None] * y.v[i].norm_sqr()
+        return rate
+
     def dissipation(self, y) -> float:
         """R = k_drag/2 sum |v_i|^2 (W); pinned particles have zero velocity in a consistent state."""
         return float(self._dissipation(y))

@@ -43,6 +43,46 @@ class GrabSpring(ForceTerm):
             f = self.stiffness[None] * (self.target[None] - y.x[i]) - self.damping[None] * y.v[i]
         return f
 
+    def energy(self, y) -> float:
+        """Potential energy of the pull (J): stiffness/2 |target - x|^2 of the grabbed particle (0
+        when none is). While the target stays put the pull is conservative; moving it is work done
+        from outside (the launcher re-bases its blow-up guard then)."""
+        return float(self._energy(y))
+
+    def dissipation(self, y) -> float:
+        """Rayleigh dissipation of the pull's damper (W): damping/2 |v|^2 of the grabbed particle."""
+        return float(self._dissipation(y))
+
+    @ti.func
+    def energy_at(self, i, y, free_i):
+        energy = ti.cast(0.0, y.x.dtype)
+        if i == self.particle[None]:
+            energy = 0.5 * self.stiffness[None] * (self.target[None] - y.x[i]).norm_sqr()
+        return energy
+
+    @ti.func
+    def dissipation_at(self, i, y, free_i):
+        rate = ti.cast(0.0, y.x.dtype)
+        if i == self.particle[None]:
+            rate = 0.5 * self.damping[None] * y.v[i].norm_sqr()
+        return rate
+
+    @ti.kernel
+    def _energy(self, y: ti.template()) -> float:
+        total = 0.0
+        i = self.particle[None]
+        if i >= 0:
+            total = 0.5 * self.stiffness[None] * (self.target[None] - y.x[i]).norm_sqr()
+        return total
+
+    @ti.kernel
+    def _dissipation(self, y: ti.template()) -> float:
+        total = 0.0
+        i = self.particle[None]
+        if i >= 0:
+            total = 0.5 * self.damping[None] * y.v[i].norm_sqr()
+        return total
+
     @ti.func
     def jacobian_product(self, i, y, p, a, b, t):
         out = ti.Vector.zero(y.x.dtype, 3)

@@ -33,6 +33,13 @@ class Gravity(ZeroJacobian, ForceTerm):
     def force(self, i, y, mass_i, t):
         return mass_i * self.g[None]
 
+    @ti.func
+    def energy_at(self, i, y, free_i):
+        energy = ti.cast(0.0, y.x.dtype)
+        if free_i:
+            energy = -self.mass[i] * self.g[None].dot(y.x[i])
+        return energy
+
 
     def energy(self, y) -> float:
         return float(self._energy(y))

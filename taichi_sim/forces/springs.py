@@ -136,6 +136,12 @@ class Springs(ForceTerm):
         self._upload_parameters(column(rest_length), column(stiffness), column(damping),
                                 column(0.0 if tear_strain is None else tear_strain))
 
+    @property
+    def variational(self) -> bool:
+        """Springs are the gradient of their energy; dashpots are not quite (their direction u
+        depends on positions): see :attr:`ForceTerm.variational`."""
+        return not self.damped
+
     def arrays(self) -> dict:
         """Spring data as numpy arrays (the npz schema's spring keys)."""
         tearing = {"alive": self.alive.to_numpy().astype(bool),
@@ -173,12 +179,93 @@ class Springs(ForceTerm):
         return f
 
     @ti.func
-    def force_magnitude(self, i, y, mass_i, t):
-        """Sum over i's live springs of the magnitude of each one's force on i (N).
+    def force_pieces(self, i, y, mass_i, t):
+        """Everything an implicit Newton iteration evaluates at particle i, in one pass over its
+        springs: (force (N), :meth:`force_magnitudes`' two values (N), :meth:`energy_at` (J),
+        :meth:`dissipation_at` (W))."""
+        f = ti.Vector.zero(y.x.dtype, 3)
+        total = ti.cast(0.0, y.x.dtype)
+        rounding2 = ti.cast(0.0, y.x.dtype)
+        energy = ti.cast(0.0, y.x.dtype)
+        dissipation = ti.cast(0.0, y.x.dtype)
+        norm_i = y.x[i].norm()
+        for e in range(self.offsets[i], self.offsets[i + 1]):
+            s = self.incident[e]
+            if self.is_alive(s):
+                j = self.other[e]
+                d = y.x[i] - y.x[j]
+                length = d.norm()
+                k = self.stiffness[s]
+                stretch = length - self.rest[s]
+                energy += 0.25 * k * stretch * stretch
+                if length > 0.0:
+                    u = d / length
+                    f -= k * stretch * u
+                    total += k * ti.abs(stretch)
+                    error = k * (norm_i + y.x[j].norm())
+                    if ti.static(self.damped):
+                        rate = (y.v[i] - y.v[j]).dot(u)
+                        c = self.damping[s]
+                        f -= c * rate * u
+                        total += c * ti.abs(rate)
+                        error += c * ti.abs(rate)
+                        dissipation += 0.25 * c * rate * rate
+                    rounding2 += error * error
+        return f, total, ti.sqrt(rounding2), energy, dissipation
+
+    @ti.func
+    def energy_at(self, i, y, free_i):
+        """Half the energy of each of i's live springs (J): every spring counted once over its
+        two ends."""
+        total = ti.cast(0.0, y.x.dtype)
+        for e in range(self.offsets[i], self.offsets[i + 1]):
+            s = self.incident[e]
+            if self.is_alive(s):
+                stretch = (y.x[i] - y.x[self.other[e]]).norm() - self.rest[s]
+                total += 0.25 * self.stiffness[s] * stretch * stretch
+        return total
+
+    @ti.func
+    def strain_at(self, i, y):
+        """The largest strain |d|/r - 1 of i's live springs with k > 0 and r > 0 (0 if none)."""
+        worst = ti.cast(0.0, y.x.dtype)
+        for e in range(self.offsets[i], self.offsets[i + 1]):
+            s = self.incident[e]
+            if self.is_alive(s) and self.stiffness[s] > 0.0 and self.rest[s] > 0.0:
+                strain = (y.x[i] - y.x[self.other[e]]).norm() / self.rest[s] - 1.0
+                worst = ti.max(worst, strain)
+        return worst
+
+    @ti.func
+    def dissipation_at(self, i, y, free_i):
+        """Half the Rayleigh dissipation of each of i's live dashpots (W)."""
+        total = ti.cast(0.0, y.x.dtype)
+        if ti.static(self.damped):
+            for e in range(self.offsets[i], self.offsets[i + 1]):
+                s = self.incident[e]
+                if self.is_alive(s):
+                    j = self.other[e]
+                    d = y.x[i] - y.x[j]
+                    length = d.norm()
+                    if length > 0.0:
+                        rate = (y.v[i] - y.v[j]).dot(d / length)
+                        total += 0.25 * self.damping[s] * rate * rate
+        return total
+
+    @ti.func
+    def force_magnitudes(self, i, y, mass_i, t):
+        """(sum over i's live springs of the magnitude of each one's force on i (N), the scale
+        of the rounding error of that force (N)).
 
         The net force is a sum of these pieces, so its rounding error is relative to this sum,
-        not to the net force (which is ~0 at equilibrium): convergence tests scale by it."""
+        not to the net force (which is ~0 at equilibrium): convergence tests scale by it. A
+        spring's force k (|d| - r) carries more than that: d = x_i - x_j is a difference of
+        coordinates rounded relative to |x_i| and |x_j|, so its error is about k (|x_i| + |x_j|)
+        rounding units, which for stiff springs near rest length exceeds the force itself. The
+        second value is the root sum of squares of those errors over i's springs (independent
+        roundings): times eps, about the floor a residual of this force cannot go below."""
         total = ti.cast(0.0, y.x.dtype)
+        rounding2 = ti.cast(0.0, y.x.dtype)
         for e in range(self.offsets[i], self.offsets[i + 1]):
             s = self.incident[e]
             if self.is_alive(s):
@@ -187,9 +274,13 @@ class Springs(ForceTerm):
                 length = d.norm()
                 if length > 0.0:
                     total += self.stiffness[s] * ti.abs(length - self.rest[s])
+                    error = self.stiffness[s] * (y.x[i].norm() + y.x[j].norm())
                     if ti.static(self.damped):
-                        total += self.damping[s] * ti.abs((y.v[i] - y.v[j]).dot(d / length))
-        return total
+                        damper = self.damping[s] * ti.abs((y.v[i] - y.v[j]).dot(d / length))
+                        total += damper
+                        error += damper
+                    rounding2 += error * error
+        return total, ti.sqrt(rounding2)
 
     @property
     def coupling_block_capacity(self) -> int:

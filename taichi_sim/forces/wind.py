@@ -34,6 +34,8 @@ class Wind(ZeroJacobian, ForceTerm):
     """
 
     name = "wind"
+    variational = False  # an external, time-dependent force with no potential
+    source = True
     # Wind is not stiff (its velocity derivative, ~2 c A |u.n| per triangle, is about 1% of m/h
     # for cloth at 60 Hz), so implicit methods get zero Jacobians (ZeroJacobian): a linearised
     # step treats it explicitly, and Newton iterations still converge to the exact solution
@@ -74,6 +76,11 @@ class Wind(ZeroJacobian, ForceTerm):
     @property
     def is_enabled(self) -> bool:
         return bool(self.enabled[None])
+
+    def fastest_speed(self) -> float:
+        """The largest wind speed any gust reaches (m/s): speed (1 + 2 gust), since the along-
+        and cross-wind wave sums each stay within [-1, 1]."""
+        return float(self.speed[None]) * (1.0 + 2.0 * abs(float(self.gust[None])))
 
     @ti.func
     def velocity(self, x, t):

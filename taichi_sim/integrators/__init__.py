@@ -7,13 +7,13 @@ from ..errors import ConfigError
 from .adaptive import DormandPrince45, EmbeddedRK, Fehlberg45
 from .base import Integrator, Status, StepReport
 from .explicit_rk import RK4, Euler, ExplicitRK, Midpoint, Trapezoid
-from .implicit import ImplicitEuler, ImplicitMidpoint, LinearSolverStats
+from .implicit import ImplicitEuler, ImplicitEulerLinearised, ImplicitMidpoint, LinearSolverStats
 from .symplectic import SymplecticEuler
 from .tableau import ButcherTableau
 
 INTEGRATORS: dict[str, type[Integrator]] = {
     cls.name: cls for cls in (Euler, Trapezoid, Midpoint, RK4, SymplecticEuler, DormandPrince45, Fehlberg45,
-                              ImplicitEuler, ImplicitMidpoint)
+                              ImplicitEuler, ImplicitEulerLinearised, ImplicitMidpoint)
 }
 
 

@@ -17,6 +17,7 @@ class Status(str, Enum):
     DIVERGED = "diverged"
     NOT_CONVERGED = "not_converged"
     STEP_TOO_SMALL = "step_too_small"
+    STIFF = "stiff"  # an explicit adaptive method found its step bound by stability, not accuracy
 
 
 @dataclass(frozen=True)

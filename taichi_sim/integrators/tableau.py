@@ -70,6 +70,22 @@ class ButcherTableau:
             A[i, :i] = row
         return A
 
+    def stability_polynomial(self) -> np.ndarray:
+        """Coefficients c_0..c_s of R(z) = sum_k c_k z^k, the factor the method multiplies y by
+        per step on y' = lambda y (z = h lambda): c_0 = 1, c_k = b^T A^(k-1) 1."""
+        A, coefficients, v = self.matrix(), [1.0], np.ones(self.stage_count)
+        for _ in range(self.stage_count):
+            coefficients.append(float(np.dot(self.b, v)))
+            v = A @ v
+        return np.asarray(coefficients)
+
+    def real_stability_boundary(self) -> float:
+        """The largest x such that |R(-s)| <= 1 for every s in [0, x]: how far along the negative
+        real axis h lambda may go (2 for Euler, 2.785 for RK4, 3.307 for Dormand-Prince)."""
+        xs = np.arange(1, 100001) * 1e-4  # to 10, in steps of 1e-4
+        outside = np.abs(np.polyval(self.stability_polynomial()[::-1], -xs)) > 1.0 + 1e-12
+        return float(xs[np.argmax(outside) - 1]) if outside.any() else float(xs[-1])
+
     @property
     def fsal(self) -> bool:
         """First Same As Last: the last stage is f at the new solution (last row of a equals b,

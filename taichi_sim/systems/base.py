@@ -2,8 +2,32 @@
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from dataclasses import dataclass
+
+import numpy as np
 
 from ..state import State
+
+
+@dataclass(frozen=True)
+class Health:
+    """What the blow-up guard (:mod:`taichi_sim.guard`) reads off a state, in one pass.
+
+    Attributes:
+        nonfinite: particles whose position or velocity has a NaN or infinite component.
+        farthest: largest distance (m) of a particle from the centre the caller gave.
+        energy: total energy (J), or None for a system without one.
+        kinetic: kinetic energy (J); 0 for a first-order system.
+        spring_energy: potential energy of the springs (J); 0 without springs.
+        max_strain: largest strain |d|/r - 1 of a live spring with k > 0; 0 without springs.
+    """
+
+    nonfinite: int
+    farthest: float
+    energy: float | None
+    kinetic: float = 0.0
+    spring_energy: float = 0.0
+    max_strain: float = 0.0
 
 
 class System(ABC):
@@ -45,3 +69,18 @@ class System(ABC):
     def energy(self, y: State) -> float | None:
         """The system's energy (J) at ``y``, or None when it has none."""
         return None
+
+    def health(self, y: State, center) -> Health:
+        """:class:`Health` of state ``y``, distances measured from ``center`` ((3,), m).
+
+        This generic version reads the state back into numpy; systems with kernels of their own
+        override it with a reduction on the device."""
+        x, v = y.to_numpy()
+        x = np.asarray(x, np.float64)
+        parts = x if v is None else np.concatenate([x, np.asarray(v, np.float64)], axis=1)
+        finite = np.isfinite(parts).all(axis=1)
+        with np.errstate(over="ignore", invalid="ignore"):
+            distance = np.linalg.norm(x[finite] - np.asarray(center, np.float64), axis=1)
+        return Health(nonfinite=int((~finite).sum()),
+                      farthest=float(distance.max()) if len(distance) else 0.0,
+                      energy=self.energy(y))

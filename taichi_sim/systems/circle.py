@@ -2,8 +2,8 @@
 
 import taichi as ti
 
-from ..state import State
-from .base import System
+from ..state import State, finite
+from .base import Health, System
 
 
 @ti.data_oriented
@@ -35,6 +35,25 @@ class CircleSystem(System):
 
     def energy(self, y: State) -> float:
         return float(self._half_norm2(y))
+
+    def health(self, y: State, center) -> Health:
+        nonfinite, farthest2, energy = self._health(y, float(center[0]), float(center[1]), float(center[2]))
+        return Health(nonfinite=int(nonfinite), farthest=float(farthest2) ** 0.5, energy=float(energy))
+
+    @ti.kernel
+    def _health(self, y: ti.template(), cx: float, cy: float, cz: float) -> (ti.i32, float, float):
+        bad = 0
+        farthest2 = 0.0
+        total = 0.0
+        c = ti.Vector([cx, cy, cz])
+        for i in y.x:
+            p = y.x[i]
+            if finite(p):
+                ti.atomic_max(farthest2, (p - c).norm_sqr())
+                total += 0.5 * p.norm_sqr()
+            else:
+                bad += 1
+        return bad, farthest2, total
 
     @ti.kernel
     def _half_norm2(self, y: ti.template()) -> float:

@@ -5,8 +5,8 @@ import taichi as ti
 
 from .. import runtime
 from ..forces.base import ForceTerm
-from ..state import State
-from .base import System
+from ..state import State, finite
+from .base import Health, System
 
 
 @ti.data_oriented
@@ -107,6 +107,42 @@ class ParticleSystem(System):
             if e is not None:
                 total += e
         return total
+
+    def health(self, y: State, center) -> Health:
+        """:class:`Health` of ``y`` in one kernel: a gather over the particles of the non-finite
+        count, the farthest distance from ``center``, the kinetic energy, the potential energy
+        each term attributes to each particle, and the springs' largest strain."""
+        nonfinite, farthest2, kinetic, potential, spring_energy, strain = self._health(
+            y, float(center[0]), float(center[1]), float(center[2]))
+        return Health(nonfinite=int(nonfinite), farthest=float(farthest2) ** 0.5,
+                      energy=float(kinetic) + float(potential), kinetic=float(kinetic),
+                      spring_energy=float(spring_energy), max_strain=float(strain))
+
+    @ti.kernel
+    def _health(self, y: ti.template(), cx: float, cy: float, cz: float) -> (
+            ti.i32, float, float, float, float, float):
+        bad = 0
+        farthest2 = 0.0
+        kinetic = 0.0
+        potential = 0.0
+        spring_energy = 0.0
+        worst = 0.0
+        c = ti.Vector([cx, cy, cz])
+        for i in y.x:
+            if finite(y.x[i]) and finite(y.v[i]):
+                ti.atomic_max(farthest2, (y.x[i] - c).norm_sqr())
+                kinetic += 0.5 * self.mass[i] * y.v[i].norm_sqr()
+                free_i = self.free[i]
+                for term in ti.static(self.terms):
+                    if ti.static(hasattr(term, "energy_at")):
+                        u = term.energy_at(i, y, free_i)
+                        potential += u
+                        if ti.static(hasattr(term, "strain_at")):
+                            spring_energy += u
+                            ti.atomic_max(worst, term.strain_at(i, y))
+            else:
+                bad += 1
+        return bad, farthest2, kinetic, potential, spring_energy, worst
 
     def potential_energy(self, y: State) -> float:
         """Potential energy (J) of every conservative term at ``y``."""
@@ -233,19 +269,75 @@ class ParticleSystem(System):
     @ti.func
     def force_and_scale(self, i, y, t):
         """(net force on particle i (N, 3-vector), the sum of the magnitudes of the pieces it
-        adds up (N)): the scale its rounding error is relative to. Both zero when pinned."""
+        adds up (N), the scale of its rounding error (N): times eps, the floor a residual of
+        this force cannot go below). All zero when pinned. The second is what convergence
+        tests measure the residual against; the third is larger where a term loses digits
+        (stiff springs near rest length: see ``Springs.force_magnitudes``)."""
         f = ti.Vector.zero(y.x.dtype, 3)
         scale = ti.cast(0.0, y.x.dtype)
+        rounding = ti.cast(0.0, y.x.dtype)
         if self.free[i]:
             m = self.mass[i]
             for term in ti.static(self.terms):
                 piece = term.force(i, y, m, t)
                 f += piece
-                if ti.static(hasattr(term, "force_magnitude")):
-                    scale += term.force_magnitude(i, y, m, t)
+                if ti.static(hasattr(term, "force_magnitudes")):
+                    magnitude, error_scale = term.force_magnitudes(i, y, m, t)
+                    scale += magnitude
+                    rounding += error_scale
                 else:
                     scale += piece.norm()
-        return f, scale
+                    rounding += piece.norm()
+        return f, scale, rounding
+
+    @ti.func
+    def evaluate_at(self, i, y, t):
+        """At particle i of ``y``: (net force (N, zero when pinned), :meth:`force_and_scale`'s two
+        scales (N), the potential energy and the dissipation attributed to i (J, W; see
+        :meth:`potential_and_dissipation_at`)), each term evaluated once (a term with
+        ``force_pieces`` gives all of its parts in one pass)."""
+        f = ti.Vector.zero(y.x.dtype, 3)
+        scale = ti.cast(0.0, y.x.dtype)
+        rounding = ti.cast(0.0, y.x.dtype)
+        potential = ti.cast(0.0, y.x.dtype)
+        dissipation = ti.cast(0.0, y.x.dtype)
+        free_i = self.free[i]
+        m = self.mass[i]
+        for term in ti.static(self.terms):
+            if ti.static(hasattr(term, "force_pieces")):
+                piece, magnitude, error, u, r = term.force_pieces(i, y, m, t)
+                potential += u
+                dissipation += r
+                if free_i:
+                    f += piece
+                    scale += magnitude
+                    rounding += error
+            else:
+                if free_i:
+                    piece = term.force(i, y, m, t)
+                    f += piece
+                    scale += piece.norm()
+                    rounding += piece.norm()
+                if ti.static(hasattr(term, "energy_at")):
+                    potential += term.energy_at(i, y, free_i)
+                if ti.static(hasattr(term, "dissipation_at")):
+                    dissipation += term.dissipation_at(i, y, free_i)
+        return f, scale, rounding, potential, dissipation
+
+    @ti.func
+    def potential_and_dissipation_at(self, i, y):
+        """(the potential energy (J) and the Rayleigh dissipation (W) every term attributes to
+        particle i at ``y``): summed over all particles, :meth:`potential_energy` and
+        :meth:`dissipation`, in one gather."""
+        potential = ti.cast(0.0, y.x.dtype)
+        dissipation = ti.cast(0.0, y.x.dtype)
+        free_i = self.free[i]
+        for term in ti.static(self.terms):
+            if ti.static(hasattr(term, "energy_at")):
+                potential += term.energy_at(i, y, free_i)
+            if ti.static(hasattr(term, "dissipation_at")):
+                dissipation += term.dissipation_at(i, y, free_i)
+        return potential, dissipation
 
     def assemble_system_matrix(self, y: State, a: float, b: float, t: float,
                                builder: ti.linalg.SparseMatrixBuilder) -> None:
