@@ -238,6 +238,29 @@ def test_failures_end_the_run_with_a_status(f64):
     assert result.status is ts.Status.DIVERGED and result.steps == 0
 
 
+@pytest.mark.parametrize("name, rtol", [("rk45", 1e-3), ("rk45", 1e-6), ("rkf45", 1e-3)])
+def test_a_stiff_problem_stops_early_with_advice(f64, name, rtol):
+    # A 2 x 2 cloth with every spring at 1e8 N/m: before the stiffness check rk45 ground on for
+    # a minute and returned energy x 9e6 as "ok". Steps bounded by stability, not by rtol (Hairer's
+    # estimate of h |lambda| at the stability boundary), stop the run within a few thousand steps.
+    stiff = {"nx": 2, "ny": 2, "stiffness": 1e8, "shear_stiffness": 1e8, "flex_stiffness": 1e8}
+    scene = ts.build_scene("cloth", stiff)
+    result = ts.run(scene, ts.create_integrator(name, scene.system, rtol=rtol), dt=None, t_end=1.0,
+                    energy_every=0, progress=False)
+    assert result.status is ts.Status.STIFF
+    assert result.message.startswith(f"stiff at step {result.failed_step} ")
+    assert "use an implicit method (implicit_euler)" in result.message
+    assert result.steps < 5000 and result.t < 0.05
+    x, v = scene.state.to_numpy()
+    assert np.isfinite(x).all() and np.isfinite(v).all()
+
+
+def test_a_soft_cloth_is_not_called_stiff(f64):
+    scene = ts.build_scene("cloth", {"nx": 8, "ny": 8})
+    result = ts.run(scene, "rk45", dt=None, t_end=0.5, energy_every=0, progress=False)
+    assert result.status is ts.Status.OK and result.t == 0.5
+
+
 @pytest.mark.parametrize("options, problem", [
     ({"rtol": -1.0}, "rtol"), ({"atol": 0.0}, "atol"), ({"safety": 1.5}, "safety"),
     ({"min_step": 0.0}, "min_step"), ({"tolerance": 1e-3}, "tolerance"),

@@ -20,6 +20,10 @@ from .explicit_rk import state_parts
 from .explicit_rk import weighted_stages
 from .tableau import DORMAND_PRINCE, FEHLBERG, ButcherTableau
 
+STIFFNESS_FRACTION = 0.98  # h |lambda| above this fraction of the real stability boundary is stiff
+STIFF_STEPS = 15  # accepted steps bounded by stability before a run is called stiff (Hairer: 15)
+STIFF_BREAK = 6  # non-stiff steps in a row that reset the count (Hairer: 6)
+
 
 @ti.data_oriented
 class EmbeddedRK(Integrator):
@@ -78,6 +82,7 @@ class EmbeddedRK(Integrator):
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)
         cls.order = cls.tableau.order
+        cls.stiffness_threshold = STIFFNESS_FRACTION * cls.tableau.real_stability_boundary()
 
     def __init__(self, system: System, *, rtol: float = 1e-6, atol: float = 1e-9,
                  safety: float = 0.9, min_step: float | None = None, max_step: float = math.inf):
@@ -107,16 +112,24 @@ class EmbeddedRK(Integrator):
         self.unit_roundoff = self.eps / 2
 
         self.stages = [system.make_state() for _ in range(tab.stage_count)]
-        self.stage_input = system.make_state()
+        # Stage i's input goes to stage_inputs[i % 2], so the last two stages' inputs are both
+        # kept (the stiffness estimate compares them); an FSAL pair's last is the candidate.
+        self.stage_inputs = [system.make_state(), system.make_state()]
+        self.stage_input = self.stage_inputs[0]  # the initial-step probe's scratch
         self.candidate = system.make_state()
         self.first_stage_point = system.make_state()  # the y at which stages[0] = f(y, t)
         self.first_stage_time: float | None = None  # that t; None: stages[0] is stale
         self.rejected_at: float | None = None  # t of the last attempt, when it was rejected
+        self.stiff_steps = 0  # accepted steps in a row (bar short breaks) limited by stability
+        self.non_stiff_steps = 0
+        self.last_h_lambda = 0.0
 
     def reset(self) -> None:
-        """Forget the kept first stage and the last rejection (call after changing the system)."""
+        """Forget the kept first stage, the last rejection and the stiffness count (call after
+        changing the system)."""
         self.first_stage_time = None
         self.rejected_at = None
+        self.stiff_steps = self.non_stiff_steps = 0
 
     def smallest_step(self, t: float) -> float:
         """The smallest step (s) a rejection may propose at time ``t`` before the step fails."""
@@ -132,18 +145,48 @@ class EmbeddedRK(Integrator):
         if not self._first_stage_is_current(state, t):
             self._evaluate_first_stage(state, t)
             f_evals += 1
+        inputs = [state]
         for i in range(1, tab.stage_count):
             # An FSAL pair's last stage input is y_new itself: build it where the candidate lives.
             is_fsal_stage = tab.fsal and i == tab.stage_count - 1
-            stage_input = self.candidate if is_fsal_stage else self.stage_input
+            stage_input = self.candidate if is_fsal_stage else self.stage_inputs[i % 2]
             self._stage_input(state, i, h, stage_input)
             self.system.eval_f(stage_input, t + tab.c[i] * h, self.stages[i])
+            inputs.append(stage_input)
             f_evals += 1
-        squares, nonfinite = self._candidate_and_error(state, h, self.rtol, self.atol, self.unit_roundoff)
+        squares, nonfinite, change2, spread2 = self._candidate_and_error(
+            state, h, self.rtol, self.atol, self.unit_roundoff, inputs[-1], inputs[-2])
         err = math.sqrt(squares / self.component_count)
         if nonfinite == 0 and err <= 1.0:
+            if spread2 > 0.0 and self._stiff(h * math.sqrt(change2 / spread2)):
+                return self._stiff_report(t, h, f_evals)
             return self._accept(state, t, h, err, f_evals)
         return self._reject(t, h, err, nonfinite > 0 or not math.isfinite(err), f_evals)
+
+    def _stiff(self, h_lambda: float) -> bool:
+        """Hairer's test (Hairer & Wanner, Solving ODEs II, IV.2; ``dopri5.f``): h |lambda| from
+        the last two stages, h |k_s - k_(s-1)| / |Y_s - Y_(s-1)| (Y the stage inputs), is an
+        estimate of h times the largest eigenvalue the step sees; above ``stiffness_threshold``
+        (98% of the method's stability boundary on the negative real axis) the step is bounded
+        by stability, not by the tolerance. STIFF_STEPS such accepted steps, with no
+        STIFF_BREAK non-stiff steps in a row between them, make the problem stiff."""
+        self.last_h_lambda = h_lambda
+        if h_lambda > self.stiffness_threshold:
+            self.non_stiff_steps = 0
+            self.stiff_steps += 1
+        else:
+            self.non_stiff_steps += 1
+            if self.non_stiff_steps >= STIFF_BREAK:
+                self.stiff_steps = 0
+        return self.stiff_steps >= STIFF_STEPS
+
+    def _stiff_report(self, t: float, h: float, f_evals: int) -> StepReport:
+        self.stiff_steps = 0
+        message = (f"the problem is stiff: the last {STIFF_STEPS} steps were bounded by stability, not by "
+                   f"rtol={self.rtol:g} (h |lambda| ~ {self.last_h_lambda:.3g} at h = {h:.3g} s, stability "
+                   f"boundary {self.stiffness_threshold / STIFFNESS_FRACTION:.3g}); an explicit method needs "
+                   f"steps of ~{h:.2g} s here whatever the tolerance")
+        return StepReport(accepted=False, h=0.0, next_h=h, f_evals=f_evals, status=Status.STIFF, message=message)
 
     def initial_step(self, state: State, t: float, t_end: float | None) -> float:
         """A first step (s) from ``state`` at ``t``, never past ``t_end``.
@@ -230,11 +273,22 @@ class EmbeddedRK(Integrator):
 
     @ti.kernel
     def _candidate_and_error(self, y: ti.template(), h: float, rtol: float, atol: float,
-                             roundoff: float) -> (float, ti.i32):
+                             roundoff: float, last_input: ti.template(),
+                             previous_input: ti.template()) -> (float, ti.i32, float, float):
         """Write y_new into ``candidate`` (an FSAL pair already did); return (sum of squared
-        scaled errors, number of particles with a non-finite y_new)."""
+        scaled errors, number of particles with a non-finite y_new, |k_s - k_(s-1)|^2,
+        |Y_s - Y_(s-1)|^2) for the stiffness estimate (Y: the inputs of the last two stages)."""
         squares = 0.0
         nonfinite = 0
+        change2 = 0.0
+        spread2 = 0.0
+        for p in y.x:
+            for part in ti.static(range(self.part_count)):
+                dk = (ti.static(state_parts(self.stages[-1])[part])[p]
+                      - ti.static(state_parts(self.stages[-2])[part])[p])
+                dy = ti.static(state_parts(last_input)[part])[p] - ti.static(state_parts(previous_input)[part])[p]
+                change2 += dk.dot(dk)
+                spread2 += dy.dot(dy)
         for p in y.x:
             ok = True
             for part in ti.static(range(self.part_count)):
@@ -249,7 +303,7 @@ class EmbeddedRK(Integrator):
                 ok = ok and finite(y_new)
             if not ok:
                 nonfinite += 1
-        return squares, nonfinite
+        return squares, nonfinite, change2, spread2
 
     @ti.kernel
     def _commit(self, y: ti.template()):
