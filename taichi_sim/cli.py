@@ -92,9 +92,17 @@ def build_parser() -> argparse.ArgumentParser:
                           "scene's default dt when the scene has collisions, tearing or emission)")
     sim.add_argument("--cg-tolerance", type=_positive_float,
                      help="relative residual at which CG stops (implicit methods; default 1e-3 for "
-                          "one-step implicit_euler, else 1e-8 in f64 / 1e-5 in f32)")
+                          "implicit_euler_linearised, adaptive (forcing terms) for implicit_euler on "
+                          "particles, else 1e-8 in f64 / 1e-5 in f32)")
     sim.add_argument("--newton-iterations", type=_positive_int,
-                     help="Newton iterations per implicit step")
+                     help="most Newton iterations per implicit step, before the step is split "
+                          "(default 50)")
+    sim.add_argument("--newton-tolerance", type=_positive_float,
+                     help="relative nonlinear residual at which Newton stops, in (0, 1) (default 1e-3 "
+                          "for implicit_euler on particles, else 1e-6 in f64 / 1e-5 in f32)")
+    sim.add_argument("--max-energy-growth", type=_positive_float, metavar="F",
+                     help="the blow-up guard's energy bound: the run is diverged when its energy "
+                          "rises more than F energy scales above the start (default 10)")
     sim.add_argument("--seed", type=int, default=0, help="random seed for scenes with randomness")
     sim.add_argument("--energy-every", type=int, default=None, metavar="K",
                      help="sample energy every K steps (0: never; default: every step up to 2000 "
@@ -124,13 +132,15 @@ def build_parser() -> argparse.ArgumentParser:
 
     bench = sub.add_parser("bench", help="measure accuracy, stability and speed (CSV, JSON and PNG into --out)")
     bench_sub = bench.add_subparsers(dest="bench_command", parser_class=_Parser, required=True,
-                                     metavar="{work-precision,stability,throughput,all}")
+                                     metavar="{work-precision,stability,throughput,extremes,all}")
     bench_parsers = {
         "work-precision": bench_sub.add_parser("work-precision", help="error against cost, observed orders"),
         "stability": bench_sub.add_parser("stability", help="largest stable step against C/omega_max"),
         "throughput": bench_sub.add_parser("throughput", help="particle-steps/s by grid, precision, "
                                            "feature; against the Taichi and warp peers"),
-        "all": bench_sub.add_parser("all", help="the three benchmarks, one after the other"),
+        "extremes": bench_sub.add_parser("extremes", help="every integrator at extreme stiffness and step: "
+                                         "bounded, reported, or a silent blow-up (exit 1)"),
+        "all": bench_sub.add_parser("all", help="work-precision, stability and throughput, one after the other"),
     }
     for name, p in bench_parsers.items():
         p.add_argument("--out", required=True, metavar="DIR", help=f"folder for {name}.csv, .json and .png")
@@ -148,6 +158,11 @@ def build_parser() -> argparse.ArgumentParser:
     st.add_argument("--periods", type=_positive_float, help="periods of the fastest mode per trial (default 1000)")
     st.add_argument("--rel-tol", type=_positive_float, help="relative width of the final bracket (default 1e-3)")
     st.add_argument("--max-steps", type=_positive_int, help="most steps of one trial (default 20000)")
+    ex = bench_parsers["extremes"]
+    ex.add_argument("--scenes", metavar="A,B,...", help="of spring,pendulum,cloth (default: all)")
+    ex.add_argument("--stiffnesses", metavar="K,K,...", help="spring stiffness in N/m (default 1,1e4,1e8)")
+    ex.add_argument("--step-sizes", metavar="H,H,...", help="steps in s, fractions allowed (default 1e-6,1/60,1)")
+    ex.add_argument("--steps", type=_positive_int, help="steps per run (default 30; --quick 10)")
     tp = bench_parsers["throughput"]
     tp.add_argument("--sizes", metavar="N,N,...", help="grid sides (default 32,64,128,256,512; --quick 8,16)")
     tp.add_argument("--precisions", metavar="f32,f64", help="default both (--quick f32)")
@@ -192,7 +207,8 @@ def cmd_list(args) -> int:
 
 def cmd_simulate(args) -> int:
     from . import io, runtime
-    from .bench.theory import stability_warning
+    from .guard import GuardLimits
+    from .theory import stability_warning
     from .integrators import check_options, create_integrator
     from .run import check_run_args, run
     from .scene import build_scene, scene_preset
@@ -200,8 +216,8 @@ def cmd_simulate(args) -> int:
     preset = scene_preset(args.scene)
     integrator_name = args.integrator or preset.default_integrator
     options = {name: getattr(args, name)
-               for name in ("rtol", "atol", "linear_solver", "newton_iterations", "max_step",
-                            "cg_tolerance")
+               for name in ("rtol", "atol", "linear_solver", "newton_iterations", "newton_tolerance",
+                            "max_step", "cg_tolerance")
                if getattr(args, name) is not None}
     adaptive = check_options(integrator_name, options).adaptive
     dt = args.dt if args.dt is not None or adaptive else preset.default_dt
@@ -209,6 +225,7 @@ def cmd_simulate(args) -> int:
     if args.energy_every is not None and args.energy_every < 0:
         raise ConfigError(f"--energy-every must be >= 0, got {args.energy_every}")
     params = dict(args.assignments)
+    limits = GuardLimits() if args.max_energy_growth is None else GuardLimits(energy_growth=args.max_energy_growth)
     io.check_output_path(args.out)
 
     runtime.init(arch=args.arch, precision=args.precision)
@@ -220,7 +237,7 @@ def cmd_simulate(args) -> int:
     if warning:  # warn, never refuse
         print(f"taichi-sim: warning: {warning}", file=sys.stderr)
     result = run(scene, integrator, dt=dt, steps=args.steps, t_end=args.t_end,
-                 energy_every=args.energy_every, progress=None if not args.quiet else False)
+                 energy_every=args.energy_every, progress=None if not args.quiet else False, guard=limits)
     path = io.save_npz(args.out, io.run_arrays(scene, result, integrator=integrator, dt=dt))
     if result.message:
         print(f"taichi-sim: {result.message}", file=sys.stderr)
@@ -323,9 +340,10 @@ def cmd_record(args) -> int:
     for line in result.failures:
         print(f"taichi-sim: {line}", file=sys.stderr)
     if not args.quiet:
+        stopped = " (stopped early: every run failed)" if result.stopped else ""
         print(f"{result.path}: {result.frames} frames of {clip.size[0]}x{clip.size[1]} at "
-              f"{clip.fps:g} fps ({clip.frame_count / clip.fps:g} s of video), {result.wall:.1f} s")
-    return 0
+              f"{clip.fps:g} fps ({result.frames / clip.fps:g} s of video){stopped}, {result.wall:.1f} s")
+    return 1 if result.stopped else 0
 
 
 def _print_showcase(recordings) -> None:

@@ -49,10 +49,13 @@ def run_arrays(scene: Scene, result: RunResult, *, integrator: Integrator, dt: f
         "dt": np.float64(np.nan if dt is None else dt), "status": np.str_(result.status.value),
         "message": np.str_(result.message), "seed": np.int64(scene.seed),
         "energy": result.energy, "energy_t": result.energy_t,
+        "failed_step": np.int64(result.failed_step), "failed_t": np.float64(result.failed_t),
     }
     if integrator.implicit:
         data["linear_iterations"] = np.int64(result.linear_iterations)
         data["linear_residual"] = np.float64(result.linear_residual)
+        data["newton_iterations"] = np.int64(integrator.stats.newton_iterations)
+        data["substeps"] = np.int64(integrator.stats.substeps)
     for name, value in scene.arrays.items():
         data[name] = np.asarray(value)
     for name, value in scene.params.items():

@@ -9,6 +9,7 @@ import numpy as np
 from tqdm import tqdm
 
 from .errors import ConfigError
+from .guard import Guard, GuardLimits
 from .integrators import Integrator, Status, create_integrator
 from .scene.scene import Scene
 
@@ -28,6 +29,11 @@ class RunResult:
             has no energy or sampling was off.
         message: a one-line explanation when status is not OK.
         wall_time: seconds spent stepping (compile time of the first step included).
+        failed_step, failed_t: where the run stopped when status is not OK (the step that
+            failed, or at which the blow-up guard caught it, and its time in s); 0 and NaN
+            for an OK run. ``steps`` and ``t`` are those of the state left in the scene: for a
+            DIVERGED run the last one that passed the guard (see :mod:`taichi_sim.guard`).
+        guard_checks: how many times the guard checked the state.
     """
 
     status: Status
@@ -41,6 +47,9 @@ class RunResult:
     energy_t: np.ndarray
     message: str
     wall_time: float
+    failed_step: int = 0
+    failed_t: float = math.nan
+    guard_checks: int = 0
 
 
 def planned_steps(dt: float, t_end: float) -> int:
@@ -48,9 +57,12 @@ def planned_steps(dt: float, t_end: float) -> int:
     return max(1, math.ceil(t_end / dt - 1e-9))
 
 
+SAMPLES = 2000  # energy samples of a long run
+
+
 def default_energy_every(step_count: int) -> int:
     """Every step for runs up to 2000 steps, else about 2000 samples."""
-    return 1 if step_count <= 2000 else math.ceil(step_count / 2000)
+    return 1 if step_count <= SAMPLES else math.ceil(step_count / SAMPLES)
 
 
 def check_run_args(dt: float | None, steps: int | None, t_end: float | None, *,
@@ -71,7 +83,7 @@ def check_run_args(dt: float | None, steps: int | None, t_end: float | None, *,
 
 def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: int | None = None,
         t_end: float | None = None, energy_every: int | None = None,
-        progress: bool | None = False) -> RunResult:
+        progress: bool | None = False, guard: GuardLimits | None = None) -> RunResult:
     """Advance ``scene.state`` from t = 0 by ``steps`` accepted steps, or up to ``t_end`` s.
 
     Args:
@@ -79,17 +91,24 @@ def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: 
         dt: the step (s) of a fixed-step method; for an adaptive one the first step (None: the
             method chooses it).
         energy_every: sample the energy every this many accepted steps (0: never; None: every
-            step for short runs, about 2000 samples for long ones). The first and last states
+            step for runs of up to 2000 steps, about 2000 samples for longer ones, and for an
+            adaptive run to ``t_end`` a sample every t_end / 2000 s). The first and last states
             are always sampled.
         progress: show a progress bar on stderr (None: only when stderr is a terminal).
+        guard: the blow-up guard's limits (default :class:`~taichi_sim.guard.GuardLimits`).
 
     With ``t_end`` the last step is shortened to land exactly on it. The run stops at the
-    first step whose status is not OK; the result's message says at which step and time.
+    first step whose status is not OK, or when the blow-up guard finds the state past a bound
+    (status DIVERGED; the guard checks every ``guard.check_work`` f-evaluations and at the
+    end). A DIVERGED run leaves in the scene the last state that passed the guard, and its
+    energy trace ends there; the result's message says at which step and time it failed, what
+    grew, and the predicted stable step of an explicit method.
     """
     if isinstance(integrator, str):
         integrator = create_integrator(integrator, scene.system)
     adaptive = integrator.adaptive
     check_run_args(dt, steps, t_end, adaptive=adaptive)
+    watch = Guard(scene, guard)
     f_evals = 0
     if adaptive:
         if dt is None:
@@ -102,14 +121,18 @@ def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: 
         h = dt
         expected = steps if steps is not None else planned_steps(dt, t_end)
     every = (default_energy_every(expected or 1000) if energy_every is None else int(energy_every))
-    has_energy = every > 0 and scene.energy() is not None
+    has_energy = every > 0 and watch.energy0 is not None
+    # An adaptive run to t_end has no step count to spread samples over: every t_end / 2000 s.
+    sample_interval = t_end / SAMPLES if energy_every is None and expected is None else None
+    next_sample = sample_interval
 
     energy, energy_t = [], []
     if has_energy:
-        energy.append(scene.energy())
+        energy.append(watch.energy0)
         energy_t.append(0.0)
     status, message = Status.OK, ""
     rejected = done = linear_iterations = 0
+    failed_step, failed_t = 0, math.nan
     linear_residual = 0.0
     t = 0.0
     start = time.perf_counter()
@@ -131,12 +154,22 @@ def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: 
                 linear_residual = report.linear_residual
             if report.status is not Status.OK:
                 status = report.status
+                failed_step, failed_t = done + 1, (t + h if report.accepted else t)
                 detail = f" ({report.message})" if report.message else ""
-                advice = ("loosen rtol/atol or use f64" if status is Status.STEP_TOO_SMALL
-                          else "lower the step or pick a more stable integrator")
-                reached = t + h if report.accepted else t  # a rejected attempt left the state at t
-                message = (f"{status.value} at step {done + 1} (t = {reached:.6g} s) with "
-                           f"{integrator.name}, h = {h:.3g} s{detail}: {advice}")
+                if status is Status.DIVERGED:
+                    # The state may hold the non-finite values: put back the last good one.
+                    watch.restore()
+                    done, t = watch.good_step, watch.good_t
+                elif watch.work:
+                    # The failed attempt left the state at t: check what the steps since the
+                    # last check made of it (it may have blown up before the method gave up).
+                    breach = watch.check(t, done)
+                    if breach is not None:
+                        status, detail = Status.DIVERGED, f" ({breach.detail})"
+                        watch.restore()
+                        done, t = watch.good_step, watch.good_t
+                message = failure_message(scene, integrator, status, failed_step, failed_t, h, detail,
+                                          watch, done, t)
                 break
             if not report.accepted:
                 rejected += 1
@@ -151,21 +184,54 @@ def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: 
                 t = done * dt  # no round-off drift over many fixed steps
             if scene.after_step(t, report.h):
                 integrator.reset()  # an event changed the system (e.g. tore springs)
-            if has_energy and (done % every == 0 or last or done == steps):
-                e = scene.energy()
-                if not math.isfinite(e):  # the state is finite but its squares overflow
+            if sample_interval is None:
+                sample = has_energy and (done % every == 0 or last or done == steps)
+            else:
+                sample = has_energy and (t >= next_sample * (1 - 1e-12) or last)
+                if sample:
+                    next_sample = (math.floor(t / sample_interval + 1e-9) + 1) * sample_interval
+            # An energy sample costs about what a check does, so every sample is a check.
+            if watch.spend(report.f_evals + report.linear_iterations) or sample or last or done == steps:
+                breach = watch.check(t, done)
+                if breach is not None:
                     status = Status.DIVERGED
-                    message = (f"diverged at step {done} (t = {t:.6g} s) with {integrator.name}, "
-                               f"h = {report.h:.3g} s (energy overflowed): lower the step or pick "
-                               f"a more stable integrator")
+                    failed_step, failed_t = done, t
+                    watch.restore()
+                    done, t = watch.good_step, watch.good_t
+                    message = failure_message(scene, integrator, status, failed_step, failed_t, report.h,
+                                              f" ({breach.detail})", watch, done, t)
                     break
-                energy.append(e)
-                energy_t.append(t)
+                if sample:
+                    energy.append(watch.health.energy)
+                    energy_t.append(t)
             bar.update(report.h if (t_end is not None and expected is None) else 1)
             if adaptive:
                 h = report.next_h
     wall = time.perf_counter() - start
+    energy_t = np.asarray(energy_t, float)
+    kept = energy_t <= t  # a diverged run's trace ends at the state it returns
     return RunResult(status=status, steps=done, t=t, f_evals=f_evals, rejected_steps=rejected,
                      linear_iterations=linear_iterations, linear_residual=linear_residual,
-                     energy=np.asarray(energy, float), energy_t=np.asarray(energy_t, float),
-                     message=message, wall_time=wall)
+                     energy=np.asarray(energy, float)[kept], energy_t=energy_t[kept],
+                     message=message, wall_time=wall, failed_step=failed_step, failed_t=failed_t,
+                     guard_checks=watch.checks)
+
+
+def failure_message(scene: Scene, integrator: Integrator, status: Status, step: int, t: float, h: float,
+                    detail: str, watch: Guard, good_step: int, good_t: float) -> str:
+    """One line: what stopped a run, where, and what to do about it."""
+    from .theory import stable_step_advice
+
+    text = f"{status.value} at step {step} (t = {t:.6g} s) with {integrator.name}, h = {h:.3g} s{detail}"
+    if status is Status.DIVERGED:
+        text += (f"; the state returned is that of step {good_step} (t = {good_t:.6g} s), the last "
+                 f"that passed the blow-up check")
+        advice = stable_step_advice(scene, integrator.name)
+        if advice:
+            text += f"; {advice}"
+        return text + ": lower the step or pick a more stable integrator"
+    if status is Status.STEP_TOO_SMALL:
+        return text + ": loosen rtol/atol or use f64"
+    if status is Status.STIFF:
+        return text + ": use an implicit method (implicit_euler)"
+    return text + ": lower the step or pick a more stable integrator"

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 import taichi_sim as ts
-from taichi_sim.bench import common, theory
+from taichi_sim import theory
+from taichi_sim.bench import common
 from taichi_sim.bench.stability import StabilitySystem, run_stability
 from taichi_sim.bench.throughput import summarize
 from taichi_sim.bench.workprec import QUICK_PROBLEMS, Problem, run_work_precision
@@ -199,8 +200,10 @@ def test_simulate_warns_beyond_the_predicted_limit_but_still_runs(tmp_path, caps
     assert code in (0, 1) and path.exists()
     warnings = [line for line in err.splitlines() if "warning" in line]
     assert len(warnings) == 1 and "exceeds the predicted stability limit 0.02 s of symplectic_euler" in warnings[0]
-    code = main(["simulate", "spring", "--set", "stiffness=1e4", "--set", "gravity=0", "--dt", "0.019",
-                 "--steps", "3", "--out", str(path), "--quiet"])
+    # Below the limit: no warning. (Near it, at h omega = 1.8 to 2, this swinging spring's energy
+    # swells past the blow-up guard's bound and the run is reported diverged.)
+    code = main(["simulate", "spring", "--set", "stiffness=1e4", "--set", "gravity=0", "--dt", "0.015",
+                 "--steps", "300", "--out", str(path), "--quiet"])
     assert code == 0 and "warning" not in capsys.readouterr().err
 
 
@@ -246,7 +249,7 @@ def test_summary_ratios():
 
 
 def test_importing_the_bench_does_not_initialise_taichi():
-    code = ("import taichi_sim.bench.commands, taichi_sim.bench.theory, taichi_sim.bench.workprec, "
+    code = ("import taichi_sim.bench.commands, taichi_sim.bench.workprec, "
             "taichi_sim.bench.stability, taichi_sim.bench.throughput, taichi_sim.bench.advise\n"
             "from taichi_sim import runtime\nassert not runtime.is_initialized()\n"
             "import taichi.lang.impl as impl\nassert impl.get_runtime().prog is None\n")

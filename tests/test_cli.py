@@ -95,6 +95,17 @@ def test_set_values_reach_the_scene_and_t_end_lands(tmp_path):
     (["cloth", "--steps", "3", "--t-end", "1"], "--t-end"),
     (["cloth", "--steps", "3", "--precision", "f16"], "precision"),
     (["cloth", "--steps", "3", "--rtol", "1e-3"], "rtol"),
+    (["spring", "--steps", "3", "--max-energy-growth", "0"], "--max-energy-growth"),
+    (["spring", "--steps", "3", "--max-energy-growth", "nan"], "--max-energy-growth"),
+    (["spring", "--steps", "3", "--integrator", "implicit_euler", "--newton-tolerance", "2"],
+     "newton_tolerance"),
+    (["spring", "--steps", "3", "--integrator", "implicit_euler", "--newton-tolerance", "0"],
+     "--newton-tolerance"),
+    (["spring", "--steps", "3", "--integrator", "implicit_euler", "--newton-iterations", "0"],
+     "--newton-iterations"),
+    (["spring", "--steps", "3", "--integrator", "implicit_euler", "--cg-tolerance", "-1"],
+     "--cg-tolerance"),
+    (["spring", "--steps", "3", "--newton-tolerance", "1e-6"], "newton_tolerance"),
 ])
 def test_bad_input_exits_2_with_one_line_and_writes_nothing(tmp_path, capsys, args, problem):
     code, path = simulate(tmp_path, *args)
@@ -122,6 +133,21 @@ def test_diverged_run_writes_status_and_exits_1(tmp_path, capsys):
     assert "diverged at step" in capsys.readouterr().err
     data = np.load(path)
     assert str(data["status"]) == "diverged" and float(data["t"]) < 30
+    # The state written is the last that passed the blow-up check, before the failing step
+    assert np.isfinite(data["x"]).all() and np.isfinite(data["v"]).all()
+    # (the guard looks at sampled states, so that may be a few steps before the failing one)
+    assert 0 <= int(data["steps"]) < int(data["failed_step"])
+    assert float(data["failed_t"]) == pytest.approx(0.01 * int(data["failed_step"]))
+    assert np.isfinite(data["energy"]).all()
+
+
+def test_a_lower_energy_bound_reports_sooner(tmp_path, capsys):
+    args = ["pendulum", "--integrator", "euler", "--dt", "0.008", "--t-end", "3"]
+    default = np.load(simulate(tmp_path, *args, out="a.npz")[1])
+    tight_code, tight_path = simulate(tmp_path, *args, "--max-energy-growth", "0.5", out="b.npz")
+    tight = np.load(tight_path)
+    assert tight_code == 1 and "past the bound" in capsys.readouterr().err
+    assert 0 < int(tight["failed_step"]) < int(default["failed_step"])
 
 
 def test_module_and_console_script_entry_points(tmp_path):

@@ -14,8 +14,11 @@ def test_pinned_particles_never_move(f64, name):
     scene = ts.build_scene("cloth", {"nx": 6, "ny": 6, "jitter": 0.01}, seed=3)
     pinned = scene.arrays["pinned"]
     x0 = scene.state.to_numpy()[0]
-    result = ts.run(scene, name, dt=1e-3, steps=200, energy_every=0)
-    assert result.status is ts.Status.OK
+    # Explicit Euler gains energy at every step (x (1 + h^2 w^2) on the stiffest mode, w = 530
+    # rad/s here): at 1e-3 s this cloth blows up within 25 steps and is reported diverged.
+    dt = 1e-4 if name == "euler" else 1e-3
+    result = ts.run(scene, name, dt=dt, steps=200, energy_every=0)
+    assert result.status is ts.Status.OK, result.message
     x, v = scene.state.to_numpy()
     np.testing.assert_array_equal(x[pinned], x0[pinned])
     assert not v[pinned].any()

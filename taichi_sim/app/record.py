@@ -56,13 +56,16 @@ class Clip:
 @dataclass(frozen=True)
 class Recording:
     """What :func:`record` did: the output ``path``, ``frames`` written, ``wall`` seconds spent,
-    the ``still`` PNG (or None) and one line per run that stopped early (``failures``)."""
+    the ``still`` PNG (or None), one line per run that stopped early (``failures``), and whether
+    the recording itself stopped early because every run had (``stopped``: it then ends a
+    second after the last one stopped, on its message)."""
 
     path: Path
     frames: int
     wall: float
     still: Path | None
     failures: tuple[str, ...]
+    stopped: bool = False
 
 
 def check_clip(clip: Clip) -> None:
@@ -107,7 +110,8 @@ def record(clip: Clip, out: str | Path, *, still: str | Path | None = None, stil
     """Record ``clip`` into ``out`` (.mp4, .gif or a folder/ of PNGs) through the renderer,
     offscreen. Frame 0 is the initial state; each later frame advances the simulation by
     ``clip.speed / clip.fps`` seconds. ``still`` also saves the frame at fraction ``still_at``
-    of the clip as a PNG at the rendering (supersampled) resolution.
+    of the clip as a PNG at the rendering (supersampled) resolution. When every run has stopped
+    (diverged, not converged, stiff), the recording holds the message for a second and ends.
 
     Validates everything before stepping; raises ConfigError for bad input and
     :class:`~taichi_sim.render.RenderUnavailable` when no Vulkan is usable. Needs
@@ -127,9 +131,14 @@ def record(clip: Clip, out: str | Path, *, still: str | Path | None = None, stil
         with VideoWriter(out, clip.size, clip.fps, colors=clip.colors) as writer, \
                 tqdm(total=clip.frame_count, unit="frame", leave=False, disable=None if progress is None
                      else not progress, desc=Path(out).name) as bar:
+            held = 0
             for k in range(clip.frame_count):
                 if k:
                     session.advance(clip.speed / clip.fps)
+                if session.frozen:  # every run stopped: hold the message a second, then stop
+                    held += 1
+                    if held > clip.fps:
+                        break
                 renderer.follow([r.last_good for r in session.runners])
                 renderer.render([r.display for r in session.runners], session.options)
                 image = renderer.read_image()
@@ -139,6 +148,7 @@ def record(clip: Clip, out: str | Path, *, still: str | Path | None = None, stil
                 if still is not None and k == still_index:
                     still_path = save_png(burn(image, frame_labels(session, renderer, render_size)), still)
                 bar.update()
+                frames = k + 1
         path = writer.path
     except BaseException:
         if still_path is not None:
@@ -147,5 +157,5 @@ def record(clip: Clip, out: str | Path, *, still: str | Path | None = None, stil
     finally:
         window.destroy()
     failures = tuple(f"{r.name}: {r.message}" for r in session.runners if r.frozen)
-    return Recording(path=path, frames=clip.frame_count, wall=time.perf_counter() - start,
-                     still=still_path, failures=failures)
+    return Recording(path=path, frames=frames, wall=time.perf_counter() - start,
+                     still=still_path, failures=failures, stopped=session.frozen)

@@ -11,16 +11,14 @@ import time
 
 import numpy as np
 
+from ..guard import Guard
 from ..integrators import Status, create_integrator, integrator_class
 from ..render.drawer import DRAWABLE_LIMIT
 from ..scene import build_scene
 from ..scene.scene import Scene
+from ..theory import stable_step_advice
 
 ADVICE = "lower the step or pick a more stable integrator"
-
-#: A run whose energy rises above its start by more than this many times the scene's energy
-#: scale (see :func:`energy_scale`) has diverged, even while its numbers are still finite.
-ENERGY_GROWTH_LIMIT = 100.0
 
 #: Most integrator calls in one :meth:`Runner.advance` (an adaptive method crawling at tiny
 #: steps must not freeze the window); the rest of that frame's simulated time is dropped.
@@ -38,13 +36,15 @@ class Runner:
     Attributes:
         t: simulated time (s); steps: accepted steps; f_evals: evaluations of f.
         status: ``Status.OK`` while running; anything else froze the run.
-        failure: what stopped the run ("diverged at t = 0.24 s (energy overflowed)"), else "";
+        failure: what stopped the run ("diverged at t = 0.24 s (energy rose to ...)"), else "";
             failed_at: the time (s) it names.
-        message: ``failure`` with the advice (": lower the step or pick a more stable
-            integrator"), else "".
+        advice: what to do about it: the predicted stable step of an explicit method (or, for a
+            stiff problem, to use an implicit one), then ADVICE; "" while running.
+        message: ``failure``, the method and step, and ``advice``, in one line; "" while running.
         energy: total energy (J) at the last frame, or None when the system has none.
         sim_ms: wall time (ms) of the last :meth:`advance`.
-        last_good: (n, 3) float64 positions of the last frame whose state was finite.
+        last_good: (n, 3) float64 positions of the last state that passed the blow-up guard
+            (:mod:`taichi_sim.guard`, checked at the end of every frame).
     """
 
     def __init__(self, scene: Scene, integrator: str, dt: float):
@@ -68,7 +68,7 @@ class Runner:
         if name not in self._integrators:
             self._integrators[name] = create_integrator(name, self.scene.system)
         self.integrator = self._integrators[name]
-        self.system_changed()  # a method switched back to may hold a stale f
+        self.integrator.reset()  # a method switched back to may hold a stale f
         self._h_next = self.dt
 
     def set_dt(self, dt: float) -> None:
@@ -79,9 +79,12 @@ class Runner:
         self._h_next = self.dt
 
     def system_changed(self) -> None:
-        """Call after changing a parameter of the running system (a stiffness, the wind):
-        methods that cache f between steps forget it."""
+        """Call after changing the running system from outside (a stiffness, the wind, the grab
+        target): methods that cache f between steps forget it, and the blow-up guard takes the
+        current state as its new reference (energy put in from outside is not a blow-up)."""
         self.integrator.reset()
+        if not self.frozen:
+            self.guard.rebase(self.t, self.steps)
 
     def restart(self) -> None:
         """Back to t = 0 from the scene's current state (call after ``scene.reset()``)."""
@@ -89,15 +92,16 @@ class Runner:
         self.steps = 0
         self.f_evals = 0
         self.status = Status.OK
-        self.failure = self.message = ""
+        self.failure = self.message = self.advice = ""
         self.failed_at = 0.0
         self.sim_ms = 0.0
         self._pending = 0.0
         self._h_next = self.dt
-        self.system_changed()  # the state jumped: a cached f is stale
-        self.last_good = np.asarray(self.scene.state.x.to_numpy(), np.float64)
-        self.energy = self.energy0 = self.scene.energy()
-        self.energy_scale = energy_scale(self.scene, self.energy0)
+        self.integrator.reset()  # the state jumped: a cached f is stale
+        self.guard = Guard(self.scene)
+        self._grab_moves = self._grabber_moves()
+        self.last_good = self.guard.last_good_positions()
+        self.energy = self.guard.energy0
 
     def reset(self) -> None:
         """Back to the initial state. A scene whose model changes while it runs (torn springs,
@@ -126,16 +130,20 @@ class Runner:
         """Advance the simulated time by ``duration`` (s).
 
         A fixed-step method takes whole steps of ``dt`` (the remainder carries over to the next
-        call, so ``dt`` is never changed); an adaptive one lands exactly on the end. Then the
-        positions are checked: a non-finite or huge state, a non-finite energy or a failed
-        step freezes the run on the last finite state with a one-line message.
+        call, so ``dt`` is never changed); an adaptive one lands exactly on the end. The blow-up
+        guard checks the state whenever enough work was done and at the end: a failed step or a
+        failed check freezes the run on the last good state with a one-line message.
         """
         if self.frozen or duration <= 0:
             return
+        if self._grabber_moves() != self._grab_moves:
+            self._grab_moves = self._grabber_moves()
+            self.system_changed()  # the user moved the pull: its work is not a blow-up
         start = time.perf_counter()
         self._pending += duration
         calls = 0
         adaptive = self.integrator.adaptive
+        guard = self.guard
         while not self.frozen and calls < MAX_CALLS_PER_ADVANCE:
             if adaptive:
                 if self._pending <= 1e-12 * max(1.0, self.t):
@@ -149,7 +157,9 @@ class Runner:
             calls += 1
             self.f_evals += report.f_evals
             if report.status is not Status.OK:
-                self._freeze(report.status, self.t + h, report.message)
+                if report.status is Status.DIVERGED:
+                    guard.restore()
+                self._freeze(report.status, self.t + h, report.message, h)
                 break
             if adaptive:
                 self._h_next = report.next_h
@@ -159,11 +169,13 @@ class Runner:
             self._pending -= report.h
             self.steps += 1
             if self.scene.after_step(self.t, report.h):
-                self.system_changed()
+                self.integrator.reset()
+            if guard.spend(report.f_evals + report.linear_iterations) and not self._check(report.h):
+                break
         if calls >= MAX_CALLS_PER_ADVANCE:
             self._pending = 0.0
-        if not self.frozen:
-            self._check()
+        if not self.frozen and guard.work:
+            self._check(self.dt)
         self.sim_ms = 1e3 * (time.perf_counter() - start)
 
     def step_once(self) -> None:
@@ -172,37 +184,37 @@ class Runner:
         self._pending = 0.0
         self.advance(self._h_next if self.integrator.adaptive else self.dt)
 
-    def _check(self) -> None:
-        x = np.asarray(self.scene.state.x.to_numpy(), np.float64)
-        with np.errstate(invalid="ignore", over="ignore"):
-            ok = bool(np.all(np.abs(x) <= DRAWABLE_LIMIT))
-        if not ok:
-            self._freeze(Status.DIVERGED, self.t, "positions blew up")
-            return
-        energy = self.scene.energy()
-        if energy is not None and not math.isfinite(energy):
-            self._freeze(Status.DIVERGED, self.t, "energy overflowed")
-        elif self.energy_scale is not None and energy - self.energy0 > ENERGY_GROWTH_LIMIT * self.energy_scale:
-            self._freeze(Status.DIVERGED, self.t, "energy blew up")
-        else:
-            self.last_good = x
-            self.energy = energy
+    def _grabber_moves(self) -> int:
+        grabber = self.scene.grabber
+        return -1 if grabber is None else grabber.moves
 
-    def _freeze(self, status: Status, t: float, detail: str) -> None:
+    def _check(self, h: float) -> bool:
+        """Guard check of the current state; freezes the run on a breach. True when it passed."""
+        breach = self.guard.check(self.t, self.steps)
+        if breach is None:
+            x = self.guard.last_good_positions()
+            with np.errstate(invalid="ignore", over="ignore"):
+                drawable = bool(np.all(np.abs(x) <= DRAWABLE_LIMIT))
+            if drawable:
+                self.last_good = x
+                self.energy = self.guard.health.energy
+                return True
+            breach_detail = "positions too large to draw"
+        else:
+            breach_detail = breach.detail
+        self.guard.restore()
+        self._freeze(Status.DIVERGED, self.t, breach_detail, h)
+        return False
+
+    def _freeze(self, status: Status, t: float, detail: str, h: float) -> None:
         self.status = status
         self.failed_at = t
         detail = f" ({detail})" if detail else ""
         self.failure = f"{status.value.replace('_', ' ')} at t = {t:.4g} s{detail}"
-        self.message = f"{self.failure}: {ADVICE}"
-
-
-def energy_scale(scene: Scene, energy0: float | None) -> float | None:
-    """A typical energy (J) of ``scene``: the larger of |E(0)| and total mass x |g| x size; None
-    when the energy has no scale to grow from (no energy, or an emitter feeding in particles)."""
-    if energy0 is None or scene.features.get("emitter"):
-        return None
-    x0 = np.asarray(scene.x0, np.float64)
-    size = float(np.linalg.norm(np.ptp(x0, axis=0))) if len(x0) > 1 else float(np.linalg.norm(x0))
-    arrays = scene.arrays
-    weight = float(np.sum(arrays.get("mass", 0.0))) * float(np.linalg.norm(arrays.get("gravity", 0.0)))
-    return max(abs(energy0), weight * size, 1e-12)
+        advice = ""
+        if status is Status.DIVERGED:
+            advice = stable_step_advice(self.scene, self.integrator.name)
+        elif status is Status.STIFF:
+            advice = "the problem is stiff: use an implicit method (implicit_euler)"
+        self.advice = f"{advice}: {ADVICE}" if advice else ADVICE
+        self.message = f"{self.failure} with {self.integrator.name}, h = {h:.3g} s; {self.advice}"

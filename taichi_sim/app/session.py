@@ -20,7 +20,7 @@ from ..scene import build_scene, scene_preset
 from ..scene.params import Param, resolve
 from ..scene.scene import Scene
 from ..scene.visual import describe
-from .runner import ADVICE, Runner
+from .runner import Runner
 
 MAX_PANELS = 3
 SUBSTEPS_MAX = 500
@@ -135,6 +135,7 @@ class Session:
         self._check_dt(self.dt)
         self.substeps = self._check_substeps(substeps)
         self.paused = False
+        self._paused_by_failure = False
         self.show_help = False
         self.show_setup = False
         self.generation = 0  # bumped when the scenes are rebuilt: renderers must be too
@@ -270,8 +271,11 @@ class Session:
             r.step_once()
 
     def reset(self) -> None:
-        """Back to t = 0. Pending parameter changes apply now (the scenes are rebuilt)."""
+        """Back to t = 0. Pending parameter changes apply now (the scenes are rebuilt). A pause
+        that a failure caused ends."""
         self.resets += 1
+        if self._paused_by_failure:
+            self.paused = self._paused_by_failure = False
         if self.pending:
             self.params.update(self.pending)
             self.pending = {}
@@ -288,9 +292,13 @@ class Session:
     # -- running ------------------------------------------------------------------------------
 
     def advance(self, duration: float) -> None:
-        """Advance every panel by ``duration`` simulated seconds (the recorder's clock)."""
+        """Advance every panel by ``duration`` simulated seconds (the recorder's clock). When
+        the last running panel stops (diverged, not converged, stiff), the session pauses, so
+        the message stays on screen over the last good state."""
         for r in self.runners:
             r.advance(duration)
+        if self.frozen and not self.paused:
+            self.paused = self._paused_by_failure = True
 
     def frame(self) -> None:
         """One launcher frame: ``substeps`` steps of ``dt`` unless paused."""
@@ -320,6 +328,6 @@ class Session:
             state = r.failure if r.frozen else f"E = {energy}"
             lines.append(f"{r.name}: {r.sim_ms:.1f} ms/frame   {state}")
         lines.append(f"status: {self.status()}")
-        if any(r.frozen for r in self.runners):
-            lines.append(ADVICE)
+        for advice in dict.fromkeys(r.advice for r in self.runners if r.frozen):
+            lines.extend(part.strip() for part in advice.split("; "))
         return lines

@@ -27,7 +27,7 @@ import time
 
 import numpy as np
 
-from .theory import horizon_limit, omega_max_bound, omega_max_power, stability_constant
+from ..theory import horizon_limit, omega_max_bound, omega_max_power, stability_constant
 
 PILOT_STEPS = 200
 PILOT_ROUNDS = 3
@@ -47,7 +47,7 @@ def evals_per_step(cls) -> float | None:
 
 def scene_omegas(scene, *, power_iterations: int = 300) -> dict:
     """omega_max of a built scene: power iteration (sharp) and the Gershgorin bound."""
-    from .theory import is_circle
+    from ..theory import is_circle
 
     if is_circle(scene):
         return {"omega_max": 1.0, "omega_bound": 1.0, "method": "exact (circle ODE)"}
@@ -58,6 +58,18 @@ def scene_omegas(scene, *, power_iterations: int = 300) -> dict:
     return {"omega_max": omega, "omega_bound": omega_max_bound(arrays),
             "method": f"power iteration ({info['iterations']} iterations, last relative change "
                       f"{info['change']:.1g})"}
+
+
+# What "no step limit" means for each implicit method: only exact backward Euler is
+# unconditionally stable on the nonlinear springs of these scenes.
+IMPLICIT_NOTES = {
+    "implicit_euler": "no step limit: exact backward Euler, energy never rises on conservative scenes; "
+                      "damps motion more as h omega grows",
+    "implicit_euler_linearised": "no limit on linear springs only: one Newton step can gain energy on "
+                                 "stretched springs at large h^2 k / m (reported diverged)",
+    "implicit_midpoint": "no limit on linear springs (conserves their energy); on nonlinear springs "
+                         "energy can rise and Newton can fail at large h omega (reported)",
+}
 
 
 def stability_table(scene, omegas: dict, t_end: float) -> list[dict]:
@@ -78,7 +90,7 @@ def stability_table(scene, omegas: dict, t_end: float) -> list[dict]:
         elif omega == 0:
             row.update(limit=math.inf, limit_bound=math.inf, note="nothing oscillates: no limit")
         elif math.isinf(row["C"]):
-            row.update(limit=math.inf, limit_bound=math.inf, note="unconditionally stable")
+            row.update(limit=math.inf, limit_bound=math.inf, note=IMPLICIT_NOTES.get(name, "no step limit"))
         elif row["C"] == 0:
             reach = horizon_limit(name, omega, t_end)
             row.update(limit=0.0, limit_bound=0.0, horizon_limit=reach,

@@ -56,7 +56,7 @@ from typing import Callable
 
 import numpy as np
 
-from .theory import horizon_limit, omega_max_bound, omega_max_eigsh, omega_max_power, stability_constant
+from ..theory import horizon_limit, omega_max_bound, omega_max_eigsh, omega_max_power, stability_constant
 
 
 @dataclass(frozen=True)

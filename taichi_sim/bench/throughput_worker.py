@@ -41,11 +41,16 @@ class Timed:
         import taichi as ti
 
         self.ti, self.scene, self.integrator, self.dt = ti, scene, integrator, dt
+        from taichi_sim.guard import Guard
+
         self.events = bool(scene.post_step)
         self.f_evals = self.linear = self.steps_done = 0
         self.worst = "ok"
         scene.reset()
         integrator.reset()
+        # The blow-up guard, as every run has it (a check every 100 units of work): its cost is
+        # part of a step's cost.
+        self.guard = Guard(scene)
         start = time.perf_counter()
         self._advance(1)  # compiles
         self.first = time.perf_counter() - start
@@ -60,8 +65,8 @@ class Timed:
     def _advance(self, steps: int) -> None:
         from taichi_sim.integrators import Status
 
-        scene, integrator, t = self.scene, self.integrator, 0.0
-        for _ in range(steps):
+        scene, integrator, guard, t = self.scene, self.integrator, self.guard, 0.0
+        for step in range(1, steps + 1):
             report = integrator.step(scene.state, t, self.dt)
             self.f_evals += report.f_evals
             self.linear += report.linear_iterations
@@ -71,12 +76,15 @@ class Timed:
                 t += report.h
                 if self.events and scene.after_step(t, report.h):
                     integrator.reset()
+                if guard.spend(report.f_evals + report.linear_iterations) and guard.check(t, step):
+                    self.worst = Status.DIVERGED.value
         self.ti.sync()
         self.steps_done += steps
 
     def batch(self) -> dict:
         self.scene.reset()
         self.integrator.reset()
+        self.guard.rebase()
         start = time.perf_counter()
         self._advance(self.steps)
         step_s = (time.perf_counter() - start) / self.steps

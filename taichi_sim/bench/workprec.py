@@ -98,7 +98,7 @@ class Truth:
 
 def exact_or_reference(scene, t_end: float) -> Truth:
     """The truth at ``t_end`` for a freshly reset ``scene`` (see the module docstring)."""
-    from .theory import scene_omega_max
+    from ..theory import scene_omega_max
 
     omega = scene_omega_max(scene, "bound") or 1.0
     x0 = np.asarray(scene.x0, float)
@@ -278,7 +278,7 @@ def run_work_precision(problems: dict[str, Problem], integrators: list[str], *, 
     Returns (rows, details) with details = {"problems": {...}, "orders": [...]}."""
     from ..integrators import integrator_class
     from ..scene import build_scene
-    from .theory import scene_omega_max
+    from ..theory import scene_omega_max
 
     rows: list[dict] = []
     details: dict[str, Any] = {"problems": {}, "orders": []}

@@ -69,6 +69,11 @@ class SphereColliders:
     def centers(self) -> np.ndarray:
         return self.center.to_numpy().astype(np.float64)
 
+    def fastest_speed(self) -> float:
+        """The largest speed (m/s) any sphere's path reaches: |velocity| + 2 pi f amplitude."""
+        return max(float(np.linalg.norm(p.velocity)) + 2 * math.pi * abs(p.frequency * p.amplitude)
+                   for p in self.paths)
+
     def __call__(self, state, t: float, h: float) -> None:
         self.move_to(t)
         self._project(state)

@@ -13,6 +13,7 @@ class Grabber:
         self.scene = scene
         self.spring = spring
         self.particle: int | None = None
+        self.moves = 0  # bumped by grab, drag_to and release: the system changed from outside
 
     def pick(self, origin, direction, max_distance: float = np.inf) -> int | None:
         """The free particle closest to the ray origin + s direction (s > 0), within
@@ -40,12 +41,15 @@ class Grabber:
             target = self.scene.state.to_numpy()[0][particle]
         self.particle = int(particle)
         self.spring.hold(self.particle, target)
+        self.moves += 1
 
     def drag_to(self, target) -> None:
         """Move the target point (m) of the held particle."""
         if self.particle is not None:
             self.spring.hold(self.particle, target)
+            self.moves += 1
 
     def release(self) -> None:
         self.particle = None
         self.spring.release()
+        self.moves += 1

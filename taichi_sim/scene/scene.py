@@ -53,6 +53,15 @@ class Scene:
     def particle_count(self) -> int:
         return self.system.particle_count
 
+    def spare_state(self) -> State:
+        """A second state of this scene's shape, allocated on first use and the same object
+        ever after (the blow-up guard keeps its last good state there: copying between two
+        states compiles a kernel per pair of State objects, so the pair must not change)."""
+        spare = self.__dict__.get("_spare_state")
+        if spare is None:
+            spare = self.__dict__["_spare_state"] = self.system.make_state()
+        return spare
+
     def reset(self) -> None:
         """Back to the initial state (the model's optional parts keep their changes: torn
         springs stay torn; rebuild the scene for a fresh one)."""

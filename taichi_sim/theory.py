@@ -45,6 +45,7 @@ STABILITY_CONSTANT: dict[str, float] = {
     "rk4": 2.0 * math.sqrt(2.0),
     "symplectic_euler": 2.0,
     "implicit_euler": math.inf,
+    "implicit_euler_linearised": math.inf,
     "implicit_midpoint": math.inf,
 }
 
@@ -243,3 +244,26 @@ def stability_warning(scene, integrator_name: str, dt: float | None) -> str | No
         return None
     return (f"dt = {dt:g} s exceeds the predicted stability limit {limit:.3g} s of {integrator_name} "
             f"for this scene (omega_max = {omega:.4g} rad/s, limit {c:.3g} / omega_max); expect divergence")
+
+
+def stable_step_advice(scene, name: str, *, power_iterations: int = 200) -> str:
+    """A clause for a failure message: the predicted largest stable step of integrator ``name``
+    on ``scene`` (C / omega_max, with omega_max by power iteration at the initial positions, as
+    ``taichi-sim advise`` computes it); "" for implicit and adaptive methods, or when there is
+    no prediction."""
+    c = stability_constant(name)
+    if c is None or math.isinf(c):
+        return ""
+    try:
+        omega = scene_omega_max(scene, "power", max_iterations=power_iterations, tol=1e-8)
+    except Exception:  # a prediction must never hide the failure it explains
+        return ""
+    if not omega or not math.isfinite(omega):
+        return ""
+    if c == 0.0:
+        others = [m for m in ("symplectic_euler", "rk4") if scene.system.second_order or m == "rk4"]
+        steps = ", ".join(f"{m} {STABILITY_CONSTANT[m] / omega:.3g} s" for m in others)
+        return (f"{name} grows at every step on undamped oscillations (no stable step); predicted "
+                f"stable steps here (omega_max = {omega:.4g} rad/s): {steps}")
+    return (f"predicted stable step of {name} here: {c / omega:.3g} s (C / omega_max = {c:.3g} / "
+            f"{omega:.4g} rad/s; see taichi-sim advise)")
