@@ -7,7 +7,7 @@ import sys
 from ..errors import ConfigError
 from . import common
 
-BENCH_NAMES = ("work-precision", "stability", "throughput")
+BENCH_NAMES = ("work-precision", "stability", "throughput")  # what `bench all` runs
 
 
 def _names(text: str | None, allowed, what: str) -> list[str] | None:
@@ -35,9 +35,10 @@ def bench_main(args) -> int:
     which = list(BENCH_NAMES) if args.bench_command == "all" else [args.bench_command]
     plans = [(name, PLANNERS[name](args)) for name in which]  # validate every option first
     out = common.prepare_out_dir(args.out)
+    code = 0
     for name, run in plans:
-        run(out)
-    return 0
+        code = max(code, run(out) or 0)
+    return code
 
 
 def _plan_work_precision(args):
@@ -226,7 +227,76 @@ def print_throughput(rows: list[dict], details: dict) -> None:
                 print(f"peer unavailable ({key}, {s['precision']}, n = {s['n']}): {s[f'{key}_unavailable']}")
 
 
-PLANNERS = {"work-precision": _plan_work_precision, "stability": _plan_stability, "throughput": _plan_throughput}
+def _float_list(text: str | None, what: str, default) -> list[float]:
+    if text is None:
+        return list(default)
+    try:
+        values = [_fraction(v) for v in text.split(",") if v.strip()]
+    except (ValueError, ZeroDivisionError):
+        raise ConfigError(f"--{what} expects comma-separated numbers, got {text!r}") from None
+    if not values or not all(math.isfinite(v) and v > 0 for v in values):
+        raise ConfigError(f"--{what} expects finite numbers > 0, got {text!r}")
+    return values
+
+
+def _fraction(text: str) -> float:
+    """``"1/60"`` or ``"0.5"`` as a float (ValueError otherwise)."""
+    top, sep, bottom = text.strip().partition("/")
+    return float(top) / float(bottom) if sep else float(top)
+
+
+def _plan_extremes(args):
+    from ..integrators import INTEGRATORS
+    from .extremes import QUICK_SCENES, SCENES, STEP_SIZES, STEPS, STIFFNESSES
+
+    scenes_all = QUICK_SCENES if args.quick else SCENES
+    scenes = _names(getattr(args, "scenes", None), list(scenes_all), "scenes") or list(scenes_all)
+    integrators = _names(getattr(args, "integrators", None), list(INTEGRATORS), "integrators") or list(INTEGRATORS)
+    stiffnesses = _float_list(getattr(args, "stiffnesses", None), "stiffnesses", STIFFNESSES)
+    step_sizes = _float_list(getattr(args, "step_sizes", None), "step-sizes", STEP_SIZES)
+    steps = getattr(args, "steps", None) or (10 if args.quick else STEPS)
+
+    def run(out):
+        from .. import runtime
+        from . import plots
+        from .extremes import outcome_table, run_extremes, task_count
+
+        runtime.init(arch="cpu", precision="f64")
+        chosen = {s: scenes_all[s] for s in scenes}
+        with common.progress_bar(task_count(chosen, integrators, stiffnesses, step_sizes), "extremes",
+                                 args.quiet) as bar:
+            rows = run_extremes(chosen, integrators, stiffnesses, step_sizes, steps=steps, progress=bar)
+        table = outcome_table(rows)
+        payload = {**_meta("extremes", args, {"scenes": {s: list(scenes_all[s]) for s in scenes},
+                                               "integrators": integrators, "stiffnesses": stiffnesses,
+                                               "step_sizes": step_sizes, "steps": steps, "precision": "f64"}),
+                   "outcomes": table}
+        paths = common.write_outputs(out, "extremes", rows, payload, lambda f: plots.extremes(rows, f))
+        if not args.quiet:
+            print_extremes(rows, table)
+        common.report_written(paths, args.quiet)
+        silent = sum(c["silent"] + c["error"] for c in table.values())
+        if silent:
+            print(f"taichi-sim: {silent} runs blew up silently or crashed (see extremes.csv)", file=sys.stderr)
+        return 1 if silent else 0
+
+    return run
+
+
+def print_extremes(rows: list[dict], table: dict) -> None:
+    print("Runs at the extremes: ok (bounded, status ok), reported (status not ok, with a message), "
+          "silent (status ok, but the audit finds a blow-up), error (a crash):")
+    print(common.format_table(["integrator", "ok", "reported", "silent", "error"],
+                              [[name, c["ok"], c["reported"], c["silent"], c["error"]]
+                               for name, c in table.items()]))
+    for row in rows:
+        if row["outcome"] in ("silent", "error"):
+            print(f"  {row['outcome']}: {row['scene']} {row['integrator']} k={row['stiffness']:g} "
+                  f"dt={row['dt']:g}: {row['reason']}")
+
+
+PLANNERS = {"work-precision": _plan_work_precision, "stability": _plan_stability, "throughput": _plan_throughput,
+            "extremes": _plan_extremes}
 
 
 def advise_main(args) -> int:

@@ -5,7 +5,9 @@ import math
 
 COLORS = {"euler": "#d62728", "trapezoid": "#ff7f0e", "midpoint": "#bcbd22", "rk4": "#1f77b4",
           "symplectic_euler": "#2ca02c", "rk45": "#9467bd", "rkf45": "#8c564b",
-          "implicit_euler": "#e377c2", "implicit_midpoint": "#17becf"}
+          "implicit_euler": "#e377c2", "implicit_euler_linearised": "#f7b6d2",
+          "implicit_midpoint": "#17becf"}
+OUTCOME_COLORS = {"ok": "#2ca02c", "reported": "#ffbf00", "silent": "#d62728", "error": "#000000"}
 DPI = 72
 
 
@@ -137,6 +139,31 @@ def stability(rows: list[dict], details: dict, out) -> None:
     fig.suptitle(f"Stability: measured (markers) against C / omega_max (dashed), "
                  f"{details['periods']:g} periods of the fastest mode", fontsize=10)
     fig.tight_layout(rect=(0, 0, 1, 0.95))
+    fig.savefig(out, format="png", dpi=DPI)
+    plt.close(fig)
+
+
+def extremes(rows: list[dict], out) -> None:
+    """One cell per run: integrators down, (scene, stiffness, step) across, coloured by outcome."""
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import ListedColormap
+    from matplotlib.patches import Patch
+
+    names = list(dict.fromkeys(r["integrator"] for r in rows))
+    columns = list(dict.fromkeys((r["scene"], r["stiffness"], r["dt"]) for r in rows))
+    codes = {name: i for i, name in enumerate(OUTCOME_COLORS)}
+    grid = [[math.nan] * len(columns) for _ in names]
+    for r in rows:
+        grid[names.index(r["integrator"])][columns.index((r["scene"], r["stiffness"], r["dt"]))] = codes[r["outcome"]]
+    fig, ax = plt.subplots(figsize=(max(6.0, 0.32 * len(columns) + 3), 0.32 * len(names) + 2.4))
+    ax.imshow(grid, cmap=ListedColormap(list(OUTCOME_COLORS.values())), vmin=-0.5, vmax=len(codes) - 0.5,
+              aspect="auto", interpolation="nearest")
+    ax.set_yticks(range(len(names)), names, fontsize=7)
+    ax.set_xticks(range(len(columns)), [f"{s} k={k:g} h={h:.3g}" for s, k, h in columns], fontsize=6,
+                  rotation=90)
+    ax.legend(handles=[Patch(color=c, label=o) for o, c in OUTCOME_COLORS.items()], fontsize=7, ncol=4,
+              loc="lower center", bbox_to_anchor=(0.5, 1.0), frameon=False)
+    fig.tight_layout()
     fig.savefig(out, format="png", dpi=DPI)
     plt.close(fig)
 
