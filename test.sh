@@ -1,8 +1,12 @@
 #!/usr/bin/env bash
 # Run the test suite (pytest on the CPU arch). Installs what it needs on first use.
 # Extra arguments go to pytest, e.g. ./test.sh -k circle -x
+# Tests run in one worker process per core (pytest-xdist; most of their time is Taichi compiling
+# kernels, which is single-threaded); TS_TEST_WORKERS=0 runs them in this process.
 set -euo pipefail
 cd "$(dirname "$0")"
 TS_EXTRAS=test source scripts/bootstrap.sh
 ensure_vulkan
-exec .venv/bin/python -m pytest "$@"
+workers=(-n "${TS_TEST_WORKERS:-auto}")
+[ "${TS_TEST_WORKERS:-auto}" = 0 ] && workers=()
+exec .venv/bin/python -m pytest "${workers[@]}" "$@"
