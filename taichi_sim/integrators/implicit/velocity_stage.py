@@ -194,7 +194,11 @@ class VelocityStage:
                 kinetic0 += 0.5 * self.system.mass[i] * y0.v[i].norm_sqr()
             u, _ = self.system.potential_and_dissipation_at(i, y0)
             potential0 += u
-            magnitude0 += ti.abs(u)
+            # Rounding of the energies: relative to each term's size, and for a force F at a
+            # position rounded to eps |x|, |F| eps |x| (a spring's |d| - r near rest length
+            # loses digits: at small stretch this dominates ½ k (|d| - r)^2 itself).
+            _, pieces, _ = self.system.force_and_scale(i, y0, t)
+            magnitude0 += ti.abs(u) + pieces * x.norm()
             if not (finite(x) and finite(v)):
                 bad += 1
         g2, s2, e2, change, kinetic, potential, dissipation = self._stage_sums(y0, tau, t)
