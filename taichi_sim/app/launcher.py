@@ -7,6 +7,7 @@ widgets and passes events on.
 from __future__ import annotations
 
 import math
+import textwrap
 import time
 
 import numpy as np
@@ -20,7 +21,8 @@ from .input import CameraControl, GrabberHook, apply_key, help_lines
 from .session import DT_RANGE, SUBSTEPS_MAX, Session
 
 PANEL = (0.0, 0.0, 0.27, 1.0)  # control panel: x, y, width, height (fractions of the window)
-HUD = (0.62, 0.0, 0.38, 0.26)
+HUD = (0.62, 0.0, 0.38, 0.3)
+HUD_CHAR_PX = 7.5  # width of a character of GGUI's font, for wrapping the HUD's lines
 HELP = (0.35, 0.25, 0.32, 0.5)
 WARNING = (1.0, 0.45, 0.38)
 
@@ -180,8 +182,12 @@ class Launcher:
     def _hud(self) -> None:
         s = self.session
         with self.gui.sub_window("Status", *HUD) as g:
+            # GGUI clips text at the panel's edge: wrap it (the monospace font is ~7.5 px wide).
+            width = max(20, int(HUD[2] * self.size[0] / HUD_CHAR_PX) - 2)
             for line in s.hud_lines(self.fps):
-                g.text(line, WARNING if "diverged" in line or "not converged" in line else None)
+                colour = WARNING if "diverged" in line or "not converged" in line or "stiff" in line else None
+                for part in textwrap.wrap(line, width, subsequent_indent="  ") or [""]:
+                    g.text(part, colour)
             if len(s.runners) > 1:
                 uv, _ = self.renderer.camera.project(np.array(self.renderer.label_points()))
                 order = np.argsort(uv[:, 0])

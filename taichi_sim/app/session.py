@@ -313,8 +313,8 @@ class Session:
     def status(self) -> str:
         """The run status for the HUD: paused, running, or what stopped every run."""
         failed = [r for r in self.runners if r.frozen]
-        if len(failed) == len(self.runners):
-            return failed[0].failure if len(failed) == 1 else "every run stopped"
+        if len(failed) == len(self.runners):  # the runners' lines say why
+            return f"stopped ({failed[0].status.value})" if len(failed) == 1 else "every run stopped"
         return "paused" if self.paused else "running"
 
     def hud_lines(self, fps: float | None = None) -> list[str]:
