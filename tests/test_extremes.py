@@ -85,11 +85,24 @@ def test_bench_extremes_writes_its_table_and_fails_on_a_silent_run(tmp_path, cap
     assert "silent" in table and "symplectic_euler" in table
 
 
+def test_bench_extremes_takes_a_cloth_of_any_size(tmp_path):
+    from taichi_sim.cli import main
+
+    out = tmp_path / "ext"
+    assert main(["bench", "extremes", "--quiet", "--out", str(out), "--scenes", "cloth3",
+                 "--integrators", "symplectic_euler", "--stiffnesses", "1", "--step-sizes", "1e-3",
+                 "--steps", "2"]) == 0
+    data = json.loads((out / "extremes.json").read_text())
+    assert data["config"]["scenes"] == {"cloth3": ["cloth", {"nx": 3, "ny": 3}]}
+    assert [r["outcome"] for r in data["rows"]] == ["ok"]
+
+
 @pytest.mark.parametrize("args, message", [
     (["--stiffnesses", "-1"], "--stiffnesses"),
     (["--step-sizes", "0"], "--step-sizes"),
     (["--step-sizes", "1/0"], "--step-sizes"),
     (["--scenes", "sprinkler"], "sprinkler"),
+    (["--scenes", "cloth1"], "cloth1"),
     (["--steps", "0"], "--steps"),
 ])
 def test_bench_extremes_refuses_bad_input_in_one_line(tmp_path, capsys, args, message):

@@ -249,8 +249,18 @@ def _plan_extremes(args):
     from ..integrators import INTEGRATORS
     from .extremes import QUICK_SCENES, SCENES, STEP_SIZES, STEPS, STIFFNESSES
 
-    scenes_all = QUICK_SCENES if args.quick else SCENES
-    scenes = _names(getattr(args, "scenes", None), list(scenes_all), "scenes") or list(scenes_all)
+    scenes_all = dict(QUICK_SCENES if args.quick else SCENES)
+    asked = getattr(args, "scenes", None)
+    for name in (asked or "").split(","):  # clothN: an N x N cloth
+        name = name.strip()
+        if name.startswith("cloth") and name[5:].isdigit():
+            if not 2 <= int(name[5:]) <= 256:
+                raise ConfigError(f"--scenes: {name} needs a side from 2 to 256")
+            scenes_all[name] = ("cloth", {"nx": int(name[5:]), "ny": int(name[5:])})
+    try:
+        scenes = _names(asked, list(scenes_all), "scenes") or list(scenes_all)
+    except ConfigError as exc:
+        raise ConfigError(f"{str(exc)[:-1]}, or clothN for an N x N cloth)") from None
     integrators = _names(getattr(args, "integrators", None), list(INTEGRATORS), "integrators") or list(INTEGRATORS)
     stiffnesses = _float_list(getattr(args, "stiffnesses", None), "stiffnesses", STIFFNESSES)
     step_sizes = _float_list(getattr(args, "step_sizes", None), "step-sizes", STEP_SIZES)
