@@ -213,16 +213,24 @@ class VelocityStage:
             slope -= self.rhs[i].dot(self.delta[i])
         bad = 0
         for i in self.point.x:
-            if self.system.free[i]:
-                v = self.point.v[i] + fraction * self.delta[i]
-                x = y0.x[i] + tau * v
-                self.point.v[i] = v
-                self.point.x[i] = x
-                if not (finite(x) and finite(v)):
-                    bad += 1
+            bad += self._move_point(i, y0, tau, fraction)
         g2, s2, e2, change, kinetic, potential, dissipation = self._stage_sums(y0, tau, t)
         return (g2, s2, e2, change, kinetic, potential, dissipation, slope, bad,
                 ti.math.nan, ti.math.nan, ti.math.nan)
+
+    @ti.func
+    def _move_point(self, i, y0, tau, fraction):
+        """Move free particle i of the iterate by ``fraction`` of the Newton step (V += fraction
+        dV, X = x0 + tau V); 1 when the result is not finite, else 0."""
+        bad = 0
+        if self.system.free[i]:
+            v = self.point.v[i] + fraction * self.delta[i]
+            x = y0.x[i] + tau * v
+            self.point.v[i] = v
+            self.point.x[i] = x
+            if not (finite(x) and finite(v)):
+                bad = 1
+        return bad
 
     @ti.kernel
     def _place(self, y0: ti.template(), tau: float, use_guess: ti.i32):
@@ -258,13 +266,7 @@ class VelocityStage:
     def _advance(self, y0: ti.template(), tau: float, fraction: float) -> ti.i32:
         bad = 0
         for i in self.point.x:
-            if self.system.free[i]:
-                v = self.point.v[i] + fraction * self.delta[i]
-                x = y0.x[i] + tau * v
-                self.point.v[i] = v
-                self.point.x[i] = x
-                if not (finite(x) and finite(v)):
-                    bad += 1
+            bad += self._move_point(i, y0, tau, fraction)
         return bad
 
     @ti.kernel
