@@ -47,6 +47,10 @@ STABILITY_CONSTANT: dict[str, float] = {
     "implicit_euler": math.inf,
     "implicit_euler_linearised": math.inf,
     "implicit_midpoint": math.inf,
+    # Springs solved implicitly at any step (the explicit forces, gravity, drag and wind, are
+    # not stiff): see the classes' docstrings.
+    "projective_dynamics": math.inf,
+    "xpbd": math.inf,
 }
 
 # |R(i theta)|^2 per step of the methods that grow on the imaginary axis (DESIGN.md section 5).

@@ -6,7 +6,7 @@ import math
 COLORS = {"euler": "#d62728", "trapezoid": "#ff7f0e", "midpoint": "#bcbd22", "rk4": "#1f77b4",
           "symplectic_euler": "#2ca02c", "rk45": "#9467bd", "rkf45": "#8c564b",
           "implicit_euler": "#e377c2", "implicit_euler_linearised": "#f7b6d2",
-          "implicit_midpoint": "#17becf"}
+          "implicit_midpoint": "#17becf", "projective_dynamics": "#7f7f7f", "xpbd": "#000000"}
 OUTCOME_COLORS = {"ok": "#2ca02c", "reported": "#ffbf00", "silent": "#d62728", "error": "#000000"}
 DPI = 72
 
@@ -228,5 +228,34 @@ def throughput(rows: list[dict], details: dict, out) -> None:
     else:
         ax_feat.axis("off")
     fig.tight_layout(rect=(0, 0.09, 1, 1))
+    fig.savefig(out, format="png", dpi=DPI)
+    plt.close(fig)
+
+
+def stiff_cloth(rows: list[dict], details: dict, out) -> None:
+    """One panel per stiffness: rms position error at T against wall time, a line per method
+    through its step sizes (marked by size: larger marker, larger step)."""
+    import matplotlib.pyplot as plt
+
+    stiffnesses = sorted({r["k"] for r in rows})
+    fig, axes = plt.subplots(1, len(stiffnesses), figsize=(5.6 * len(stiffnesses), 4.8), squeeze=False)
+    methods = list(dict.fromkeys(r["method"] for r in rows))
+    styles = ["-", "--", ":", "-."]
+    for ax, k in zip(axes[0], stiffnesses):
+        for m, method in enumerate(methods):
+            mine = sorted((r for r in rows if r["k"] == k and r["method"] == method and r["status"] == "ok"
+                           and _finite(r.get("error_rms")) and _finite(r.get("wall_s"))), key=lambda r: -r["h"])
+            if not mine:
+                continue
+            name = mine[0]["integrator"]
+            ax.plot([r["wall_s"] for r in mine], [r["error_rms"] for r in mine], styles[m % len(styles)],
+                    color=_color(name), label=method, marker="o", markersize=4)
+        _log_axes(ax)
+        ax.set_title(f"k = {k:g} N/m ({details['size']}x{details['size']} cloth, T = {details['t_end']:g} s)")
+        ax.set_xlabel("wall time (s)")
+        ax.set_ylabel("rms position error at T (m)")
+        ax.grid(True, which="major", alpha=0.3)
+    axes[0][0].legend(fontsize=7, loc="best")
+    fig.tight_layout()
     fig.savefig(out, format="png", dpi=DPI)
     plt.close(fig)

@@ -8,12 +8,13 @@ from .adaptive import DormandPrince45, EmbeddedRK, Fehlberg45
 from .base import Integrator, Status, StepReport
 from .explicit_rk import RK4, Euler, ExplicitRK, Midpoint, Trapezoid
 from .implicit import ImplicitEuler, ImplicitEulerLinearised, ImplicitMidpoint, LinearSolverStats
+from .positional import XPBD, ProjectiveDynamics
 from .symplectic import SymplecticEuler
 from .tableau import ButcherTableau
 
 INTEGRATORS: dict[str, type[Integrator]] = {
     cls.name: cls for cls in (Euler, Trapezoid, Midpoint, RK4, SymplecticEuler, DormandPrince45, Fehlberg45,
-                              ImplicitEuler, ImplicitEulerLinearised, ImplicitMidpoint)
+                              ImplicitEuler, ImplicitEulerLinearised, ImplicitMidpoint, ProjectiveDynamics, XPBD)
 }
 
 

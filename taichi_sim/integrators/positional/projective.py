@@ -1,0 +1,240 @@
+"""Projective dynamics for mass-spring systems: local projections and one constant matrix."""
+
+import math
+import time
+
+import numpy as np
+import taichi as ti
+
+from ... import runtime
+from ...errors import ConfigError
+from ...systems.base import System
+from ..base import Integrator, Status, StepReport
+from ..implicit.common import positive_int
+from .external import ExplicitForces
+
+
+@ti.data_oriented
+class ProjectiveDynamics(Integrator):
+    """Projective dynamics (Liu, Bargteil, O'Brien & Kavan 2013, "Fast simulation of mass-spring
+    systems"; Bouaziz et al. 2014): backward Euler on the springs by local/global iterations.
+
+    A step of h seconds minimises over the new positions x
+
+        g(x) = |x - y|_M^2 / (2 h^2) + sum_s k_s |x_i - x_j - d_s|^2 / 2
+               + sum_s c_s |(x_i - x_j) - (x0_i - x0_j)|^2 / (2 h) + grab terms,
+
+    y = x0 + h v0 + h^2 M^-1 f_ext (gravity, drag, wind, taken explicitly at the step's start),
+    over x and the spring directions d_s (|d_s| = rest length). Starting from x = y it
+    alternates the *local* step (each d_s = r_s (x_i - x_j) / |x_i - x_j|, one kernel that also
+    gathers the right-hand side) and the *global* step, a linear solve with the constant
+    matrix A = M / h^2 + L_k + L_c / h (+ the grab's k + c/h on its particle), L_k and L_c the
+    spring graph's Laplacians weighted by stiffness and damping. A is the same for x, y and z
+    (an n x n matrix, not 3n x 3n) and is factorised (Taichi's sparse Cholesky) once per
+    topology and step size: again only when a spring tears, a grab starts or ends, the step
+    size changes or :meth:`reset` is called (a stiffness, damping or pin changed). Then
+    v = (x - x0) / h.
+
+    What it converges to: every iteration lowers g, and g's minimiser is the backward Euler
+    step of the springs with spring forces exact; so with enough ``iterations`` (or a
+    ``tolerance``) PD approaches :class:`~taichi_sim.integrators.ImplicitEuler`'s step on a
+    scene whose other forces are constant (gravity), and it is unconditionally stable like it.
+    What it damps: backward Euler's artificial damping, plus, with few iterations, a stiff
+    cloth left partly unsolved (it stretches and swings more softly than the exact step).
+    Unlike the force springs' dashpots, which act only along each spring, PD's dashpots damp
+    the whole relative velocity of the two ends (isotropic, so A stays one scalar matrix);
+    with the default cloth damping the difference is small next to backward Euler's own
+    damping. ``chebyshev_rho`` > 0 turns on Chebyshev semi-iterative acceleration (Wang
+    2015, "A Chebyshev semi-iterative approach for accelerating projective and position-based
+    dynamics") with that estimated spectral radius; a rho above the true one can make the
+    iterations oscillate, which is why it is off by default.
+
+    Args:
+        system: a particle system (second order).
+        iterations: local/global iterations per step (>= 1, default 10); the most, when a
+            ``tolerance`` is given.
+        tolerance: None (run all ``iterations``), or stop once the largest position change of
+            an iteration is below ``tolerance`` times the largest displacement of the step.
+        chebyshev_rho: 0 (off) or the spectral radius estimate in (0, 1) for Chebyshev
+            acceleration.
+    """
+
+    name = "projective_dynamics"
+    order = 1
+    requires_second_order = True
+    description = "projective dynamics: local/global backward Euler with one prefactorised matrix"
+
+    def __init__(self, system: System, *, iterations: int = 10, tolerance: float | None = None,
+                 chebyshev_rho: float = 0.0):
+        super().__init__(system)
+        self.iterations = positive_int("iterations", iterations)
+        if tolerance is not None and (isinstance(tolerance, bool) or not isinstance(tolerance, (int, float))
+                                      or not 0 < tolerance < 1):
+            raise ConfigError(f"tolerance must be None or a number in (0, 1), got {tolerance!r}")
+        self.tolerance = None if tolerance is None else float(tolerance)
+        if isinstance(chebyshev_rho, bool) or not isinstance(chebyshev_rho, (int, float)) \
+                or not 0 <= chebyshev_rho < 1:
+            raise ConfigError(f"chebyshev_rho must be a number in [0, 1), got {chebyshev_rho!r}")
+        self.chebyshev_rho = float(chebyshev_rho)
+        if system.term("springs") is not None and runtime.backend() not in ("x64", "arm64"):
+            raise ConfigError(f"projective_dynamics factorises on the CPU backend only (this run uses "
+                              f"{runtime.backend()}); use xpbd")
+        real, n = runtime.real(), system.particle_count
+        self.external = ExplicitForces(system)
+        self.springs = system.term("springs")
+        self.grab = system.term("grab")
+        self.has_springs, self.has_grab = self.springs is not None, self.grab is not None
+        self.start = ti.Vector.field(3, real, shape=n)  # x0 (m)
+        self.inertial = ti.Vector.field(3, real, shape=n)  # y (m)
+        self.earlier = ti.Vector.field(3, real, shape=n)  # the iterate before last (Chebyshev)
+        self.rhs = ti.Vector.field(3, real, shape=n)  # global step's right-hand side (N)
+        self.solved = ti.Vector.field(3, real, shape=n)  # the global step's solution (m)
+        self.solver = None
+        self.factored_key = None
+        self.builder = None
+        if self.springs is not None or self.grab is not None:
+            springs = self.springs.spring_count if self.springs is not None else 0
+            self.builder = ti.linalg.SparseMatrixBuilder(n, n, max_num_triplets=n + 4 * springs + 1, dtype=real)
+        self.factorisations = 0
+        self.factorise_seconds = 0.0
+        self.total_iterations = 0
+
+    def reset(self) -> None:
+        """Refactorise before the next step (stiffness, damping or pins changed)."""
+        self.factored_key = None
+
+    def step(self, state, t: float, h: float) -> StepReport:
+        self._begin(state, h, t)
+        if self.builder is None:  # nothing coupled or solved: x = y
+            self._finish(state, h)
+            return StepReport(accepted=True, h=h, next_h=h, f_evals=1)
+        self._factorise_if_needed(h)
+        if self.solver is None:
+            return StepReport(accepted=False, h=0.0, next_h=h, f_evals=1, status=Status.DIVERGED,
+                              message="projective dynamics: the global matrix is not positive definite")
+        omega = 1.0
+        iterations = 0
+        for k in range(self.iterations):
+            iterations += 1
+            self._local_step(state, h)
+            rhs = self.rhs.to_numpy()
+            solution = np.empty_like(rhs)
+            for axis in range(3):
+                solution[:, axis] = self.solver.solve(np.ascontiguousarray(rhs[:, axis]))
+            self.solved.from_numpy(solution.astype(runtime.np_real(), copy=False))
+            if self.chebyshev_rho > 0.0:
+                rho2 = self.chebyshev_rho ** 2
+                omega = 1.0 if k == 0 else (2.0 / (2.0 - rho2) if k == 1 else 4.0 / (4.0 - rho2 * omega))
+            change, displacement = self._accept(state, omega)
+            if self.tolerance is not None and change <= self.tolerance * max(displacement, 1e-300):
+                break
+        self._finish(state, h)
+        self.total_iterations += iterations
+        return StepReport(accepted=True, h=h, next_h=h, f_evals=1, linear_iterations=iterations)
+
+    # -- the constant matrix --------------------------------------------------------------------
+
+    def _factorise_if_needed(self, h: float) -> None:
+        topology = self.springs.topology_version if self.springs is not None else 0
+        grabbed = int(self.grab.particle[None]) if self.grab is not None else -1
+        key = (h, topology, grabbed)
+        if key == self.factored_key:
+            return
+        start = time.perf_counter()
+        self._assemble(self.builder, h)
+        matrix = self.builder.build()
+        solver = ti.linalg.SparseSolver(dtype=runtime.real(), solver_type="LLT")
+        solver.analyze_pattern(matrix)
+        solver.factorize(matrix)
+        self.solver = solver if solver.info() else None
+        self.factored_key = key if self.solver is not None else None
+        self.factorisations += 1
+        self.factorise_seconds += time.perf_counter() - start
+
+    @ti.kernel
+    def _assemble(self, builder: ti.types.sparse_matrix_builder(), h: float):
+        for i in self.system.free:
+            diagonal = ti.cast(1.0, self.start.dtype)
+            if self.system.free[i]:
+                diagonal = self.system.mass[i] / (h * h)
+                if ti.static(self.has_grab):
+                    if i == self.grab.particle[None]:
+                        diagonal += self.grab.stiffness[None] + self.grab.damping[None] / h
+            builder[i, i] += diagonal
+        if ti.static(self.has_springs):
+            springs = self.springs
+            for s in springs.rest:
+                if springs.is_alive(s):
+                    i, j = springs.ends[s][0], springs.ends[s][1]
+                    weight = springs.stiffness[s] + springs.damping[s] / h
+                    if self.system.free[i]:
+                        builder[i, i] += weight
+                    if self.system.free[j]:
+                        builder[j, j] += weight
+                    if self.system.free[i] and self.system.free[j]:
+                        builder[i, j] -= weight
+                        builder[j, i] -= weight
+
+    # -- kernels --------------------------------------------------------------------------------
+
+    @ti.kernel
+    def _begin(self, y: ti.template(), h: float, t: float):
+        self.external.gather(y, t)
+        for i in y.x:
+            self.start[i] = y.x[i]
+            target = y.x[i]
+            if self.system.free[i]:
+                target += h * y.v[i] + h * h * self.external.force[i] / self.system.mass[i]
+            self.inertial[i] = target
+            self.earlier[i] = target
+            y.x[i] = target
+
+    @ti.kernel
+    def _local_step(self, y: ti.template(), h: float):
+        """Project every spring at the iterate ``y.x`` and gather the global step's right-hand
+        side: per particle, a pass over its own springs (no atomics)."""
+        for i in y.x:
+            b = self.start[i]  # a pinned particle's row is the identity
+            if self.system.free[i]:
+                b = self.system.mass[i] / (h * h) * self.inertial[i]
+                if ti.static(self.has_grab):
+                    if i == self.grab.particle[None]:
+                        b += self.grab.stiffness[None] * self.grab.target[None] \
+                            + self.grab.damping[None] / h * self.start[i]
+                if ti.static(self.has_springs):
+                    springs = self.springs
+                    for e in range(springs.offsets[i], springs.offsets[i + 1]):
+                        s = springs.incident[e]
+                        if springs.is_alive(s):
+                            j = springs.other[e]
+                            d = y.x[i] - y.x[j]
+                            length = d.norm()
+                            k, c = springs.stiffness[s], springs.damping[s]
+                            if length > 0.0:
+                                b += k * springs.rest[s] / length * d
+                            b += c / h * (self.start[i] - self.start[j])
+                            if not self.system.free[j]:  # its column moved to the right-hand side
+                                b += (k + c / h) * self.start[j]
+            self.rhs[i] = b
+
+    @ti.kernel
+    def _accept(self, y: ti.template(), omega: float) -> (float, float):
+        """x <- omega (solution - earlier) + earlier (Chebyshev; omega = 1: the solution), keeping
+        the iterate before as ``earlier``; returns (largest change of this iteration, largest
+        displacement from the step's start) in m."""
+        change = 0.0
+        displacement = 0.0
+        for i in y.x:
+            if self.system.free[i]:
+                new = omega * (self.solved[i] - self.earlier[i]) + self.earlier[i]
+                ti.atomic_max(change, (new - y.x[i]).norm())
+                ti.atomic_max(displacement, (new - self.start[i]).norm())
+                self.earlier[i] = y.x[i]
+                y.x[i] = new
+        return change, displacement
+
+    @ti.kernel
+    def _finish(self, y: ti.template(), h: float):
+        for i in y.x:
+            if self.system.free[i]:
+                y.v[i] = (y.x[i] - self.start[i]) / h
