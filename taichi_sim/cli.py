@@ -100,6 +100,17 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--newton-tolerance", type=_positive_float,
                      help="relative nonlinear residual at which Newton stops, in (0, 1) (default 1e-3 "
                           "for implicit_euler on particles, else 1e-6 in f64 / 1e-5 in f32)")
+    sim.add_argument("--substeps", type=_positive_int,
+                     help="substeps per step of xpbd (default 10)")
+    sim.add_argument("--iterations", type=_positive_int,
+                     help="Gauss-Seidel sweeps per substep of xpbd (default 1), or local/global "
+                          "iterations per step of projective_dynamics (default 10)")
+    sim.add_argument("--pd-tolerance", dest="tolerance", type=_positive_float,
+                     help="projective_dynamics stops iterating once an iteration moves no particle "
+                          "by more than this fraction of the step's largest displacement, in (0, 1)")
+    sim.add_argument("--chebyshev-rho", type=float,
+                     help="projective_dynamics' Chebyshev acceleration: the spectral radius "
+                          "estimate in [0, 1) (default 0: off)")
     sim.add_argument("--max-energy-growth", type=_positive_float, metavar="F",
                      help="the blow-up guard's energy bound: the run is diverged when its energy "
                           "rises more than F energy scales above the start (default 10)")
@@ -132,7 +143,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     bench = sub.add_parser("bench", help="measure accuracy, stability and speed (CSV, JSON and PNG into --out)")
     bench_sub = bench.add_subparsers(dest="bench_command", parser_class=_Parser, required=True,
-                                     metavar="{work-precision,stability,throughput,extremes,all}")
+                                     metavar="{work-precision,stability,throughput,extremes,stiff-cloth,all}")
     bench_parsers = {
         "work-precision": bench_sub.add_parser("work-precision", help="error against cost, observed orders"),
         "stability": bench_sub.add_parser("stability", help="largest stable step against C/omega_max"),
@@ -140,6 +151,8 @@ def build_parser() -> argparse.ArgumentParser:
                                            "feature; against the Taichi and warp peers"),
         "extremes": bench_sub.add_parser("extremes", help="every integrator at extreme stiffness and step: "
                                          "bounded, reported, or a silent blow-up (exit 1)"),
+        "stiff-cloth": bench_sub.add_parser("stiff-cloth", help="large-step methods on a stiff cloth: error "
+                                            "against wall time, and their artificial damping"),
         "all": bench_sub.add_parser("all", help="work-precision, stability and throughput, one after the other"),
     }
     for name, p in bench_parsers.items():
@@ -164,6 +177,13 @@ def build_parser() -> argparse.ArgumentParser:
     ex.add_argument("--stiffnesses", metavar="K,K,...", help="spring stiffness in N/m (default 1,1e4,1e8)")
     ex.add_argument("--step-sizes", metavar="H,H,...", help="steps in s, fractions allowed (default 1e-6,1/60,1)")
     ex.add_argument("--steps", type=_positive_int, help="steps per run (default 30; --quick 10)")
+    sc = bench_parsers["stiff-cloth"]
+    sc.add_argument("--size", type=_positive_int, help="cloth side (default 32; --quick 8)")
+    sc.add_argument("--stiffnesses", metavar="K,K,...", help="structural stiffness in N/m (default 1e2,1e4,1e8)")
+    sc.add_argument("--step-sizes", metavar="H,H,...", help="steps in s, fractions allowed (default 1/60,1/120,1/240,1/480)")
+    sc.add_argument("--t-end", type=_positive_float, help="simulated time in s (default 0.5)")
+    sc.add_argument("--budget", type=_positive_float, metavar="S",
+                    help="seconds of one run above which finer steps of that method are skipped (default 60)")
     tp = bench_parsers["throughput"]
     tp.add_argument("--sizes", metavar="N,N,...", help="grid sides (default 32,64,128,256,512; --quick 8,16)")
     tp.add_argument("--precisions", metavar="f32,f64", help="default both (--quick f32)")
@@ -218,7 +238,8 @@ def cmd_simulate(args) -> int:
     integrator_name = args.integrator or preset.default_integrator
     options = {name: getattr(args, name)
                for name in ("rtol", "atol", "linear_solver", "newton_iterations", "newton_tolerance",
-                            "max_step", "cg_tolerance")
+                            "max_step", "cg_tolerance", "substeps", "iterations", "tolerance",
+                            "chebyshev_rho")
                if getattr(args, name) is not None}
     adaptive = check_options(integrator_name, options).adaptive
     dt = args.dt if args.dt is not None or adaptive else preset.default_dt

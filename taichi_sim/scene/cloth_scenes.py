@@ -189,4 +189,10 @@ CLOTH_SCENES = (
                               wind_speed=8.0, wind_heading=15.0, particle_mass=0.0004, stiffness=40.0,
                               shear_stiffness=20.0, flex_stiffness=8.0, jitter=0.002),
                 build_cloth, default_dt=1e-3, default_integrator="symplectic_euler"),
+    # Nearly inextensible cloth at one step per 60 Hz frame: symplectic Euler would need about
+    # 2000 steps per frame here (h < 2 / omega_max), XPBD takes one step of 20 substeps.
+    ScenePreset("cloth-stiff", "a nearly inextensible cloth (k = 1e6 N/m) at one 1/60 s step per "
+                "frame with XPBD",
+                with_defaults(CLOTH_PARAMS, stiffness=1e6, shear_stiffness=5e5, flex_stiffness=2e5),
+                build_cloth, default_dt=1 / 60, default_integrator="xpbd"),
 )
