@@ -293,6 +293,57 @@ def _plan_extremes(args):
     return run
 
 
+def _plan_stiff_cloth(args):
+    from .stiffcloth import METHODS, STEPS
+
+    size = getattr(args, "size", None) or (8 if args.quick else 32)
+    if not 2 <= size <= 256:
+        raise ConfigError(f"--size must be from 2 to 256, got {size}")
+    stiffnesses = _float_list(getattr(args, "stiffnesses", None), "stiffnesses",
+                              (1e4,) if args.quick else (1e2, 1e4, 1e8))
+    if any(k <= 0 for k in stiffnesses):
+        raise ConfigError("--stiffnesses must all be > 0")
+    steps = _float_list(getattr(args, "step_sizes", None), "step-sizes", STEPS[:2] if args.quick else STEPS)
+    t_end = getattr(args, "t_end", None) or (0.1 if args.quick else 0.5)
+    budget = getattr(args, "budget", None) or (10.0 if args.quick else 60.0)
+    studied = list(dict.fromkeys(name for name, _ in METHODS))
+    chosen = _names(getattr(args, "integrators", None), studied, "integrators") or studied
+    methods = tuple(m for m in METHODS if m[0] in chosen)
+
+    def run(out):
+        from .. import runtime
+        from . import plots
+        from .stiffcloth import run_stiff_cloth, task_count
+
+        runtime.init(arch="cpu", precision="f64")
+        with common.progress_bar(task_count(stiffnesses, steps, methods), "stiff-cloth", args.quiet) as bar:
+            rows, details = run_stiff_cloth(size, stiffnesses, steps, methods, t_end=t_end, budget_s=budget,
+                                            progress=bar)
+        payload = {**_meta("stiff-cloth", args, {"size": size, "stiffnesses": stiffnesses, "step_sizes": steps,
+                                                  "t_end": t_end, "budget_s": budget, "precision": "f64"}),
+                   **details}
+        paths = common.write_outputs(out, "stiff-cloth", rows, payload, lambda f: plots.stiff_cloth(rows, details, f))
+        if not args.quiet:
+            print_stiff_cloth(rows, details)
+        common.report_written(paths, args.quiet)
+
+    return run
+
+
+def print_stiff_cloth(rows: list[dict], details: dict) -> None:
+    print(f"{details['size']}x{details['size']} cloth, rms position error at T = {details['t_end']:g} s against "
+          f"symplectic Euler at a quarter of its stable step (f64):")
+    print(common.format_table(
+        ["k (N/m)", "method", "h (s)", "status", "ms/step", "rms error (m)"],
+        [[f"{r['k']:g}", r["method"], f"{r['h']:.3g}", r["status"], _fmt(r.get("ms_per_step")),
+          _fmt(r.get("error_rms"))] for r in rows]))
+    print("Artificial damping (no dashpots, no drag; h = 1/60 s, 1 s):")
+    print(common.format_table(
+        ["k (N/m)", "method", "status", "energy lost per s", "highest rise above start (J)"],
+        [[f"{d['k']:g}", d["method"], d["status"], f"{100 * d['fraction_lost_per_s']:.1f} %",
+          _fmt(max(d["energy_rise"], 0.0))] for d in details["damping"]]))
+
+
 def print_extremes(rows: list[dict], table: dict) -> None:
     print("Runs at the extremes: ok (bounded, status ok), reported (status not ok, with a message), "
           "silent (status ok, but the audit finds a blow-up), error (a crash):")
@@ -305,7 +356,7 @@ def print_extremes(rows: list[dict], table: dict) -> None:
                   f"dt={row['dt']:g}: {row['reason']}")
 
 
-PLANNERS = {"work-precision": _plan_work_precision, "stability": _plan_stability, "throughput": _plan_throughput,
+PLANNERS = {"stiff-cloth": _plan_stiff_cloth, "work-precision": _plan_work_precision, "stability": _plan_stability, "throughput": _plan_throughput,
             "extremes": _plan_extremes}
 
 

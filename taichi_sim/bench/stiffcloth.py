@@ -1,0 +1,144 @@
+"""The stiff-cloth study: error against wall time of the large-step methods on a cloth at
+frame-sized steps, and the artificial damping each one adds.
+
+Reference: symplectic Euler at a quarter of its stable step 2 / omega_max (omega_max bounded
+from above by Gershgorin, :func:`taichi_sim.theory.omega_max_bound`), in f64. It is the right
+one because it solves the same ODE as every method studied (the mass-spring model with its
+dashpots, drag and gravity) and converges to its solution, with no solver tolerance in the
+way; its own error is that of a step hundreds of times smaller than the studied ones (its
+position error is first order in h, so about that many times smaller than a first-order
+method's at the studied steps). A backward Euler reference would be biased toward the
+backward Euler family (the same damping), a position-level one toward XPBD.
+"""
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+METHODS: tuple[tuple[str, dict], ...] = (
+    ("implicit_euler", {}),
+    ("implicit_euler_linearised", {}),
+    ("projective_dynamics", {"iterations": 5}),
+    ("projective_dynamics", {"iterations": 20}),
+    ("xpbd", {"substeps": 10}),
+    ("xpbd", {"substeps": 50}),
+    ("xpbd", {"substeps": 10, "iterations": 4}),
+)
+STEPS = (1 / 60, 1 / 120, 1 / 240, 1 / 480)
+
+
+def label(name: str, options: dict) -> str:
+    """``xpbd(substeps=10)``-style name of a method and its options."""
+    if not options:
+        return name
+    return f"{name}({', '.join(f'{k}={v}' for k, v in options.items())})"
+
+
+def cloth_params(size: int, k: float, conservative: bool = False) -> dict:
+    """A size x size cloth with structural stiffness k (N/m; shear k/2, flex k/5, the cloth
+    family's ratios); ``conservative``: no dashpots, no drag."""
+    params = {"nx": size, "ny": size, "stiffness": k, "shear_stiffness": k / 2, "flex_stiffness": k / 5}
+    if conservative:
+        params.update(damping=0.0, drag=0.0)
+    return params
+
+
+def reference_solution(size: int, k: float, t_end: float) -> tuple[np.ndarray, float]:
+    """(positions (n, 3) at t_end, the step used (s)) of the reference (see the module doc)."""
+    import taichi_sim as ts
+    from ..theory import omega_max_bound
+
+    scene = ts.build_scene("cloth", cloth_params(size, k))
+    steps = math.ceil(t_end / (0.25 * 2.0 / omega_max_bound(scene.arrays)))
+    h = t_end / steps
+    result = ts.run(scene, "symplectic_euler", dt=h, steps=steps, energy_every=0)
+    if result.status.value != "ok":
+        raise RuntimeError(f"reference run failed: {result.message}")
+    return scene.state.to_numpy()[0].astype(float), h
+
+
+def timed_run(size: int, k: float, name: str, options: dict, h: float, t_end: float, *,
+              conservative: bool = False) -> dict:
+    """One run of ``t_end`` s at step h from a fresh scene, after an untimed two-step run
+    (compilation); the state is reset before the timed run."""
+    import taichi_sim as ts
+    from ..integrators import create_integrator
+
+    scene = ts.build_scene("cloth", cloth_params(size, k, conservative))
+    integrator = create_integrator(name, scene.system, **options)
+    # Warm-up through the same path (the guard's and the energy's kernels compile too).
+    ts.run(scene, integrator, dt=h, steps=2, energy_every=1 if conservative else 0)
+    scene.reset()
+    integrator.reset()
+    steps = max(1, round(t_end / h))
+    energy0 = scene.energy()
+    start = time.perf_counter()
+    result = ts.run(scene, integrator, dt=h, steps=steps, energy_every=1 if conservative else 0)
+    wall = time.perf_counter() - start
+    energy = np.asarray(result.energy) if conservative else np.zeros(0)
+    return {"k": k, "h": h, "method": label(name, options), "integrator": name, "status": result.status.value,
+            "steps": result.steps, "wall_s": wall, "ms_per_step": 1e3 * wall / max(result.steps, 1),
+            "x": scene.state.to_numpy()[0].astype(float), "energy0": energy0,
+            "energy_end": float(energy[-1]) if len(energy) else math.nan,
+            "energy_rise": float(np.max(energy) - energy0) if len(energy) else math.nan}
+
+
+def run_stiff_cloth(size: int, stiffnesses, steps=STEPS, methods=METHODS, t_end: float = 0.5,
+                    budget_s: float = 60.0, progress=None) -> tuple[list[dict], dict]:
+    """The error-vs-time rows (one per stiffness, method and step) and the damping rows.
+
+    A method whose run at one step took more than ``budget_s`` s is not run at finer steps (a
+    row with status ``skipped`` says so). Symplectic Euler runs once per stiffness, at 0.9 of
+    its stable step bound. Errors: rms and largest distance (m) of the particles from the
+    reference at ``t_end``.
+    """
+    from ..theory import omega_max_bound
+    import taichi_sim as ts
+
+    rows, references = [], {}
+    for k in stiffnesses:
+        x_ref, h_ref = reference_solution(size, k, t_end)
+        references[k] = h_ref
+        bound = 0.9 * 2.0 / omega_max_bound(ts.build_scene("cloth", cloth_params(size, k)).arrays)
+        plan = [(name, options, steps) for name, options in methods] + [("symplectic_euler", {}, (bound,))]
+        for name, options, hs in plan:
+            over_budget = False
+            for h in hs:
+                if progress is not None:
+                    progress.update(1)
+                if over_budget:
+                    rows.append({"k": k, "h": h, "method": label(name, options), "integrator": name,
+                                 "status": "skipped", "note": f"the coarser step took over {budget_s:g} s"})
+                    continue
+                h_run = t_end / max(1, round(t_end / h))
+                row = timed_run(size, k, name, options, h_run, t_end)
+                x = row.pop("x")
+                if row["status"] == "ok":
+                    distance = np.linalg.norm(x - x_ref, axis=1)
+                    row.update(error_rms=float(np.sqrt(np.mean(distance ** 2))), error_max=float(distance.max()))
+                else:
+                    row.update(error_rms=math.nan, error_max=math.nan)
+                row.pop("energy0"), row.pop("energy_end"), row.pop("energy_rise")
+                rows.append(row)
+                over_budget = row["wall_s"] > budget_s
+    damping = []
+    for k in stiffnesses:
+        for name, options in methods:
+            row = timed_run(size, k, name, options, 1 / 60, 1.0, conservative=True)
+            row.pop("x")
+            damping.append({"k": k, "method": row["method"], "status": row["status"],
+                            "energy0": row["energy0"], "energy_end": row["energy_end"],
+                            "energy_lost_per_s": (row["energy0"] - row["energy_end"]) / 1.0,
+                            "fraction_lost_per_s": (row["energy0"] - row["energy_end"]) / abs(row["energy0"]),
+                            "energy_rise": row["energy_rise"]})
+            if progress is not None:
+                progress.update(1)
+    return rows, {"references": {str(k): {"method": "symplectic_euler", "h": h} for k, h in references.items()},
+                  "damping": damping, "size": size, "t_end": t_end, "budget_s": budget_s,
+                  "reference_note": __doc__.split("Reference: ", 1)[1].strip()}
+
+
+def task_count(stiffnesses, steps=STEPS, methods=METHODS) -> int:
+    return len(stiffnesses) * (len(methods) * len(steps) + 1 + len(methods))
