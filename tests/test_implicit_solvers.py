@@ -68,6 +68,57 @@ def test_tearing_triggers_a_new_analysis_and_the_solve_stays_exact(f64):
     assert integrator.stats.analyze_count == len(versions) > 1
 
 
+def _matrix_from_market(path, size: int) -> np.ndarray:
+    """The dense (size, size) matrix of a Matrix Market coordinate file (entries summed)."""
+    lines = [line for line in path.read_text().splitlines() if line and not line.startswith("%")]
+    entries = np.array([line.split() for line in lines[1:]], dtype=float).reshape(-1, 3)
+    dense = np.zeros((size, size))
+    np.add.at(dense, (entries[:, 0].astype(int) - 1, entries[:, 1].astype(int) - 1), entries[:, 2])
+    return dense
+
+
+def test_assembly_is_the_lower_triangle_of_the_matrix_free_product(f64, rng, tmp_path):
+    # The direct solver assembles only the lower triangle (Eigen's LL^T reads only it); with its
+    # mirror it must be the A whose product the residual check and CG use: springs stretched
+    # and compressed (the clamp acts), dashpots, drag, a pinned set and a torn spring.
+    scene = ts.build_scene("cloth", {"nx": 5, "ny": 5, "damping": 0.3, "drag": 0.1, "tear": True})
+    springs = scene.system.term("springs")
+    alive = springs.alive.to_numpy()
+    alive[3] = 0
+    springs.alive.from_numpy(alive)
+    n = scene.particle_count
+    state = scene.system.make_state()
+    state.from_numpy(scene.x0 + rng.normal(scale=0.05, size=(n, 3)), rng.normal(size=(n, 3)))
+    a, b = 1 / 60, 1 / 3600
+    builder = ti.linalg.SparseMatrixBuilder(3 * n, 3 * n, max_num_triplets=scene.system.system_matrix_triplet_capacity,
+                                            dtype=ti.f64)
+    scene.system.assemble_system_matrix(state, a, b, 0.0, builder)
+    builder.build().mmwrite(str(tmp_path / "a.mtx"))
+    lower = _matrix_from_market(tmp_path / "a.mtx", 3 * n)
+    assert not np.triu(lower, 1).any()
+    matrix = lower + np.tril(lower, -1).T
+    p = rng.normal(size=(n, 3))
+    p[scene.arrays["pinned"]] = 0.0
+    direction = ti.Vector.field(3, ti.f64, shape=n)
+    direction.from_numpy(p)
+    out = ti.Vector.field(3, ti.f64, shape=n)
+    _system_matrix_product(scene.system, state, direction, out, a, b)
+    expected = out.to_numpy().reshape(-1)
+    # Pinned rows and columns are the identity's; their unknowns are zero in every solve.
+    free = np.repeat(~scene.arrays["pinned"], 3)
+    product = (matrix @ p.reshape(-1))[free]
+    # mmwrite prints 6 significant digits: each entry is off by at most 5e-6 of itself.
+    bound = 5e-6 * (np.abs(matrix) @ np.abs(p.reshape(-1)))[free] + 1e-15
+    assert np.all(np.abs(product - expected[free]) <= bound)
+
+
+@ti.kernel
+def _system_matrix_product(system: ti.template(), y: ti.template(), p: ti.template(), out: ti.template(),
+                           a: float, b: float):
+    for i in out:
+        out[i] = system.system_matrix_row(i, y, p, a, b, 0.0)
+
+
 def test_cg_iteration_cap_is_not_converged_with_the_residual(f64):
     # A jittered stiff cloth: the block-Jacobi preconditioner alone is far from A^-1.
     scene = ts.build_scene("cloth", STIFF_CLOTH | {"jitter": 1e-3})
