@@ -1,5 +1,5 @@
 """Benchmark: implicit Euler (exact, and the one-step Baraff-Witkin linearisation) on a 64 x 64
-cloth at dt = 1/60 s: CG against the sparse direct solver, in f32 and f64, at one or several
+cloth (``--size``) at dt = 1/60 s: CG against the sparse direct solver, in f32 and f64, at one or several
 stiffnesses.
 
 Run from the repository root (outside pytest):
@@ -7,7 +7,7 @@ Run from the repository root (outside pytest):
     .venv/bin/python benchmarks/bench_implicit.py [--arch cpu] [--batches 7] [--batch-steps 10]
         [--integrators implicit_euler,implicit_euler_linearised] [--stiffness 1e4,1e8]
         [--cg-tolerance TOL] [--preconditioner ssor|jacobi] [--no-warm-start] [--threads N]
-        [--accuracy]
+        [--size N] [--accuracy]
 
 For every (integrator, stiffness, precision, solver) the scene is built fresh, stepped ``--warmup`` times (kernel
 compilation, the direct solver's pattern analysis), then timed over ``--batches`` batches of
@@ -42,8 +42,8 @@ STIFFNESS = 1e4  # N/m, structural, shear and flex alike (the default; --stiffne
 DT = 1 / 60  # s
 
 
-def cloth_params(stiffness: float = STIFFNESS) -> dict:
-    return {"nx": N, "ny": N, "stiffness": stiffness, "shear_stiffness": stiffness, "flex_stiffness": stiffness}
+def cloth_params(stiffness: float = STIFFNESS, size: int = N) -> dict:
+    return {"nx": size, "ny": size, "stiffness": stiffness, "shear_stiffness": stiffness, "flex_stiffness": stiffness}
 
 
 def init(precision: str, args) -> None:
@@ -61,7 +61,7 @@ def integrator_options(args, solver: str = "cg") -> dict:
 
 def bench(name: str, stiffness: float, precision: str, solver: str, args) -> dict:
     init(precision, args)
-    scene = ts.build_scene("cloth", cloth_params(stiffness))
+    scene = ts.build_scene("cloth", cloth_params(stiffness, args.size))
     integrator = ts.create_integrator(name, scene.system, **integrator_options(args, solver))
     stats = integrator.stats
     t = 0.0
@@ -192,6 +192,7 @@ def main() -> None:
                         help="CG's preconditioner (default: the integrator's, ssor on a CPU)")
     parser.add_argument("--no-warm-start", action="store_true", help="start every CG solve from zero")
     parser.add_argument("--threads", type=int, default=None, help="CPU threads (default: all cores)")
+    parser.add_argument("--size", type=int, default=N, help="particles per side of the cloth (speed only)")
     parser.add_argument("--accuracy", action="store_true",
                         help="measure the effect of the CG tolerance on the result instead of speed")
     args = parser.parse_args()
@@ -201,7 +202,7 @@ def main() -> None:
         for precision in precisions:
             accuracy(precision, args)
         return
-    print(f"{N} x {N} cloth ({N * N} particles), dt = 1/60 s; median of {args.batches} batches x "
+    print(f"{args.size} x {args.size} cloth ({args.size ** 2} particles), dt = 1/60 s; median of {args.batches} batches x "
           f"{args.batch_steps} steps after {args.warmup} warm-up steps; warm start "
           f"{'off' if args.no_warm_start else 'on'}")
     print(f"{'integrator':<27}{'k (N/m)':>8} {'precision':<10}{'solver':<13}{'tolerance':>10}{'steps/s':>9}"
