@@ -1,5 +1,5 @@
 """Benchmark: implicit Euler (exact, and the one-step Baraff-Witkin linearisation) on a 64 x 64
-cloth at dt = 1/60 s: CG against the sparse direct solver, in f32 and f64, at one or several
+cloth (``--size``) at dt = 1/60 s: CG against the sparse direct solver, in f32 and f64, at one or several
 stiffnesses.
 
 Run from the repository root (outside pytest):
@@ -7,7 +7,7 @@ Run from the repository root (outside pytest):
     .venv/bin/python benchmarks/bench_implicit.py [--arch cpu] [--batches 7] [--batch-steps 10]
         [--integrators implicit_euler,implicit_euler_linearised] [--stiffness 1e4,1e8]
         [--cg-tolerance TOL] [--preconditioner ssor|jacobi] [--no-warm-start] [--threads N]
-        [--accuracy]
+        [--size N] [--accuracy]
 
 For every (integrator, stiffness, precision, solver) the scene is built fresh, stepped ``--warmup`` times (kernel
 compilation, the direct solver's pattern analysis), then timed over ``--batches`` batches of
@@ -15,8 +15,12 @@ compilation, the direct solver's pattern analysis), then timed over ``--batches`
 range), linear-solver iterations per step, Newton iterations and solved substeps per step (the exact
 method), the linear solver's wall time per step and per
 iteration (CG; the per-solve cache fill and start included), and for the direct solver the mean
-time of one numeric factorisation and of the one-off symbolic analysis. The 1-minute load
-average is printed first: other processes on the machine slow every figure.
+time of one numeric factorisation and of the one-off symbolic analysis. A second table splits
+the direct solver's time per step into its phases: assembly (the kernel filling the matrix
+builder, and ``build()``), numeric factorisation, triangular solves (with the copies of their
+vectors), and the rest of the linear solves (the residual check); the analysis ran in the
+warm-up (it runs once per sparsity pattern) and is given once. The 1-minute load average is
+printed first: other processes on the machine slow every figure.
 
 ``--accuracy`` measures instead what the CG tolerance does to the result, in each precision:
 one step from the same state (t = 0.5 s) and 1 s of simulation, solved by CG at several
@@ -38,8 +42,8 @@ STIFFNESS = 1e4  # N/m, structural, shear and flex alike (the default; --stiffne
 DT = 1 / 60  # s
 
 
-def cloth_params(stiffness: float = STIFFNESS) -> dict:
-    return {"nx": N, "ny": N, "stiffness": stiffness, "shear_stiffness": stiffness, "flex_stiffness": stiffness}
+def cloth_params(stiffness: float = STIFFNESS, size: int = N) -> dict:
+    return {"nx": size, "ny": size, "stiffness": stiffness, "shear_stiffness": stiffness, "flex_stiffness": stiffness}
 
 
 def init(precision: str, args) -> None:
@@ -57,7 +61,7 @@ def integrator_options(args, solver: str = "cg") -> dict:
 
 def bench(name: str, stiffness: float, precision: str, solver: str, args) -> dict:
     init(precision, args)
-    scene = ts.build_scene("cloth", cloth_params(stiffness))
+    scene = ts.build_scene("cloth", cloth_params(stiffness, args.size))
     integrator = ts.create_integrator(name, scene.system, **integrator_options(args, solver))
     stats = integrator.stats
     t = 0.0
@@ -75,6 +79,7 @@ def bench(name: str, stiffness: float, precision: str, solver: str, args) -> dic
     ti.sync()
     iterations0, factorize0, factorize_s0 = stats.iterations, stats.factorize_count, stats.factorize_seconds
     solve_s0, newton0, substeps0 = stats.solve_seconds, stats.newton_iterations, stats.substeps
+    assemble_s0, substitute_s0 = stats.assemble_seconds, stats.substitute_seconds
     rates = []
     for _ in range(args.batches):
         start = time.perf_counter()
@@ -99,6 +104,11 @@ def bench(name: str, stiffness: float, precision: str, solver: str, args) -> dic
                          if factorizations else None),
         "analyze_ms": 1e3 * stats.analyze_seconds if stats.analyze_count else None,
         "analyze_count": stats.analyze_count, "backend": ts.runtime.backend(),
+        "factorizations": factorizations / timed_steps,
+        # The direct solver's phases, ms per step (all zero for CG).
+        "phases": {"assemble": 1e3 * (stats.assemble_seconds - assemble_s0) / timed_steps,
+                   "factorize": 1e3 * (stats.factorize_seconds - factorize_s0) / timed_steps,
+                   "substitute": 1e3 * (stats.substitute_seconds - substitute_s0) / timed_steps},
         "tolerance": integrator.cg_tolerance if integrator.fixed_cg_tolerance else None,
     }
 
@@ -182,6 +192,7 @@ def main() -> None:
                         help="CG's preconditioner (default: the integrator's, ssor on a CPU)")
     parser.add_argument("--no-warm-start", action="store_true", help="start every CG solve from zero")
     parser.add_argument("--threads", type=int, default=None, help="CPU threads (default: all cores)")
+    parser.add_argument("--size", type=int, default=N, help="particles per side of the cloth (speed only)")
     parser.add_argument("--accuracy", action="store_true",
                         help="measure the effect of the CG tolerance on the result instead of speed")
     args = parser.parse_args()
@@ -191,12 +202,13 @@ def main() -> None:
         for precision in precisions:
             accuracy(precision, args)
         return
-    print(f"{N} x {N} cloth ({N * N} particles), dt = 1/60 s; median of {args.batches} batches x "
+    print(f"{args.size} x {args.size} cloth ({args.size ** 2} particles), dt = 1/60 s; median of {args.batches} batches x "
           f"{args.batch_steps} steps after {args.warmup} warm-up steps; warm start "
           f"{'off' if args.no_warm_start else 'on'}")
     print(f"{'integrator':<27}{'k (N/m)':>8} {'precision':<10}{'solver':<13}{'tolerance':>10}{'steps/s':>9}"
           f"{'(min-max)':>16}{'newton':>8}{'substeps':>9}{'iter/step':>11}{'solve/step':>12}{'ms/iter':>9}"
           f"{'factorize':>12}{'analyze':>10}")
+    direct_rows = []
     for name in args.integrators.split(","):
         for stiffness in (float(k) for k in args.stiffness.split(",")):
             for precision in precisions:
@@ -215,7 +227,26 @@ def main() -> None:
                           f"{r['rate']:>9.1f}{spread:>16}{r['newton']:>8.1f}{r['substeps']:>9.2f}"
                           f"{r['iterations']:>11.1f}{r['solve_ms']:>9.2f} ms{per_iteration:>9}{factorize:>12}"
                           f"{analyze:>10}")
+                    if r["solver"] == "cholesky":
+                        direct_rows.append(r)
+    if direct_rows:
+        print_direct_phases(direct_rows)
     print(f"load average (1 min) {os.getloadavg()[0]:.2f}")
+
+
+def print_direct_phases(rows: list[dict]) -> None:
+    """Where the direct solver's time goes, ms per step (means over the timed steps)."""
+    print("\ndirect solver, ms per step: assembly (kernel + build), numeric factorisation, triangular "
+          "solves (+ vector copies), the rest of the solve (residual check); analysis once per pattern")
+    print(f"{'integrator':<27}{'k (N/m)':>8} {'precision':<10}{'fact/step':>10}{'assemble':>10}{'factorize':>11}"
+          f"{'solves':>8}{'rest':>8}{'total':>9}{'analysis':>10}")
+    for r in rows:
+        phases = r["phases"]
+        rest = r["solve_ms"] - sum(phases.values())
+        analyze = f"{r['analyze_ms']:.0f}" if r["analyze_ms"] is not None else "-"
+        print(f"{r['integrator']:<27}{r['stiffness']:>8.0e} {r['precision']:<10}{r['factorizations']:>10.1f}"
+              f"{phases['assemble']:>10.1f}{phases['factorize']:>11.1f}{phases['substitute']:>8.1f}"
+              f"{rest:>8.1f}{r['solve_ms']:>9.1f}{analyze:>10}")
 
 
 if __name__ == "__main__":

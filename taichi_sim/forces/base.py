@@ -27,11 +27,13 @@ class ForceTerm:
     couples_particles = False
     """Whether the force on one particle depends on others (springs). Such a term also provides
     ``@ti.func add_coupling_blocks(i, y, a, b, t, weight, free, builder)``: for every other free
-    particle j it couples to (``free[j] != 0``), add ``weight`` times the 3x3 block
+    particle j < i it couples to (``free[j] != 0``; the lower triangle of the symmetric
+    matrix, the one the sparse Cholesky factorisation reads), add ``weight`` times the 3x3 block
     a df_i/dv_j + b df_i/dx_j to rows 3i..3i+2, columns 3j..3j+2 of a
-    ``ti.types.sparse_matrix_builder()``, and ``coupling_block_capacity``, the most blocks it
-    adds over all particles, and ``topology_version``, an int bumped whenever the set of
-    blocks it adds changes (a direct solver re-analyses the sparsity pattern then)."""
+    ``ti.types.sparse_matrix_builder()``; ``coupling_block_capacity``, the most off-diagonal
+    blocks of the matrix it fills over all particles, in both triangles (twice those it adds);
+    and ``topology_version``, an int bumped whenever the set of blocks it adds changes (a
+    direct solver re-analyses the sparsity pattern then)."""
 
     variational = True
     """Whether the term's force is minus the gradient of its potential :meth:`energy` in x plus

@@ -284,7 +284,8 @@ class Springs(ForceTerm):
 
     @property
     def coupling_block_capacity(self) -> int:
-        """Off-diagonal 3x3 blocks :meth:`add_coupling_blocks` adds at most: two per spring."""
+        """Off-diagonal 3x3 blocks of A the springs fill at most: two per spring (one on each
+        side of the diagonal; :meth:`add_coupling_blocks` adds the one below it)."""
         return 2 * self.spring_count
 
     @ti.func
@@ -425,14 +426,16 @@ class Springs(ForceTerm):
 
     @ti.func
     def add_coupling_blocks(self, i, y, a, b, t, weight, free, builder: ti.template()):
-        """Add ``weight`` (a df_i/dv_j + b df_i/dx_j) for each live spring (i, j) with j free.
+        """Add ``weight`` (a df_i/dv_j + b df_i/dx_j) for each live spring (i, j) with j free and
+        j < i: the blocks below the diagonal (the matrix is symmetric; see
+        :meth:`taichi_sim.systems.ParticleSystem.assemble_system_matrix`).
 
-        Every live spring adds its blocks whatever its state (zero blocks included), so the
+        Every live spring adds its block whatever its state (zero blocks included), so the
         sparsity pattern changes only with ``topology_version``."""
         for e in range(self.offsets[i], self.offsets[i + 1]):
             s = self.incident[e]
             j = self.other[e]
-            if self.is_alive(s) and free[j]:
+            if j < i and self.is_alive(s) and free[j]:
                 block = -weight * self._jacobian_block(s, i, j, y, a, b)
                 for r, c in ti.static(ti.ndrange(3, 3)):
                     builder[3 * i + r, 3 * j + c] += block[r, c]

@@ -170,9 +170,11 @@ class ParticleSystem(System):
 
     @property
     def system_matrix_triplet_capacity(self) -> int:
-        """Most entries :meth:`assemble_system_matrix` adds: 9 per particle and per coupling."""
+        """Most entries :meth:`assemble_system_matrix` adds: the 6 lower-triangle entries of each
+        particle's diagonal block and 9 per coupling block below the diagonal (half of the
+        coupling blocks)."""
         couplings = sum(term.coupling_block_capacity for term in self.terms if term.couples_particles)
-        return 9 * (self.particle_count + couplings)
+        return 6 * self.particle_count + 9 * ((couplings + 1) // 2)
 
     @ti.func
     def force_jacobian_product(self, i, y, p, a, b, t):
@@ -341,12 +343,15 @@ class ParticleSystem(System):
 
     def assemble_system_matrix(self, y: State, a: float, b: float, t: float,
                                builder: ti.linalg.SparseMatrixBuilder) -> None:
-        """Add A (3n x 3n, row and column 3i + k for component k of particle i) at state ``y``
-        and time ``t`` into ``builder`` (capacity :attr:`system_matrix_triplet_capacity`).
+        """Add the lower triangle of A (3n x 3n, row and column 3i + k for component k of
+        particle i; the entries with row >= column) at state ``y`` and time ``t`` into
+        ``builder`` (capacity :attr:`system_matrix_triplet_capacity`).
 
-        The entries added depend only on the pinned set and :attr:`jacobian_pattern_version`,
-        never on the state (zeros are added as entries), so a factorisation's symbolic
-        analysis stays valid until the version changes."""
+        A is symmetric and the sparse Cholesky factorisation reads only its lower triangle, so
+        the upper one is not assembled: half the triplets to add and to sort in
+        ``builder.build()``. The entries added depend only on the pinned set and
+        :attr:`jacobian_pattern_version`, never on the state (zeros are added as entries), so a
+        factorisation's symbolic analysis stays valid until the version changes."""
         self._assemble_system_matrix(y, a, b, t, builder)
 
     @ti.kernel
@@ -355,7 +360,8 @@ class ParticleSystem(System):
         for i in range(self.particle_count):
             block = self.system_matrix_diagonal_block(i, y, a, b, t)
             for r, c in ti.static(ti.ndrange(3, 3)):
-                builder[3 * i + r, 3 * i + c] += block[r, c]
+                if ti.static(r >= c):
+                    builder[3 * i + r, 3 * i + c] += block[r, c]
             if self.free[i]:
                 for term in ti.static(self.terms):
                     if ti.static(term.couples_particles):

@@ -74,9 +74,13 @@ class LinearSolverStats:
             per factorisation, plus any iterative refinement).
         analyze_count: symbolic analyses of the sparsity pattern (direct solver only).
         factorize_count: numeric factorisations (direct solver only).
-        analyze_seconds, factorize_seconds: wall time spent in them (s).
-        solve_seconds: wall time in linear solves in total, assembly, analysis and factorisation
-            included (s).
+        assemble_seconds: wall time assembling the matrix (the kernel that fills the builder and
+            ``build()``; direct solver only, s).
+        analyze_seconds, factorize_seconds: wall time in the analyses and factorisations (s).
+        substitute_seconds: wall time in the triangular solves with the factor, the copies of
+            their right-hand sides and solutions included (direct solver only, s).
+        solve_seconds: wall time in linear solves in total, the above included (s); for the
+            direct solver the rest is the residual check of each solve.
         newton_iterations: Newton iterations in total (one per linear solve of an iterated
             method); line_search_evaluations: merit or residual evaluations of line searches.
         substeps: steps of the method actually solved; more than the steps taken where steps
@@ -90,8 +94,10 @@ class LinearSolverStats:
     iterations: int = 0
     analyze_count: int = 0
     factorize_count: int = 0
+    assemble_seconds: float = 0.0
     analyze_seconds: float = 0.0
     factorize_seconds: float = 0.0
+    substitute_seconds: float = 0.0
     solve_seconds: float = 0.0
     newton_iterations: int = 0
     line_search_evaluations: int = 0
