@@ -11,9 +11,9 @@ from __future__ import annotations
 
 from collections import deque
 
-#: Wall time (s) one frame may spend simulating: frames stay above ~12 per second even when the
-#: simulation cannot keep up, so the window stays responsive.
-FRAME_BUDGET = 0.08
+#: Wall time (s) one frame may spend simulating: when the simulation cannot keep up, drawing
+#: still gets a share of every second and the window keeps answering the mouse.
+FRAME_BUDGET = 0.05
 #: Longest wall interval (s) one frame makes up for: a stall (window dragged, a compile) is
 #: skipped rather than simulated in one burst.
 MAX_INTERVAL = 0.25
