@@ -292,7 +292,7 @@ def cmd_demo(args) -> int:
                                     "is not set); record a video instead with `taichi-sim record`")
         runtime.init(arch=args.arch, precision=args.precision)
         session = Session(spec["scene"], spec["integrators"], params=spec["params"], dt=spec["dt"],
-                          substeps=args.substeps, seed=args.seed)
+                          substeps=args.substeps, seed=args.seed, interactive=True)
         Launcher(session, size).run()
     except RenderUnavailable as exc:
         print(f"taichi-sim: error: {exc}", file=sys.stderr)
@@ -356,18 +356,19 @@ def cmd_default() -> int:
     """No arguments: the launcher where a display exists, else the showcase recorded into
     media/."""
     from . import runtime
+    from .app.display import display_problem
     from .app.launcher import Launcher
     from .app.session import Session
     from .app.showcase import record_showcase
-    from .render import RenderUnavailable, has_display
+    from .render import RenderUnavailable
 
     try:
         runtime.init(arch="cpu", precision="f64")
-        if has_display():
-            Launcher(Session("cloth", ["symplectic_euler"])).run()
+        problem = display_problem()
+        if problem is None:
+            Launcher(Session("cloth", ["symplectic_euler"], interactive=True)).run()
             return 0
-        print("taichi-sim: no display (DISPLAY / WAYLAND_DISPLAY unset): recording the showcase "
-              "into media/ instead", file=sys.stderr)
+        print(f"taichi-sim: {problem}: recording the showcase into media/ instead", file=sys.stderr)
         recordings = record_showcase("media")
     except RenderUnavailable as exc:
         print(f"taichi-sim: error: {exc}", file=sys.stderr)
