@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import taichi as ti
 
+from .. import runtime
 from ..errors import ConfigError
 from ..render import RenderUnavailable
 from ..render.renderer import Renderer
@@ -135,7 +136,8 @@ class Launcher:
             free = r.scene.system.free.to_numpy().astype(bool)
         status = {"scene": s.scene_name, "params": {k: v for k, v in s.params.items()
                                                      if isinstance(v, (bool, int, float, str))},
-                  "integrators": s.integrators, "dt": s.dt, "seed": s.seed, "t": r.t, "steps": r.steps,
+                  "integrators": s.integrators, "dt": s.dt, "seed": s.seed, "precision": runtime.precision(),
+                  "t": r.t, "steps": r.steps,
                   "frames": self.frames, "real_time": s.real_time, "factor": s.pacer.factor,
                   "status": s.status(), "grab_moves": -1 if r.scene.grabber is None else r.scene.grabber.moves,
                   "final": final}
