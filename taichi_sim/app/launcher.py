@@ -9,7 +9,9 @@ from __future__ import annotations
 import json
 import math
 import os
+import signal
 import textwrap
+import threading
 import time
 from pathlib import Path
 
@@ -38,6 +40,14 @@ STATUS_ENV = "TAICHI_SIM_STATUS"
 STATUS_EVERY = 0.25  # s
 #: ImGui (inside GGUI) saves its window layout to this file in the current directory.
 IMGUI_INI = "imgui.ini"
+
+
+def _terminate(signum, frame):
+    raise SystemExit(128 + signum)
+
+
+def _main_thread() -> bool:
+    return threading.current_thread() is threading.main_thread()
 
 
 class Launcher:
@@ -97,6 +107,8 @@ class Launcher:
         :meth:`close`."""
         last = time.perf_counter()
         interval = None
+        # A polite kill (SIGTERM) ends the loop like Escape, so close() still cleans up.
+        previous = signal.signal(signal.SIGTERM, _terminate) if _main_thread() else None
         try:
             while self.window.running:
                 self.poll_input()
@@ -109,6 +121,8 @@ class Launcher:
                     self.write_status()
                     self._status_at = now
         finally:
+            if previous is not None:
+                signal.signal(signal.SIGTERM, previous)
             self.close()
 
     def close(self) -> None:
