@@ -31,7 +31,7 @@ from .session import DT_RANGE, SUBSTEPS_MAX, Session, compatible_integrators
 PANEL = (0.0, 0.0, 0.27, 1.0)  # control panel: x, y, width, height (fractions of the window)
 HUD = (0.62, 0.0, 0.38, 0.3)
 HUD_CHAR_PX = 7.5  # width of a character of GGUI's font, for wrapping the HUD's lines
-HELP = (0.35, 0.25, 0.32, 0.5)
+HELP = (0.33, 0.1, 0.36, 0.68)
 WARNING = (1.0, 0.45, 0.38)
 CURRENT = (0.55, 0.85, 1.0)  # the current entry of a list
 #: Environment variable naming a JSON file the launcher writes its status to, about every
