@@ -254,3 +254,20 @@ def test_reset_restores_torn_and_emitting_scenes_in_place(runtime, name, params)
     np.testing.assert_array_equal(scene.state.x.to_numpy(), fresh.scene.state.x.to_numpy())
     for key, value in fresh.scene.arrays.items():
         np.testing.assert_array_equal(scene.arrays[key], value, err_msg=key)
+
+
+def test_the_imgui_ini_file_is_taken_back(tmp_path):
+    from taichi_sim.app import launcher
+
+    new, old = tmp_path / "new" / "imgui.ini", tmp_path / "old" / "imgui.ini"
+    old.parent.mkdir()
+    new.parent.mkdir()
+    old.write_text("[Window][Mine]\n")
+    launcher._watch_ini(new)
+    launcher._watch_ini(old)
+    new.write_text("[Window][Controls]\n")  # what ImGui writes when its window goes
+    old.write_text("[Window][Controls]\n")
+    launcher._watch_ini(old)  # a second launcher in the process keeps the first "before"
+    launcher._take_back_ini(new)
+    launcher._take_back_ini(old)
+    assert not new.exists() and old.read_text() == "[Window][Mine]\n"

@@ -6,6 +6,7 @@ without a window); this module only draws widgets and passes events on.
 """
 from __future__ import annotations
 
+import atexit
 import json
 import math
 import os
@@ -42,6 +43,34 @@ STATUS_EVERY = 0.25  # s
 IMGUI_INI = "imgui.ini"
 
 
+#: imgui.ini paths a launcher watched -> their content before (None: there was none).
+_INI_BEFORE: dict[Path, bytes | None] = {}
+
+
+def _watch_ini(path: Path) -> Path:
+    """Note what ``path`` holds before ImGui may write it (once per process and path), and make
+    sure it is taken back at exit even when the window is destroyed by someone else."""
+    if path not in _INI_BEFORE:
+        if not _INI_BEFORE:
+            atexit.register(lambda: [_take_back_ini(p) for p in list(_INI_BEFORE)])
+        _INI_BEFORE[path] = path.read_bytes() if path.is_file() else None
+    return path
+
+
+def _take_back_ini(path: Path) -> None:
+    """Remove the ini file ImGui wrote, or put back the one that was there before."""
+    if path not in _INI_BEFORE:
+        return
+    before = _INI_BEFORE[path]
+    try:
+        if before is None:
+            path.unlink(missing_ok=True)
+        elif not path.is_file() or path.read_bytes() != before:
+            path.write_bytes(before)  # someone else's layout file: left as found
+    except OSError:
+        pass  # the directory went away or turned read-only: nothing of ours to take back
+
+
 def _terminate(signum, frame):
     raise SystemExit(128 + signum)
 
@@ -63,8 +92,7 @@ class Launcher:
         self.session = session
         self.size = size
         self.owns_window = window is None
-        self._ini = Path.cwd() / IMGUI_INI
-        self._ini_before = self._ini.read_bytes() if self._ini.is_file() else None
+        self._ini = _watch_ini(Path.cwd() / IMGUI_INI)
         if window is None:
             problem = display_problem()
             if problem is not None:  # GLFW would end the process with "cannot initialize GLFW"
@@ -131,12 +159,11 @@ class Launcher:
         if self.status_path:
             self.write_status(final=True)
         if not self.owns_window:
-            return
-        self.window.destroy()  # ImGui writes its ini file now
-        if self._ini_before is None:
-            self._ini.unlink(missing_ok=True)
-        elif not self._ini.is_file() or self._ini.read_bytes() != self._ini_before:
-            self._ini.write_bytes(self._ini_before)  # someone else's layout file: left as found
+            return  # its owner destroys it; the ini file it writes then is taken back at exit
+        try:
+            self.window.destroy()  # ImGui writes its ini file now
+        finally:
+            _take_back_ini(self._ini)
 
     def write_status(self, *, final: bool = False) -> None:
         """Write the status JSON to :attr:`status_path` (through a temporary file, so a reader
