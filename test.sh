@@ -7,6 +7,8 @@ set -euo pipefail
 cd "$(dirname "$0")"
 TS_EXTRAS=test source scripts/bootstrap.sh
 ensure_vulkan
+ensure_xvfb
 workers=(-n "${TS_TEST_WORKERS:-auto}")
 [ "${TS_TEST_WORKERS:-auto}" = 0 ] && workers=()
-exec .venv/bin/python -m pytest "${workers[@]}" "$@"
+# -rs: a skipped test says why in the summary (no Vulkan, no Xvfb).
+exec .venv/bin/python -m pytest -rs "${workers[@]}" "$@"

@@ -31,6 +31,17 @@ if [ "$(cat "$stamp" 2>/dev/null || true)" != "$want" ]; then
   echo "$want" > "$stamp"
 fi
 
+apt_updated=0
+# apt-get install "$@" as root on Debian/Ubuntu (one apt-get update per run); 1 when it cannot.
+apt_install() {
+  [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1 || return 1
+  if [ "$apt_updated" = 0 ]; then
+    DEBIAN_FRONTEND=noninteractive apt-get update -qq >&2 || true
+    apt_updated=1
+  fi
+  DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "$@" >&2
+}
+
 # Software Vulkan (Mesa lavapipe) so GGUI can render offscreen on machines without a GPU.
 ensure_vulkan() {
   if ls /usr/share/vulkan/icd.d/lvp_icd*.json >/dev/null 2>&1 || \
@@ -40,10 +51,24 @@ ensure_vulkan() {
   fi
   if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
     echo "[setup] installing mesa-vulkan-drivers (software Vulkan for GGUI)" >&2
-    DEBIAN_FRONTEND=noninteractive apt-get update -qq >&2 || true
-    DEBIAN_FRONTEND=noninteractive apt-get install -y -qq mesa-vulkan-drivers libvulkan1 >&2 || \
+    apt_install mesa-vulkan-drivers libvulkan1 || \
       echo "[setup] could not install mesa-vulkan-drivers; rendering tests will be skipped" >&2
   else
     echo "[setup] no Vulkan driver found; install Debian's mesa-vulkan-drivers for rendering" >&2
+  fi
+}
+
+# A virtual X server and an input driver for the launcher's real-window test
+# (tests/test_launcher_window.py), plus the X libraries GLFW loads when it opens a window.
+ensure_xvfb() {
+  if command -v Xvfb >/dev/null 2>&1 && command -v xdotool >/dev/null 2>&1; then
+    return 0
+  fi
+  if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
+    echo "[setup] installing xvfb and xdotool (the launcher's real-window test)" >&2
+    apt_install xvfb xdotool libx11-xcb1 libxrandr2 libxinerama1 libxcursor1 libxi6 || \
+      echo "[setup] could not install xvfb and xdotool; the real-window test will be skipped" >&2
+  else
+    echo "[setup] Xvfb or xdotool missing; install Debian's xvfb and xdotool for the real-window test" >&2
   fi
 }

@@ -124,7 +124,9 @@ def build_parser() -> argparse.ArgumentParser:
     demo = sub.add_parser("demo", help="the interactive launcher (needs a display and Vulkan)")
     demo.add_argument("scene", nargs="?", default="cloth", help="scene to start with (default cloth)")
     _add_view_options(demo)
-    demo.add_argument("--substeps", type=_positive_int, default=10, help="steps per drawn frame")
+    demo.add_argument("--substeps", type=_positive_int, default=None,
+                      help="a fixed number of steps per drawn frame (default: as many as keep "
+                           "simulated time with the clock)")
     demo.add_argument("--size", default="1280x800", metavar="WxH", help="window size in pixels")
 
     rec = sub.add_parser("record", help="render a scene offscreen into .mp4, .gif or a folder of PNGs")
@@ -313,7 +315,9 @@ def cmd_demo(args) -> int:
                                     "is not set); record a video instead with `taichi-sim record`")
         runtime.init(arch=args.arch, precision=args.precision)
         session = Session(spec["scene"], spec["integrators"], params=spec["params"], dt=spec["dt"],
-                          substeps=args.substeps, seed=args.seed)
+                          substeps=args.substeps or 10, seed=args.seed, interactive=True)
+        if args.substeps is not None:
+            session.set_real_time(False)
         Launcher(session, size).run()
     except RenderUnavailable as exc:
         print(f"taichi-sim: error: {exc}", file=sys.stderr)
@@ -377,18 +381,19 @@ def cmd_default() -> int:
     """No arguments: the launcher where a display exists, else the showcase recorded into
     media/."""
     from . import runtime
+    from .app.display import display_problem
     from .app.launcher import Launcher
     from .app.session import Session
     from .app.showcase import record_showcase
-    from .render import RenderUnavailable, has_display
+    from .render import RenderUnavailable
 
     try:
         runtime.init(arch="cpu", precision="f64")
-        if has_display():
-            Launcher(Session("cloth", ["symplectic_euler"])).run()
+        problem = display_problem()
+        if problem is None:
+            Launcher(Session("cloth", ["symplectic_euler"], interactive=True)).run()
             return 0
-        print("taichi-sim: no display (DISPLAY / WAYLAND_DISPLAY unset): recording the showcase "
-              "into media/ instead", file=sys.stderr)
+        print(f"taichi-sim: {problem}: recording the showcase into media/ instead", file=sys.stderr)
         recordings = record_showcase("media")
     except RenderUnavailable as exc:
         print(f"taichi-sim: error: {exc}", file=sys.stderr)

@@ -136,7 +136,8 @@ def test_orbit_zoom_and_grab_hooks_follow_the_mouse():
         def hold(self):
             events.append((self.name, "hold"))
 
-        def drag(self, origin, direction):
+        def drag(self, origin, direction, normal):
+            assert normal == pytest.approx(cam.forward)  # the plane faces the camera
             events.append((self.name, "drag", direction.copy()))
 
         def release(self):
@@ -263,7 +264,7 @@ def test_keys_toggle_what_they_say_and_help_lists_them(runtime):
     assert s.options.springs is not springs
     apply_key("h", s, control)
     assert s.show_help
-    apply_key("=", s, control)
+    apply_key("i", s, control)
     assert cam.distance == pytest.approx(2.0 / 1.15)
     assert apply_key("Escape", s, control) == "quit"
     assert apply_key("?", s, control) is None

@@ -1,7 +1,8 @@
 """Keys and mouse for the launcher, in plain Python (tested without a window).
 
-Mouse: right-drag orbits the camera, middle-drag (or the = and - keys) zooms; GGUI 1.7.4
-reports no scroll-wheel events. Left-drag goes to a :class:`GrabHook` when the scene has one.
+Mouse: right-drag orbits the camera, middle-drag (or the i and o keys) zooms; GGUI 1.7.4
+reports no scroll-wheel events. Left-drag goes to a :class:`GrabHook` when the scene has one
+(the launcher builds every scene that can be grabbed with grab on).
 """
 from __future__ import annotations
 
@@ -13,7 +14,9 @@ import numpy as np
 from ..render.camera import OrbitCamera
 from .session import Session
 
-#: Key -> (action, what it does). GGUI names keys by their character (" " is the space bar).
+#: Key -> (action, what it does). GGUI names keys by their character (" " is the space bar);
+#: GGUI 1.7.4 reports letters, the space bar, Tab, Escape and the arrows, but no digits or
+#: punctuation, so every action sits on one of those.
 KEYMAP: dict[str, tuple[str, str]] = {
     " ": ("pause", "pause / resume"),
     "n": ("step", "single step (pauses)"),
@@ -24,14 +27,18 @@ KEYMAP: dict[str, tuple[str, str]] = {
     "c": ("strain", "strain colour map on / off"),
     "t": ("trail", "show / hide trails"),
     "f": ("home", "frame the view (home)"),
-    "=": ("zoom_in", "zoom in"),
-    "-": ("zoom_out", "zoom out"),
+    "Down": ("next_scene", "next scene"),
+    "Up": ("previous_scene", "previous scene"),
+    "Right": ("next_integrator", "next integrator (first panel)"),
+    "Left": ("previous_integrator", "previous integrator (first panel)"),
+    "i": ("zoom_in", "zoom in"),
+    "o": ("zoom_out", "zoom out"),
     "h": ("help", "this help"),
     "Escape": ("quit", "quit"),
 }
 
 MOUSE_HELP = ("right-drag: orbit the camera", "middle-drag: zoom",
-              "left-drag: pull a particle (scenes built with grab=1)")
+              "left-drag: pull the cloth or chain (the particle follows the mouse)")
 
 ZOOM_STEP = 1.15
 
@@ -60,6 +67,10 @@ def apply_key(key: str, session: Session, camera: "CameraControl") -> str | None
         session.show_help = not session.show_help
     elif action == "home":
         camera.home()
+    elif action in ("next_scene", "previous_scene"):
+        session.cycle_scene(1 if action == "next_scene" else -1)
+    elif action in ("next_integrator", "previous_integrator"):
+        session.cycle_integrator(0, 1 if action == "next_integrator" else -1)
     elif action in ("zoom_in", "zoom_out"):
         camera.zoom(1 / ZOOM_STEP if action == "zoom_in" else ZOOM_STEP)
     return action
@@ -75,8 +86,9 @@ class GrabHook(Protocol):
     def hold(self) -> None:
         """Grab what the last :meth:`pick` found."""
 
-    def drag(self, origin: np.ndarray, direction: np.ndarray) -> None:
-        """Move the held point to follow the ray."""
+    def drag(self, origin: np.ndarray, direction: np.ndarray, normal: np.ndarray | None = None) -> None:
+        """Move the held point to where the ray meets the plane through the picked point with
+        unit ``normal`` (the camera's viewing direction; default: the picking ray's)."""
 
     def release(self) -> None:
         """Let go."""
@@ -85,7 +97,8 @@ class GrabHook(Protocol):
 class GrabberHook:
     """Adapts a scene's grab API (``pick``, ``grab``, ``drag_to``, ``release``; see
     :class:`taichi_sim.scene.grab.Grabber`) to :class:`GrabHook`, for a scene drawn shifted by
-    ``offset`` (m). The held point keeps its distance along the ray from the camera.
+    ``offset`` (m). The held particle is pulled toward where the mouse ray meets a plane facing
+    the camera through the point picked, so it follows the cursor across the screen.
 
     Args:
         grabber: the scene's grab API.
@@ -97,7 +110,8 @@ class GrabberHook:
         self.grabber = grabber
         self.offset = np.asarray(offset, np.float64).reshape(3)
         self.reach = float(reach)
-        self.depth = 0.0
+        self.anchor = np.zeros(3)  # the picked particle where it was picked (scene coordinates, m)
+        self.pick_direction = np.array([0.0, 0.0, -1.0])
         self.candidate: int | None = None
 
     def pick(self, origin, direction) -> float | None:
@@ -107,15 +121,22 @@ class GrabberHook:
         if self.candidate is None:
             return None
         x = np.asarray(self.grabber.scene.state.x.to_numpy()[self.candidate], np.float64)
-        self.depth = float(np.dot(x - local, direction))
-        return float(np.linalg.norm(x - local - self.depth * direction))
+        self.anchor, self.pick_direction = x, direction
+        depth = float(np.dot(x - local, direction))
+        return float(np.linalg.norm(x - local - depth * direction))
 
     def hold(self) -> None:
         self.grabber.grab(self.candidate)
 
-    def drag(self, origin, direction) -> None:
+    def drag(self, origin, direction, normal=None) -> None:
         local = np.asarray(origin, np.float64) - self.offset
-        self.grabber.drag_to(local + self.depth * np.asarray(direction, np.float64))
+        direction = np.asarray(direction, np.float64)
+        normal = self.pick_direction if normal is None else np.asarray(normal, np.float64)
+        facing = float(np.dot(direction, normal))
+        if facing <= 1e-6:  # the ray runs along the plane or away from it: keep the last target
+            return
+        s = float(np.dot(self.anchor - local, normal)) / facing
+        self.grabber.drag_to(local + s * direction)
 
     def release(self) -> None:
         self.grabber.release()
@@ -173,7 +194,7 @@ class CameraControl:
                 self.held.hold()
         elif left and self.held is not None:
             if du or dv:
-                self.held.drag(*self.camera.screen_ray(u, v))
+                self.held.drag(*self.camera.screen_ray(u, v), self.camera.forward)
         elif not left and self.held is not None:
             self.held.release()
             self.held = None

@@ -1,53 +1,129 @@
 """The interactive launcher: a GGUI window with a control panel, a HUD and a help overlay.
 
-Everything it decides lives in :class:`~taichi_sim.app.session.Session` and
-:class:`~taichi_sim.app.input.CameraControl` (tested without a window); this module only draws
-widgets and passes events on.
+Everything it decides lives in :class:`~taichi_sim.app.session.Session`,
+:class:`~taichi_sim.app.input.CameraControl` and :class:`~taichi_sim.app.pacing.Pacer` (tested
+without a window); this module only draws widgets and passes events on.
 """
 from __future__ import annotations
 
+import atexit
+import json
 import math
+import os
+import signal
 import textwrap
+import threading
 import time
+from pathlib import Path
 
 import numpy as np
 import taichi as ti
 
+from .. import runtime
 from ..errors import ConfigError
+from ..render import RenderUnavailable
 from ..render.renderer import Renderer
 from ..render.vulkan import open_window
 from ..scene import SCENES
-from .input import CameraControl, GrabberHook, apply_key, help_lines
-from .session import DT_RANGE, SUBSTEPS_MAX, Session
+from .display import display_problem
+from .input import KEYMAP, CameraControl, GrabberHook, apply_key, help_lines
+from .session import DT_RANGE, SUBSTEPS_MAX, Session, compatible_integrators
 
 PANEL = (0.0, 0.0, 0.27, 1.0)  # control panel: x, y, width, height (fractions of the window)
 HUD = (0.62, 0.0, 0.38, 0.3)
 HUD_CHAR_PX = 7.5  # width of a character of GGUI's font, for wrapping the HUD's lines
-HELP = (0.35, 0.25, 0.32, 0.5)
+HELP = (0.33, 0.1, 0.36, 0.68)
 WARNING = (1.0, 0.45, 0.38)
+CURRENT = (0.55, 0.85, 1.0)  # the current entry of a list
+#: Environment variable naming a JSON file the launcher writes its status to, about every
+#: STATUS_EVERY seconds and when it closes (what the real-window test reads).
+STATUS_ENV = "TAICHI_SIM_STATUS"
+STATUS_EVERY = 0.25  # s
+#: ImGui (inside GGUI) saves its window layout to this file in the current directory.
+IMGUI_INI = "imgui.ini"
+
+
+#: imgui.ini paths a launcher watched -> their content before (None: there was none).
+_INI_BEFORE: dict[Path, bytes | None] = {}
+
+
+def _watch_ini(path: Path) -> Path:
+    """Note what ``path`` holds before ImGui may write it (once per process and path), and make
+    sure it is taken back at exit even when the window is destroyed by someone else."""
+    if path not in _INI_BEFORE:
+        if not _INI_BEFORE:
+            atexit.register(lambda: [_take_back_ini(p) for p in list(_INI_BEFORE)])
+        _INI_BEFORE[path] = path.read_bytes() if path.is_file() else None
+    return path
+
+
+def _take_back_ini(path: Path) -> None:
+    """Remove the ini file ImGui wrote, or put back the one that was there before."""
+    if path not in _INI_BEFORE:
+        return
+    before = _INI_BEFORE[path]
+    try:
+        if before is None:
+            path.unlink(missing_ok=True)
+        elif not path.is_file() or path.read_bytes() != before:
+            path.write_bytes(before)  # someone else's layout file: left as found
+    except OSError:
+        pass  # the directory went away or turned read-only: nothing of ours to take back
+
+
+def _terminate(signum, frame):
+    raise SystemExit(128 + signum)
+
+
+def _main_thread() -> bool:
+    return threading.current_thread() is threading.main_thread()
 
 
 class Launcher:
     """Runs ``session`` in a window of ``size`` = (width, height) pixels.
 
-    ``window`` defaults to a new on-screen one; pass an offscreen window (see
-    :func:`~taichi_sim.render.open_window`) to draw frames with :meth:`draw_frame` without a
-    display (input then is not polled).
+    ``window`` defaults to a new on-screen one (raises
+    :class:`~taichi_sim.render.RenderUnavailable` with a one-line reason when no usable display
+    or Vulkan exists); pass an offscreen window (see :func:`~taichi_sim.render.open_window`) to
+    draw frames with :meth:`draw_frame` without a display (input then is not polled).
     """
 
     def __init__(self, session: Session, size: tuple[int, int] = (1280, 800), *, window=None):
         self.session = session
         self.size = size
-        self.window = window if window is not None else open_window("taichi-sim", size, visible=True)
+        self.owns_window = window is None
+        self._ini = _watch_ini(Path.cwd() / IMGUI_INI)
+        if window is None:
+            problem = display_problem()
+            if problem is not None:  # GLFW would end the process with "cannot initialize GLFW"
+                raise RenderUnavailable(f"an on-screen window needs a usable display: {problem}; "
+                                        "record a video instead with `taichi-sim record`")
+            window = open_window("taichi-sim", size, visible=True)
+        self.window = window
         self.gui = self.window.get_gui()
         self.generation = -1
         self.fps = 0.0
+        self.frames = 0
         self.error = ""
+        self.picking: int | None = None  # the panel whose integrator list is open
+        self._renderers: dict = {}  # one per set of scenes, reused when the session comes back
+        self.status_path = os.environ.get(STATUS_ENV) or None
+        self._status_at = 0.0
         self._rebuild()
 
     def _rebuild(self) -> None:
-        """A new renderer (and grab hooks) for the session's current scenes."""
-        self.renderer = Renderer(self.window, self.session.visuals(), self.size, inset=PANEL[2])
+        """The renderer (and grab hooks) of the session's current scenes: built once per set of
+        scenes and reused when the session switches back to them (a renderer holds fields and
+        compiled kernels, which Taichi never gives back)."""
+        key = tuple(id(scene) for scene in self.session.scenes)
+        renderer = self._renderers.get(key)
+        if renderer is None:
+            renderer = Renderer(self.window, self.session.visuals(), self.size, inset=PANEL[2])
+            self._renderers[key] = renderer
+        else:
+            renderer.clear_trails()
+            renderer.home()
+        self.renderer = renderer
         hooks = [GrabberHook(v.grabber, off, reach=0.05 * float(np.linalg.norm(v.extent)))
                  for v, off in zip(self.renderer.visuals, self.renderer.offsets) if v.grabber is not None]
         self.control = CameraControl(self.renderer.camera, self.renderer.home, hooks)
@@ -55,21 +131,82 @@ class Launcher:
         self.resets = self.session.resets
 
     def run(self) -> None:
-        """The interactive loop, until the window closes or Escape is pressed."""
+        """The interactive loop, until the window closes or Escape is pressed; then
+        :meth:`close`."""
         last = time.perf_counter()
-        while self.window.running:
-            self.poll_input()
-            self.draw_frame()
-            self.window.show()
-            now = time.perf_counter()
-            self.fps = 0.9 * self.fps + 0.1 / max(now - last, 1e-6)
-            last = now
+        interval = None
+        # A polite kill (SIGTERM) ends the loop like Escape, so close() still cleans up.
+        previous = signal.signal(signal.SIGTERM, _terminate) if _main_thread() else None
+        try:
+            while self.window.running:
+                self.poll_input()
+                self.draw_frame(interval)
+                self.window.show()
+                now = time.perf_counter()
+                interval, last = now - last, now
+                self.fps = 0.9 * self.fps + 0.1 / max(interval, 1e-6)
+                if self.status_path and now - self._status_at >= STATUS_EVERY:
+                    self.write_status()
+                    self._status_at = now
+        finally:
+            if previous is not None:
+                signal.signal(signal.SIGTERM, previous)
+            self.close()
+
+    def close(self) -> None:
+        """Write the final status (when asked for), close a window this launcher opened, and
+        take back the ``imgui.ini`` that ImGui saves into the current directory."""
+        if self.status_path:
+            self.write_status(final=True)
+        if not self.owns_window:
+            return  # its owner destroys it; the ini file it writes then is taken back at exit
+        try:
+            self.window.destroy()  # ImGui writes its ini file now
+        finally:
+            _take_back_ini(self._ini)
+
+    def write_status(self, *, final: bool = False) -> None:
+        """Write the status JSON to :attr:`status_path` (through a temporary file, so a reader
+        never sees half of it): scene, integrators, step, time, steps, frames, real-time factor,
+        grab moves, and for panel 0 the window pixel (x right, y down) of the free particle
+        nearest the middle of the free ones; with ``final``, panel 0's positions (m) too."""
+        s, r = self.session, self.session.runners[0]
+        x = np.asarray(r.display.to_numpy() if hasattr(r.display, "to_numpy") else r.display, np.float64)
+        free = np.ones(len(x), bool)
+        if hasattr(r.scene.system, "free"):
+            free = r.scene.system.free.to_numpy().astype(bool)
+        status = {"scene": s.scene_name, "params": {k: v for k, v in s.params.items()
+                                                     if isinstance(v, (bool, int, float, str))},
+                  "integrators": s.integrators, "dt": s.dt, "seed": s.seed, "precision": runtime.precision(),
+                  "t": r.t, "steps": r.steps,
+                  "frames": self.frames, "real_time": s.real_time, "factor": s.pacer.factor,
+                  "status": s.status(), "grab_moves": -1 if r.scene.grabber is None else r.scene.grabber.moves,
+                  "final": final}
+        if free.any() and np.all(np.isfinite(x[free])):
+            middle = x[free].mean(axis=0)
+            index = int(np.flatnonzero(free)[np.argmin(np.linalg.norm(x[free] - middle, axis=1))])
+            uv, depth = self.renderer.camera.project(x[index] + self.renderer.offsets[0])
+            if depth[0] > 0:
+                status["probe"] = {"particle": index, "px": [float(uv[0][0] * self.size[0]),
+                                                              float((1.0 - uv[0][1]) * self.size[1])]}
+        if final:
+            status["x"] = x.tolist()
+        path = Path(self.status_path)
+        tmp = path.with_name(path.name + ".tmp")
+        tmp.write_text(json.dumps(status))
+        os.replace(tmp, path)
 
     def poll_input(self) -> None:
         """Keys and mouse of this frame (on-screen windows only)."""
+        scene_steps = 0  # scene keys pressed in one frame make one switch, not a build per press
         for event in self.window.get_events(ti.ui.PRESS):
-            if self._guard(apply_key, event.key, self.session, self.control) == "quit":
+            action = KEYMAP.get(event.key, ("",))[0]
+            if action in ("next_scene", "previous_scene"):
+                scene_steps += 1 if action == "next_scene" else -1
+            elif self._guard(apply_key, event.key, self.session, self.control) == "quit":
                 self.window.running = False
+        if scene_steps:
+            self._guard(self.session.cycle_scene, scene_steps)
         self.window.get_events(ti.ui.RELEASE)  # drained: GGUI queues them until read
         u, v = self.window.get_cursor_pos()
         over = u < PANEL[2] or (u > HUD[0] and v > 1.0 - HUD[3])
@@ -77,14 +214,16 @@ class Launcher:
                             right=self.window.is_pressed(ti.ui.RMB),
                             middle=self.window.is_pressed(ti.ui.MMB), over_panel=over)
 
-    def draw_frame(self) -> None:
-        """Advance the session one frame and draw the scenes, the panel, the HUD and the help."""
+    def draw_frame(self, interval: float | None = None) -> None:
+        """Advance the session one frame (``interval``: wall seconds since the last one, for
+        pacing to the clock) and draw the scenes, the panel, the HUD and the help."""
         if self.session.generation != self.generation:
             self._rebuild()
         elif self.session.resets != self.resets:
             self.renderer.clear_trails()
             self.resets = self.session.resets
-        self.session.frame()
+        self.session.frame(interval)
+        self.frames += 1
         if not self.control.user_moved:
             self.renderer.follow([r.last_good for r in self.session.runners])
         self.renderer.render([r.display for r in self.session.runners], self.session.options)
@@ -107,25 +246,27 @@ class Launcher:
     def _panel(self) -> None:
         s = self.session
         with self.gui.sub_window("Controls", *PANEL) as g:
-            g.text("Scene")
+            g.text("Scene (Up / Down keys)")
             for name in SCENES:
-                if g.button(("> " if name == s.scene_name else "") + name):
+                current = name == s.scene_name
+                if g.button(("> " if current else "  ") + name + "##scene"):
                     self._guard(s.select_scene, name)
+                    self.picking = None
             g.text("")
-            g.text("Integrator" + ("s" if len(s.runners) > 1 else ""))
-            for k, r in enumerate(s.runners):
-                if g.button(f"<##prev{k}"):
-                    self._guard(s.cycle_integrator, k, -1)
-                if g.button(f"{r.integrator.name} >##next{k}"):
-                    self._guard(s.cycle_integrator, k, 1)
+            self._integrator_picker(g)
             g.text("")
-            exponent = g.slider_float("log10 step", math.log10(s.dt), *map(math.log10, DT_RANGE))
+            real_time = g.checkbox("real time (pace to the clock)", s.real_time)
+            if real_time != s.real_time:
+                s.set_real_time(real_time)
+            if not s.real_time:
+                g.text("steps per frame")
+                substeps = g.slider_int("##substeps", s.substeps, 1, SUBSTEPS_MAX)
+                if substeps != s.substeps:
+                    self._guard(s.set_substeps, int(substeps))
+            g.text(f"step h = {s.dt:.3g} s (log10 below)")
+            exponent = g.slider_float("##log10 step", math.log10(s.dt), *map(math.log10, DT_RANGE))
             if abs(exponent - math.log10(s.dt)) > 1e-6:
                 self._guard(s.set_dt, float(10.0 ** exponent))
-            g.text(f"h = {s.dt:.3g} s")
-            substeps = g.slider_int("steps per frame", s.substeps, 1, SUBSTEPS_MAX)
-            if substeps != s.substeps:
-                self._guard(s.set_substeps, int(substeps))
             if g.button("Resume (space)" if s.paused else "Pause (space)"):
                 s.toggle_pause()
             if g.button("Single step (n)"):
@@ -156,7 +297,28 @@ class Launcher:
             if s.pending:
                 g.text(f"{len(s.pending)} change(s) pending: press Reset", WARNING)
             if self.error:
-                g.text(self.error, WARNING)
+                for part in textwrap.wrap(self.error, self._panel_chars()):
+                    g.text(part, WARNING)
+
+    def _panel_chars(self) -> int:
+        """Characters of GGUI's font that fit across the control panel."""
+        return max(20, int(PANEL[2] * self.size[0] / HUD_CHAR_PX) - 3)
+
+    def _integrator_picker(self, g) -> None:
+        """One combo-like picker per panel: a button showing the current integrator opens the
+        list of those that can step the scene (the current one marked); a choice closes it."""
+        s = self.session
+        for k, r in enumerate(s.runners):
+            prefix = "Integrator" if len(s.runners) == 1 else f"Panel {k + 1}"
+            opened = self.picking == k
+            if g.button(f"{prefix}: {r.integrator.name} {'(close)' if opened else '(change)'}##pick{k}"):
+                self.picking = None if opened else k
+            if self.picking != k:
+                continue
+            for name in compatible_integrators(r.scene):
+                if g.button(("> " if name == r.integrator.name else "  ") + f"{name}##int{k}"):
+                    self._guard(s.set_integrator, k, name)
+                    self.picking = None
 
     def _param_widget(self, g, control) -> None:
         p, s = control.param, self.session
@@ -169,9 +331,11 @@ class Launcher:
             if g.button(f"{label}: {value}"):
                 new = p.choices[(p.choices.index(value) + 1) % len(p.choices)]
         elif p.kind is int:
-            new = g.slider_int(label, int(value), int(control.low), int(control.high))
+            g.text(label)  # above the slider: beside it, GGUI cuts long labels off
+            new = g.slider_int(f"##{p.name}", int(value), int(control.low), int(control.high))
         elif p.kind is float and math.isfinite(value):
-            new = g.slider_float(label, float(value), control.low, control.high)
+            g.text(label)
+            new = g.slider_float(f"##{p.name}", float(value), control.low, control.high)
             new = value if abs(new - value) <= 1e-7 * max(1.0, abs(value)) else new
         else:
             g.text(f"{label}: {value}")
@@ -185,7 +349,8 @@ class Launcher:
             # GGUI clips text at the panel's edge: wrap it (the monospace font is ~7.5 px wide).
             width = max(20, int(HUD[2] * self.size[0] / HUD_CHAR_PX) - 2)
             for line in s.hud_lines(self.fps):
-                colour = WARNING if "diverged" in line or "not converged" in line or "stiff" in line else None
+                colour = WARNING if any(word in line for word in ("diverged", "not converged", "stiff",
+                                                                  "x real time")) else None
                 for part in textwrap.wrap(line, width, subsequent_indent="  ") or [""]:
                     g.text(part, colour)
             if len(s.runners) > 1:

@@ -14,7 +14,6 @@ import numpy as np
 from ..guard import Guard
 from ..integrators import Status, create_integrator, integrator_class
 from ..render.drawer import DRAWABLE_LIMIT
-from ..scene import build_scene
 from ..scene.scene import Scene
 from ..theory import stable_step_advice
 
@@ -104,15 +103,11 @@ class Runner:
         self.energy = self.guard.energy0
 
     def reset(self) -> None:
-        """Back to the initial state. A scene whose model changes while it runs (torn springs,
-        emitted particles) is rebuilt with the same parameters (``scene`` is then a new object)."""
-        f = self.scene.features
-        if f.get("tearing") or f.get("emitter"):
-            self.scene = build_scene(self.scene.name, self.scene.params, seed=self.scene.seed)
-            name, self._integrators = self.integrator.name, {}
-            self.set_integrator(name)
-        else:
-            self.scene.reset()
+        """Back to the scene as built (torn springs mended, emitted particles gone), in place:
+        nothing is allocated or compiled again."""
+        self.scene.restore()
+        for integrator in self._integrators.values():
+            integrator.reset()  # a solver may hold a factorisation of the torn topology
         self.restart()
 
     # -- running ------------------------------------------------------------------------------

@@ -8,6 +8,7 @@ The GGUI launcher only translates widgets and keys into calls on it.
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
@@ -16,10 +17,11 @@ import numpy as np
 from ..errors import ConfigError
 from ..integrators import INTEGRATORS, integrator_class
 from ..render.drawer import DrawOptions
-from ..scene import build_scene, scene_preset
+from ..scene import SCENES, build_scene, scene_preset
 from ..scene.params import Param, resolve
 from ..scene.scene import Scene
 from ..scene.visual import describe
+from .pacing import Pacer, factor_text
 from .runner import Runner
 
 MAX_PANELS = 3
@@ -115,12 +117,17 @@ class Session:
         integrators: one name, or two or three for a side-by-side comparison.
         params: parameter overrides (values or command-line strings).
         dt: step size (s); default: the preset's.
-        substeps: steps of ``dt`` per drawn frame (the launcher's speed).
+        substeps: steps of ``dt`` per drawn frame when not pacing to the wall clock.
         seed: random seed of the scenes.
+        interactive: the launcher's defaults: scenes that can be grabbed are built with
+            ``grab`` on (unless ``params`` say otherwise) and :meth:`frame` paces simulated time
+            to the wall clock (:attr:`real_time`). Off, a scene gets no grab force term and
+            each frame is ``substeps`` steps (what recording and tests want).
     """
 
     def __init__(self, scene: str, integrators: Sequence[str], *, params: dict | None = None,
-                 dt: float | None = None, substeps: int = 10, seed: int = 0):
+                 dt: float | None = None, substeps: int = 10, seed: int = 0,
+                 interactive: bool = False):
         preset = scene_preset(scene)
         integrators = list(integrators)
         if not 1 <= len(integrators) <= MAX_PANELS:
@@ -128,12 +135,16 @@ class Session:
         for name in integrators:
             integrator_class(name)
         self.seed = int(seed)
+        self.interactive = bool(interactive)
         self.scene_name = preset.name
-        self.params = resolve(preset.params, preset.name, dict(params or {}))
+        self.params = self._resolve(preset, dict(params or {}))
         self.pending: dict[str, Any] = {}
         self.dt = float(dt if dt is not None else preset.default_dt)
         self._check_dt(self.dt)
         self.substeps = self._check_substeps(substeps)
+        self.real_time = self.interactive
+        self.pacer = Pacer()
+        self.steps_per_frame = 0.0  # panel 0's steps per frame, smoothed: the raw count flickers
         self.paused = False
         self._paused_by_failure = False
         self.show_help = False
@@ -141,14 +152,30 @@ class Session:
         self.generation = 0  # bumped when the scenes are rebuilt: renderers must be too
         self.resets = 0  # bumped by every reset: drawn trails must restart
         self.runners: list[Runner] = []
+        self._built: dict[tuple, list[Runner]] = {}  # see _build
         self._build(integrators)
 
     # -- building -----------------------------------------------------------------------------
 
+    def _resolve(self, preset, overrides: dict) -> dict:
+        """The preset's parameters with ``overrides``; an interactive session grabs by default."""
+        if self.interactive and any(p.name == "grab" for p in preset.params):
+            overrides = {"grab": True, **overrides}
+        return resolve(preset.params, preset.name, overrides)
+
     def _build(self, integrators: Sequence[str], fallback: str | None = None) -> None:
         """Build one scene per integrator; an integrator that cannot step the scene is replaced
-        by ``fallback``, or raises ConfigError without one."""
-        scenes = [build_scene(self.scene_name, self.params, seed=self.seed) for _ in integrators]
+        by ``fallback``, or raises ConfigError without one.
+
+        Scenes built for a (preset, parameters, seed, panel count) are kept and reused, back at
+        t = 0, when the session comes back to them: Taichi 1.7 gives back neither the fields
+        of a scene nor the kernels compiled for it, so rebuilding on every switch would grow
+        the process by megabytes per switch (and recompile for seconds)."""
+        key = (self.scene_name, tuple(sorted((k, repr(v)) for k, v in self.params.items())),
+               self.seed, len(integrators))
+        runners = self._built.get(key)
+        scenes = [r.scene for r in runners] if runners is not None else \
+            [build_scene(self.scene_name, self.params, seed=self.seed) for _ in integrators]
         allowed = compatible_integrators(scenes[0])
         if fallback is not None:
             integrators = [n if n in allowed else fallback for n in integrators]
@@ -156,8 +183,23 @@ class Session:
             if name not in allowed:
                 raise ConfigError(f"integrator {name!r} cannot step scene {self.scene_name!r} "
                                   f"(choose from {', '.join(allowed)})")
-        self.runners = [Runner(s, name, self.dt) for s, name in zip(scenes, integrators)]
-        self.options = DrawOptions.for_visual(describe(scenes[0]))
+        if runners is None:
+            runners = self._built[key] = [Runner(s, name, self.dt) for s, name in zip(scenes, integrators)]
+        else:
+            for r, name in zip(runners, integrators):
+                # Live changes made on an earlier visit are undone: these are the params now.
+                for setter in LIVE_SETTERS.values():
+                    setter(r.scene, self.params)
+                if r.scene.grabber is not None:
+                    r.scene.grabber.release()
+                r.set_integrator(name)
+                r.set_dt(self.dt)
+                if r.steps or r.frozen or r.t:
+                    r.reset()
+                else:
+                    r.restart()  # the guard's reference must see the parameters just set
+        self.runners = runners
+        self.options = DrawOptions.for_visual(describe(runners[0].scene))
         self.generation += 1
 
     @property
@@ -179,10 +221,19 @@ class Session:
         preset = scene_preset(name)
         old = self.integrators
         self.scene_name = preset.name
-        self.params = resolve(preset.params, preset.name, {})
+        self.params = self._resolve(preset, {})
         self.pending = {}
         self.dt = preset.default_dt
         self._build(old, fallback=preset.default_integrator)
+        self.pacer.reset()
+
+    def cycle_scene(self, step: int = 1) -> str:
+        """Switch to the next (step=1) or previous (-1) preset, in the registry's order."""
+        names = list(SCENES)
+        k = names.index(self.scene_name) if self.scene_name in names else -1
+        name = names[(k + step) % len(names)]
+        self.select_scene(name)
+        return name
 
     # -- controls -----------------------------------------------------------------------------
 
@@ -231,6 +282,7 @@ class Session:
         if name not in allowed:
             raise ConfigError(f"integrator {name!r} cannot step scene {self.scene_name!r}")
         self.runners[panel].set_integrator(name)
+        self.pacer.reset()
 
     def cycle_integrator(self, panel: int, step: int = 1) -> str:
         """Switch panel ``panel`` to the next (step=1) or previous (-1) compatible integrator."""
@@ -256,13 +308,20 @@ class Session:
         self.dt = self._check_dt(dt)
         for r in self.runners:
             r.set_dt(self.dt)
+        self.pacer.reset()
 
     def set_substeps(self, substeps: int) -> None:
-        """Steps of ``dt`` per drawn frame."""
+        """Steps of ``dt`` per drawn frame (when not pacing to the wall clock)."""
         self.substeps = self._check_substeps(substeps)
+
+    def set_real_time(self, on: bool) -> None:
+        """Pace frames to the wall clock (on) or take :attr:`substeps` steps per frame (off)."""
+        self.real_time = bool(on)
+        self.pacer.reset()
 
     def toggle_pause(self) -> None:
         self.paused = not self.paused
+        self.pacer.reset()  # the pause is not time the simulation fell behind
 
     def step(self) -> None:
         """Pause, and advance every panel by exactly one step."""
@@ -274,6 +333,7 @@ class Session:
         """Back to t = 0. Pending parameter changes apply now (the scenes are rebuilt). A pause
         that a failure caused ends."""
         self.resets += 1
+        self.pacer.reset()
         if self._paused_by_failure:
             self.paused = self._paused_by_failure = False
         if self.pending:
@@ -300,10 +360,26 @@ class Session:
         if self.frozen and not self.paused:
             self.paused = self._paused_by_failure = True
 
-    def frame(self) -> None:
-        """One launcher frame: ``substeps`` steps of ``dt`` unless paused."""
-        if not self.paused:
-            self.advance(self.substeps * self.dt)
+    def frame(self, interval: float | None = None) -> None:
+        """One launcher frame, unless paused: with :attr:`real_time` and the wall ``interval``
+        (s) since the previous frame, as much simulated time as went by on the clock (cut to
+        what the frame budget can simulate: see :class:`~taichi_sim.app.pacing.Pacer`);
+        otherwise ``substeps`` steps of ``dt``."""
+        if self.paused:
+            return
+        pacing = self.real_time and interval is not None
+        duration = self.pacer.plan(interval, self.dt) if pacing else self.substeps * self.dt
+        lead = self.runners[0]
+        t0, steps0 = max(r.t for r in self.runners), lead.steps
+        start = time.perf_counter()
+        self.advance(duration)
+        wall = time.perf_counter() - start
+        simulated = max(r.t for r in self.runners) - t0
+        steps = lead.steps - steps0
+        self.steps_per_frame = steps if not self.steps_per_frame else \
+            self.steps_per_frame + 0.25 * (steps - self.steps_per_frame)
+        if interval is not None and not self.frozen:
+            self.pacer.observe(interval, simulated, wall)
 
     @property
     def frozen(self) -> bool:
@@ -320,9 +396,15 @@ class Session:
     def hud_lines(self, fps: float | None = None) -> list[str]:
         """The heads-up display: time, step, integrators, cost per frame, fps, energy, status."""
         t = max(r.t for r in self.runners)  # runs that froze stopped their clocks
-        lines = [f"{self.scene_name}   t = {t:.3f} s",
-                 f"h = {self.dt:.3g} s x {self.substeps} per frame"
-                 + ("" if fps is None else f"   {fps:.1f} fps")]
+        if self.real_time:
+            pace = f"h = {self.dt:.3g} s x {self.steps_per_frame:.0f} per frame (real time)"
+        else:
+            pace = f"h = {self.dt:.3g} s x {self.substeps} per frame"
+        lines = [f"{self.scene_name}   t = {t:.3f} s", pace + ("" if fps is None else f"   {fps:.1f} fps")]
+        behind = "" if self.paused or self.frozen else factor_text(self.pacer.factor)
+        if behind:
+            slow = self.real_time and self.pacer.factor < 1.0
+            lines.append(behind + (": the simulation cannot keep up with the clock" if slow else ""))
         for r in self.runners:
             energy = "n/a" if r.energy is None else f"{r.energy:.5g} J"
             state = r.failure if r.frozen else f"E = {energy}"

@@ -59,18 +59,25 @@ SHOWCASE: tuple[Showcase, ...] = (
 def record_showcase(folder: str | os.PathLike, *, progress: bool | None = None,
                     entries: tuple[Showcase, ...] = SHOWCASE) -> list[Recording]:
     """Record every entry into ``folder`` (created if missing; its parent must exist) as
-    ``NAME.gif`` plus ``NAME.png``. Needs :func:`taichi_sim.init`."""
+    ``NAME.gif`` plus ``NAME.png``. Needs :func:`taichi_sim.init`. A folder this call created
+    is removed again if the recording fails before anything is written into it."""
     folder = Path(folder)
     if folder.exists() and not folder.is_dir():
         raise ConfigError(f"showcase folder {str(folder)!r} is not a directory")
-    if not folder.exists():
+    created = not folder.exists()
+    if created:
         if not folder.parent.is_dir():
             raise ConfigError(f"cannot create {str(folder)!r}: {str(folder.parent)!r} does not exist")
         folder.mkdir()
-    if not os.access(folder, os.W_OK):
+    elif not os.access(folder, os.W_OK):
         raise ConfigError(f"cannot write into {str(folder)!r}: permission denied")
-    return [record(entry.clip, folder / f"{entry.name}.gif", still=folder / f"{entry.name}.png",
-                   still_at=entry.still_at, progress=progress) for entry in entries]
+    try:
+        return [record(entry.clip, folder / f"{entry.name}.gif", still=folder / f"{entry.name}.png",
+                       still_at=entry.still_at, progress=progress) for entry in entries]
+    except BaseException:
+        if created and not any(folder.iterdir()):
+            folder.rmdir()
+        raise
 
 
 def shortened(entry: Showcase, seconds: float) -> Showcase:

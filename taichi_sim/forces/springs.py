@@ -489,6 +489,12 @@ class Springs(ForceTerm):
                     torn += 1
         return torn
 
+    def restore(self) -> None:
+        """Mend every torn spring (a tearing scene back to how it was built)."""
+        if self.tearable:
+            self.alive.fill(1)
+            self.topology_version += 1
+
     def alive_count(self) -> int:
         """Springs still intact."""
         return int(self.alive.to_numpy().sum()) if self.tearable else self.spring_count

@@ -161,6 +161,11 @@ class Tearing:
         self.torn_total += torn
         return torn > 0
 
+    def restore(self) -> None:
+        """Every spring intact again, as built."""
+        self.springs.restore()
+        self.torn_total = 0
+
 
 @dataclass(frozen=True)
 class EmitterSpec:
@@ -199,7 +204,9 @@ class Emitter:
         self.first = first
         self.capacity = spec.capacity
         self.free = free
+        self.seed = seed
         self.rng = np.random.default_rng(seed)
+        self._slots_free0 = free.to_numpy()[first:first + spec.capacity].copy()
         self.alive = ti.field(ti.i32, shape=spec.capacity)
         self.age = ti.field(real, shape=spec.capacity)
         self.live_count = ti.field(ti.i32, shape=())
@@ -269,6 +276,19 @@ class Emitter:
             self.alive[k] = 1
             self.free[i] = 1
             self.live_count[None] += 1
+
+    def restore(self) -> None:
+        """No particle emitted yet and the random stream from its start, as built: the same
+        seed and steps then give the same particles again."""
+        self.alive.fill(0)
+        self.age.fill(0)
+        self.live_count[None] = 0
+        self.next_slot = 0
+        self.carry = 0.0
+        self.rng = np.random.default_rng(self.seed)
+        free = self.free.to_numpy()
+        free[self.first:self.first + self.capacity] = self._slots_free0
+        self.free.from_numpy(free)
 
     def arrays(self) -> dict:
         return {"alive": self.alive.to_numpy().astype(bool), "age": self.age.to_numpy().astype(np.float64),

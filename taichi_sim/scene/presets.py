@@ -46,6 +46,8 @@ def build_pendulum(preset: ScenePreset, p: dict[str, Any], seed: int) -> Scene:
                     pinned=pinned)
     b.add_springs(np.stack([np.arange(n - 1), np.arange(1, n)], axis=1),
                   stiffness=p["stiffness"], damping=p["damping"])
+    if p["grab"]:  # critically damped pull, as on the cloth
+        b.enable_grab(p["grab_stiffness"], damping=2 * math.sqrt(p["grab_stiffness"] * p["particle_mass"]))
     return preset.finish(b, p, seed)
 
 
@@ -65,6 +67,8 @@ SCENES: dict[str, ScenePreset] = {s.name: s for s in (
         Param("segment_length", 0.25, "m", "rest length of each link", minimum=0.0, exclusive=True),
         Param("angle", 90.0, "deg", "initial angle of the straight chain from hanging down"),
         *common_params(mass=0.1),
+        Param("grab", False, "", "allow pulling a particle with the mouse (a stiff spring)"),
+        Param("grab_stiffness", 50.0, "N/m", "stiffness of the grab spring", minimum=0.0),
     ), build_pendulum, default_dt=1e-3, default_integrator="symplectic_euler"),
     *CLOTH_SCENES,
     SPRINKLER,

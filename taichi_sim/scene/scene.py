@@ -69,6 +69,15 @@ class Scene:
         if self.spheres is not None:
             self.spheres.move_to(0.0)
 
+    def restore(self) -> None:
+        """Back to the scene as built: the initial state, torn springs mended, no particle
+        emitted and the emitter's random stream restarted (unlike :meth:`reset`), without
+        allocating anything."""
+        for event in self.post_step:
+            if hasattr(event, "restore"):
+                event.restore()
+        self.reset()
+
     def energy(self) -> float | None:
         """Total energy (J) of the current state, or None when the system defines none."""
         return self.system.energy(self.state)
