@@ -314,11 +314,12 @@ def advise_main(args) -> int:
     from .. import runtime
     from ..integrators import INTEGRATORS
     from ..scene import build_scene, scene_preset
+    from ..cli import scene_assignments
     from ..scene.params import resolve
     from .advise import recommend, scene_omegas, stability_table
 
     preset = scene_preset(args.scene)
-    params = dict(args.assignments)
+    params = scene_assignments(args.assignments)
     resolve(preset.params, preset.name, params)  # ConfigError before any Taichi work
     integrators = _names(args.integrators, list(INTEGRATORS), "integrators")
     if args.target_error is not None and not (math.isfinite(args.target_error) and args.target_error > 0):

@@ -1,0 +1,78 @@
+"""What a new user meets first: option spelling, help, version, file modes, sizes, messages."""
+import argparse
+import os
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from taichi_sim.cli import build_parser, main
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def _one_line_error(capsys) -> str:
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("taichi-sim: error: "), err
+    assert "Traceback" not in err
+    return lines[0]
+
+
+@pytest.mark.parametrize("argv, problem", [
+    (["simulate", "simple", "--steps", "3", "--set", "radius=1", "--set", "radius=2"], "radius given twice"),
+    (["simulate", "simple", "--t-end", "1", "--step", "5"], "unrecognized arguments: --step"),
+    (["simulate", "simple", "--steps", "3", "--integ", "rk4"], "unrecognized arguments: --integ"),
+    (["advise", "spring", "--set", "stiffness=1", "--set", "stiffness=2"], "stiffness given twice"),
+    (["record", "cloth", "--set", "nx=4", "--set", "nx=5", "--out", "x.gif"], "nx given twice"),
+    (["bench", "extremes", "--out", "x", "--step-s", "1"], "unrecognized arguments: --step-s"),
+])
+def test_repeated_set_and_abbreviated_options_are_errors(tmp_path, capsys, argv, problem):
+    argv = [str(tmp_path / a) if a in ("x.gif", "x") else a for a in argv]
+    out = tmp_path / "run.npz"
+    extra = ["--out", str(out)] if argv[0] == "simulate" else []
+    assert main(argv + extra) == 2
+    assert problem in _one_line_error(capsys)
+    assert not out.exists() and not (tmp_path / "x.gif").exists() and not (tmp_path / "x").exists()
+
+
+def _parsers(parser: argparse.ArgumentParser):
+    yield parser
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                yield from _parsers(sub)
+
+
+def test_every_parser_refuses_abbreviations():
+    parsers = list(_parsers(build_parser()))
+    assert len(parsers) >= 10  # the top level, 6 commands, 5 benchmarks
+    assert all(p.allow_abbrev is False for p in parsers)
+
+
+def test_version_comes_from_the_package_metadata(capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["--version"])
+    assert exc.value.code == 0
+    version = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["version"]
+    assert capsys.readouterr().out.strip() == f"taichi-sim {version}"
+
+
+def test_simulate_help_explains_every_option(capsys):
+    with pytest.raises(SystemExit):
+        main(["simulate", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    for words in ("--steps N number of steps", "--precision {f32,f64} floating-point precision",
+                  "--arch {cpu,gpu} where the simulation runs", "--seed SEED random seed"):
+        assert words in text
+    sim = next(p for p in _parsers(build_parser()) if p.prog.endswith("simulate"))
+    assert all(a.help for a in sim._actions), [a.dest for a in sim._actions if not a.help]
+
+
+def test_bench_all_help_says_what_all_runs(capsys):
+    with pytest.raises(SystemExit):
+        main(["bench", "all", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "work-precision, stability and throughput, one after the other" in text
+    assert "all.csv" not in text and "extremes is not included" in text
