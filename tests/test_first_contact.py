@@ -76,3 +76,33 @@ def test_bench_all_help_says_what_all_runs(capsys):
     text = " ".join(capsys.readouterr().out.split())
     assert "work-precision, stability and throughput, one after the other" in text
     assert "all.csv" not in text and "extremes is not included" in text
+
+
+@pytest.mark.parametrize("umask, mode", [(0o022, 0o644), (0o077, 0o600), (0o002, 0o664)])
+def test_npz_respects_the_umask(f64, tmp_path, umask, mode):
+    import taichi_sim as ts
+    from taichi_sim import io
+
+    scene = ts.build_scene("simple")
+    result = ts.run(scene, "rk4", dt=0.1, steps=2, progress=False)
+    arrays = io.run_arrays(scene, result, integrator=ts.create_integrator("rk4", scene.system), dt=0.1)
+    old = os.umask(umask)
+    try:
+        path = io.save_npz(tmp_path / "run.npz", arrays)
+    finally:
+        os.umask(old)
+    assert path.stat().st_mode & 0o777 == mode
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run.npz"]  # no temporary left
+    assert float(np.load(path)["t"]) == pytest.approx(0.2)
+
+
+def test_a_failed_npz_write_leaves_nothing(tmp_path):
+    from taichi_sim import io
+
+    class Unsaveable:
+        def __array__(self, *args, **kwargs):
+            raise RuntimeError("cannot convert")
+
+    with pytest.raises(RuntimeError):
+        io.save_npz(tmp_path / "run.npz", {"x": Unsaveable()})
+    assert list(tmp_path.iterdir()) == []
