@@ -261,6 +261,8 @@ def cmd_simulate(args) -> int:
     from .integrators import check_options, create_integrator
     from .run import check_run_args, run
     from .scene import build_scene, scene_preset
+    from .scene.params import resolve
+    from .scene.presets import check_scene_memory
 
     preset = scene_preset(args.scene)
     integrator_name = args.integrator or preset.default_integrator
@@ -276,6 +278,8 @@ def cmd_simulate(args) -> int:
     params = scene_assignments(args.assignments)
     limits = GuardLimits() if args.max_energy_growth is None else GuardLimits(energy_growth=args.max_energy_growth)
     io.check_output_path(args.out)
+    check_scene_memory(preset, resolve(preset.params, preset.name, params), precision=args.precision,
+                       integrators=(integrator_name,), linear_solver=options.get("linear_solver") or "cg")
 
     runtime.init(arch=args.arch, precision=args.precision)
     scene = build_scene(args.scene, params, seed=args.seed)
@@ -316,13 +320,15 @@ def _session_args(args) -> dict:
     from .integrators import integrator_class
     from .scene import scene_preset
     from .scene.params import resolve
+    from .scene.presets import check_scene_memory
 
     preset = scene_preset(args.scene)
     integrators = args.side_by_side or [args.integrator or preset.default_integrator]
     for name in integrators:
         integrator_class(name)
     params = scene_assignments(args.assignments)
-    resolve(preset.params, preset.name, params)
+    check_scene_memory(preset, resolve(preset.params, preset.name, params), precision=args.precision,
+                       integrators=tuple(integrators), copies=len(integrators))
     return {"scene": preset.name, "integrators": tuple(integrators), "params": params, "dt": args.dt}
 
 

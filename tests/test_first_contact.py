@@ -106,3 +106,59 @@ def test_a_failed_npz_write_leaves_nothing(tmp_path):
     with pytest.raises(RuntimeError):
         io.save_npz(tmp_path / "run.npz", {"x": Unsaveable()})
     assert list(tmp_path.iterdir()) == []
+
+
+def test_an_impossible_cloth_is_refused_with_its_size(tmp_path, capsys):
+    out = tmp_path / "run.npz"
+    assert main(["simulate", "cloth", "--set", "nx=100000", "--set", "ny=100000", "--steps", "1",
+                 "--out", str(out)]) == 2
+    line = _one_line_error(capsys)
+    assert "nx = 100000, ny = 100000" in line and "needs about" in line and "TB" in line
+    assert "10,000,000,000 particles" in line and "available" in line
+    assert not out.exists()
+
+
+def test_the_api_refuses_a_scene_larger_than_memory_naming_the_parameter(f64):
+    import taichi_sim as ts
+
+    with pytest.raises(ts.ConfigError, match="capacity = 2000000000"):
+        ts.build_scene("sprinkler", {"capacity": 2_000_000_000})
+    with pytest.raises(ValueError, match="particle_count = 1000000000"):
+        ts.build_scene("pendulum", {"particle_count": 10**9})
+
+
+def test_memory_check_against_what_is_available():
+    from taichi_sim.memory import Size, check_size, estimate_bytes
+
+    size = Size(1000, 6000, 2000)
+    need = estimate_bytes(size, integrators=("rk4",))
+    assert check_size(size, "nx = 10", integrators=("rk4",), available=need) == need
+    with pytest.raises(ValueError, match=r"nx = 10: the scene needs about 2\.\d+ MB .* only 1 MB"):
+        check_size(size, "nx = 10", integrators=("rk4",), available=10**6)
+    # scratch grows with the method; f32 halves the reals; side-by-side copies add up
+    assert estimate_bytes(size, integrators=("implicit_euler",)) > need > estimate_bytes(size, integrators=("euler",))
+    assert estimate_bytes(size, precision="f32") < estimate_bytes(size)
+    assert estimate_bytes(size, copies=2) > 1.9 * estimate_bytes(size)
+    with pytest.raises(ValueError, match="32-bit field indices"):
+        check_size(Size(3 * 10**9, 0), "capacity = 3000000000", available=10**15)
+
+
+def test_the_estimate_covers_what_a_build_allocates_in_numpy(f64):
+    import tracemalloc
+
+    import taichi_sim as ts
+    from taichi_sim.memory import estimate_bytes
+    from taichi_sim.scene import SCENES
+    from taichi_sim.scene.params import resolve
+
+    values = resolve(SCENES["cloth"].params, "cloth", {"nx": 64, "ny": 64})
+    size = SCENES["cloth"].size(values)
+    tracemalloc.start()
+    try:
+        scene = ts.build_scene("cloth", {"nx": 64, "ny": 64})
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert (size.particles, size.springs, size.triangles) == (
+        scene.particle_count, scene.features["springs"], scene.features["triangles"])
+    assert peak < estimate_bytes(size) < 4 * peak

@@ -316,11 +316,14 @@ def advise_main(args) -> int:
     from ..scene import build_scene, scene_preset
     from ..cli import scene_assignments
     from ..scene.params import resolve
+    from ..scene.presets import check_scene_memory
     from .advise import recommend, scene_omegas, stability_table
 
     preset = scene_preset(args.scene)
     params = scene_assignments(args.assignments)
-    resolve(preset.params, preset.name, params)  # ConfigError before any Taichi work
+    # ConfigError before any Taichi work; the pilot runs build one scene per candidate, in turn
+    check_scene_memory(preset, resolve(preset.params, preset.name, params), precision=args.precision,
+                       integrators=("implicit_euler",))
     integrators = _names(args.integrators, list(INTEGRATORS), "integrators")
     if args.target_error is not None and not (math.isfinite(args.target_error) and args.target_error > 0):
         raise ConfigError(f"--target-error must be a finite number > 0, got {args.target_error}")
