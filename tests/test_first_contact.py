@@ -162,3 +162,38 @@ def test_the_estimate_covers_what_a_build_allocates_in_numpy(f64):
     assert (size.particles, size.springs, size.triangles) == (
         scene.particle_count, scene.features["springs"], scene.features["triangles"])
     assert peak < estimate_bytes(size) < 4 * peak
+
+
+LAVAPIPE_LOG = """[W 11/23/26 22:41:42.519 3134] [cuda_driver.cpp:load_lib@36] libcuda.so lib not found.
+[T 11/23/26 22:41:42.566 3134] [vulkan_device_creator.cpp:pick_physical_device@439] RHI Debug : Found Vulkan Device 0 (llvmpipe (LLVM 15.0.6, 256 bits))
+"""
+
+
+@pytest.mark.parametrize("backend, log, expected", [
+    ("vulkan", LAVAPIPE_LOG, "no CUDA driver (libcuda.so not found); running on Vulkan with a software device, "
+                             "llvmpipe (LLVM 15.0.6, 256 bits): it computes on the CPU, usually slower than --arch cpu"),
+    ("vulkan", LAVAPIPE_LOG.replace("llvmpipe", "NVIDIA RTX A4000"),
+     "no CUDA driver (libcuda.so not found); running on Vulkan (NVIDIA RTX A4000 (LLVM 15.0.6, 256 bits))"),
+    ("cuda", "", "running on CUDA"),
+    ("x64", LAVAPIPE_LOG.splitlines()[0], "no CUDA driver (libcuda.so not found); no GPU backend available, "
+                                          "running on the CPU (x64)"),
+])
+def test_gpu_choice_in_one_line(backend, log, expected):
+    from taichi_sim.runtime import describe_gpu_choice
+
+    assert describe_gpu_choice(backend, log) == expected
+
+
+def test_arch_gpu_says_what_it_chose_without_taichis_raw_log(capfd):
+    import taichi_sim as ts
+
+    try:
+        ts.init(arch="gpu", precision="f32")
+        backend = ts.runtime.backend()
+    finally:
+        ts.init(arch="cpu", precision="f64")
+    err = capfd.readouterr().err
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert lines == [lines[0]] and lines[0].startswith("taichi_sim: --arch gpu: "), err
+    assert "[W " not in err and "[T " not in err
+    assert {"cuda": "CUDA", "vulkan": "Vulkan", "x64": "CPU", "metal": "metal"}[backend] in lines[0]
