@@ -197,3 +197,36 @@ def test_arch_gpu_says_what_it_chose_without_taichis_raw_log(capfd):
     assert lines == [lines[0]] and lines[0].startswith("taichi_sim: --arch gpu: "), err
     assert "[W " not in err and "[T " not in err
     assert {"cuda": "CUDA", "vulkan": "Vulkan", "x64": "CPU", "metal": "metal"}[backend] in lines[0]
+
+
+def test_bench_says_what_it_skips_without_scipy_or_matplotlib(tmp_path, monkeypatch, capsys):
+    from taichi_sim.bench import common
+
+    monkeypatch.setattr(common, "have_scipy", lambda: False)
+    monkeypatch.setattr(common, "have_matplotlib", lambda: False)
+    out = tmp_path / "bench"
+    assert main(["bench", "work-precision", "--out", str(out), "--quick", "--quiet",
+                 "--scenes", "spring,pendulum,cloth", "--integrators", "rk4"]) == 0
+    err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert err[0].startswith("taichi-sim: work-precision skips pendulum, cloth: ")
+    assert "scipy is not installed" in err[0] and "./run.sh installs it" in err[0]
+    assert err[1] == ("taichi-sim: no plot written (work-precision.png): matplotlib is not installed "
+                      "(./run.sh installs it, or .venv/bin/pip install -e '.[bench]')")
+    assert len(err) == 2
+    document = (out / "work-precision.json").read_text()
+    assert '"spring"' in document and '"pendulum"' not in document
+    assert not (out / "work-precision.png").exists()
+    # nothing left to measure: refused before any work
+    assert main(["bench", "work-precision", "--out", str(tmp_path / "b2"), "--quick", "--scenes", "cloth"]) == 2
+    assert "cannot measure cloth" in _one_line_error(capsys)
+
+
+def test_run_sh_installs_the_extras_the_readme_examples_use():
+    run_sh = (ROOT / "run.sh").read_text()
+    extras = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["optional-dependencies"]
+    chosen = next(line for line in run_sh.splitlines() if "source scripts/bootstrap.sh" in line)
+    names = chosen.split("TS_EXTRAS=", 1)[1].split()[0].split(",")
+    installed = {req.split(">")[0].split("=")[0].split("[")[0] for name in names if name for req in extras[name]}
+    assert {"scipy", "matplotlib"} <= installed  # the npz check, bench plots and references
+    readme = (ROOT / "README.md").read_text()
+    assert "\npip install -e" not in readme and "\n pip install" not in readme
