@@ -230,3 +230,63 @@ def test_run_sh_installs_the_extras_the_readme_examples_use():
     assert {"scipy", "matplotlib"} <= installed  # the npz check, bench plots and references
     readme = (ROOT / "README.md").read_text()
     assert "\npip install -e" not in readme and "\n pip install" not in readme
+
+
+def _section(readme: str, heading: str) -> str:
+    start = readme.index(f"\n## {heading}\n")
+    return readme[start:readme.index("\n## ", start + 1)]
+
+
+def test_readme_gallery_states_the_media_sizes_it_shows():
+    from PIL import Image
+
+    gallery = _section((ROOT / "README.md").read_text(), "Gallery")
+    shown = [ROOT / path for path in __import__("re").findall(r"\((media/[^)]+\.gif)\)", gallery)]
+    assert len(shown) >= 8
+    real = {Image.open(p).size for p in shown} | {Image.open(p.with_suffix(".png")).size for p in shown}
+    stated = {(int(w), int(h)) for w, h in __import__("re").findall(r"(\d+) × (\d+)", gallery)}
+    assert stated == real
+    for p in shown:
+        with Image.open(p) as gif:
+            assert gif.n_frames == 48 and gif.info["duration"] == pytest.approx(1000 / 12, abs=4)  # 4 s at 12 fps
+
+
+def test_readme_links_resolve():
+    import re
+
+    readme = (ROOT / "README.md").read_text()
+    slugs = {re.sub(r"[^\w\- ]", "", h.strip().lower()).replace(" ", "-")
+             for h in re.findall(r"^#+ (.+)$", readme, flags=re.M)}
+    for target in re.findall(r"\]\(([^)\s]+)\)", readme):
+        if target.startswith(("http://", "https://")):
+            continue
+        path, _, anchor = target.partition("#")
+        if path:
+            assert (ROOT / path).exists(), target
+        elif anchor:
+            assert anchor in slugs, target
+    assert "](docs/design.md)" in readme and "DESIGN.md" not in readme
+
+
+def test_readme_api_example_continues_from_the_run(capsys):
+    import re
+
+    api = _section((ROOT / "README.md").read_text(), "Python API")
+    code = re.search(r"```python\n(.*?)```", api, flags=re.S).group(1)
+    shown = re.search(r"prints .*?```text\n(.*?)```", api, flags=re.S).group(1).splitlines()
+    # a smaller cloth without wind (whose kernels take seconds to compile) for a shorter run
+    small = (code.replace('"nx": 32, "ny": 32, "wind": True', '"nx": 6, "ny": 6')
+             .replace("t_end=2.0", "t_end=0.05"))
+    assert small != code
+    try:
+        exec(compile(small, "README.md", "exec"), {})
+    finally:
+        import taichi_sim as ts
+        ts.init(arch="cpu", precision="f64")
+    printed = capsys.readouterr().out.splitlines()
+    assert printed[0].startswith("ok 0.05 50 200 ")
+    accepted = printed[-1]
+    h, t = (float(v) for v in re.match(r"accepted h = (\S+) s -> t = (\S+) s", accepted).groups())
+    assert t == pytest.approx(0.05 + h, rel=1e-5) and h > 0  # the step continued from t_end, not from 0
+    assert shown[0].startswith("ok 2.0 2000 8000 ") and shown[-1].startswith("accepted h = ")
+    assert all(line.startswith("rejected h = ") for line in shown[1:-1])
