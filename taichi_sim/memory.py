@@ -3,8 +3,10 @@ so that an impossible size is refused with one line instead of a MemoryError dee
 Taichi.
 
 The estimate counts bytes per particle, per spring and per triangle, plus each integrator's
-scratch. The per-item constants are rounded up from measurements of peak resident memory
-(2026-11-23, Taichi 1.7.4 on x64, f64): building a 512 x 512 cloth (262 144 particles,
+scratch. The per-item constants are rounded up from measurements of peak resident memory (the
+growth of ``resource.getrusage(...).ru_maxrss`` across ``build_scene`` and across
+``create_integrator`` plus two steps, numpy's peak by ``tracemalloc``; 2026-11-23, Taichi 1.7.4
+on x64, f64, 2 vCPUs of an AMD EPYC): building a 512 x 512 cloth (262 144 particles,
 1 567 746 springs, 522 242 triangles) took 449 MB, of which 341 MB was numpy's peak while
 building the topology (about 217 bytes per spring); the first steps of implicit_euler with CG
 added 204 MB on top, rk4 and symplectic Euler a few MB (their scratch states fit in memory the
