@@ -79,21 +79,17 @@ def test_bench_all_help_says_what_all_runs(capsys):
 
 
 @pytest.mark.parametrize("umask, mode", [(0o022, 0o644), (0o077, 0o600), (0o002, 0o664)])
-def test_npz_respects_the_umask(f64, tmp_path, umask, mode):
-    import taichi_sim as ts
+def test_npz_respects_the_umask(tmp_path, umask, mode):
     from taichi_sim import io
 
-    scene = ts.build_scene("simple")
-    result = ts.run(scene, "rk4", dt=0.1, steps=2, progress=False)
-    arrays = io.run_arrays(scene, result, integrator=ts.create_integrator("rk4", scene.system), dt=0.1)
     old = os.umask(umask)
     try:
-        path = io.save_npz(tmp_path / "run.npz", arrays)
+        path = io.save_npz(tmp_path / "run.npz", {"t": np.float64(0.2), "x": np.zeros((4, 3))})
     finally:
         os.umask(old)
     assert path.stat().st_mode & 0o777 == mode
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run.npz"]  # no temporary left
-    assert float(np.load(path)["t"]) == pytest.approx(0.2)
+    assert float(np.load(path)["t"]) == 0.2
 
 
 def test_a_failed_npz_write_leaves_nothing(tmp_path):

@@ -111,8 +111,8 @@ def _unit_sphere(rings: int = 16, segments: int = 32) -> tuple[np.ndarray, np.nd
 
 def _rod(bottom: np.ndarray, top: np.ndarray, radius: float,
          segments: int = 16) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """An open cylinder from ``bottom`` to ``top`` (m) of ``radius`` (m), with a flat cap on
-    top: vertices (m, 3), normals (m, 3) and triangles (t, 3)."""
+    """A closed cylinder from ``bottom`` to ``top`` (m) of ``radius`` (m): vertices (m, 3),
+    normals (m, 3) and triangles (t, 3), wound counter-clockwise seen from outside."""
     axis = top - bottom
     axis = axis / np.linalg.norm(axis)
     helper = np.array([1.0, 0.0, 0.0]) if abs(axis[0]) < 0.9 else np.array([0.0, 0.0, 1.0])
@@ -121,13 +121,17 @@ def _rod(bottom: np.ndarray, top: np.ndarray, radius: float,
     w = np.cross(axis, u)
     phi = np.linspace(0.0, 2.0 * np.pi, segments, endpoint=False)
     ring = np.cos(phi)[:, None] * u + np.sin(phi)[:, None] * w  # (segments, 3) outward normals
-    verts = np.concatenate([bottom + radius * ring, top + radius * ring, top[None], top + radius * ring])
-    normals = np.concatenate([ring, ring, np.tile(axis, (segments + 1, 1))])
+    # side rings (normals outward), then each cap's ring and centre (normals along the axis)
+    verts = np.concatenate([bottom + radius * ring, top + radius * ring,
+                            top + radius * ring, top[None], bottom + radius * ring, bottom[None]])
+    normals = np.concatenate([ring, ring, np.tile(axis, (segments + 1, 1)), np.tile(-axis, (segments + 1, 1))])
     k = np.arange(segments)
     nxt = (k + 1) % segments
-    side = np.concatenate([np.stack([k, nxt, segments + k], -1), np.stack([nxt, segments + nxt, segments + k], -1)])
-    cap = np.stack([np.full(segments, 2 * segments), 2 * segments + 1 + k, 2 * segments + 1 + nxt], -1)
-    return verts, normals, np.concatenate([side, cap])
+    s = segments
+    side = np.concatenate([np.stack([k, nxt, s + k], -1), np.stack([nxt, s + nxt, s + k], -1)])
+    top_cap = np.stack([np.full(s, 3 * s), 2 * s + k, 2 * s + nxt], -1)
+    bottom_cap = np.stack([np.full(s, 4 * s + 1), 3 * s + 1 + nxt, 3 * s + 1 + k], -1)
+    return verts, normals, np.concatenate([side, top_cap, bottom_cap])
 
 
 @ti.data_oriented
@@ -246,11 +250,14 @@ class SceneDrawer:
         self.pole = None
         if v.pole is not None:
             verts, normals, tris = _rod(v.pole.bottom + self.offset, v.pole.top + self.offset, v.pole.radius)
-            self.pole = (ti.Vector.field(3, ti.f32, len(verts)), ti.field(ti.i32, tris.size),
-                         ti.Vector.field(3, ti.f32, len(verts)))
+            # Drawn like the floor and the cloth (per-vertex colour, two-sided): GGUI 1.7.4 reuses
+            # mesh slots from frame to frame, and after a frame whose only mesh was a pole drawn
+            # any other way, later frames on the window lost meshes now and then.
+            self.pole = tuple(ti.Vector.field(3, ti.f32, len(verts)) for _ in range(3)) + (ti.field(ti.i32, tris.size),)
             self.pole[0].from_numpy(verts.astype(np.float32))
-            self.pole[1].from_numpy(tris.ravel().astype(np.int32))
-            self.pole[2].from_numpy(normals.astype(np.float32))
+            self.pole[1].from_numpy(normals.astype(np.float32))
+            self.pole[2].from_numpy(np.tile(np.asarray(POLE, np.float32), (len(verts), 1)))
+            self.pole[3].from_numpy(tris.ravel().astype(np.int32))
         self.floor = None
         if v.plane is not None:
             self.floor = self._floor_mesh()
@@ -357,7 +364,8 @@ class SceneDrawer:
             scene.mesh(self.sphere_vertices, indices=self.sphere_indices, normals=self.sphere_normals,
                        color=SPHERE)
         if self.pole is not None:
-            scene.mesh(self.pole[0], indices=self.pole[1], normals=self.pole[2], color=POLE, two_sided=True)
+            scene.mesh(self.pole[0], indices=self.pole[3], normals=self.pole[1], per_vertex_color=self.pole[2],
+                       two_sided=True)
         if self.surface and options.mesh:
             scene.mesh(self.pos, indices=self.tri_idx, normals=self.normals,
                        per_vertex_color=self.colors, two_sided=True)
