@@ -250,9 +250,9 @@ class SceneDrawer:
         self.pole = None
         if v.pole is not None:
             verts, normals, tris = _rod(v.pole.bottom + self.offset, v.pole.top + self.offset, v.pole.radius)
-            # Drawn like the floor and the cloth (per-vertex colour, two-sided): GGUI 1.7.4 reuses
-            # mesh slots from frame to frame, and after a frame whose only mesh was a pole drawn
-            # any other way, later frames on the window lost meshes now and then.
+            # Drawn like the cloth (per-vertex colour, two-sided) and only with it: GGUI 1.7.4
+            # reuses mesh slots from frame to frame, and after a frame whose only mesh was the
+            # pole, later frames on the window lost meshes now and then.
             self.pole = tuple(ti.Vector.field(3, ti.f32, len(verts)) for _ in range(3)) + (ti.field(ti.i32, tris.size),)
             self.pole[0].from_numpy(verts.astype(np.float32))
             self.pole[1].from_numpy(normals.astype(np.float32))
@@ -363,7 +363,7 @@ class SceneDrawer:
         if self.sphere_vertices is not None:
             scene.mesh(self.sphere_vertices, indices=self.sphere_indices, normals=self.sphere_normals,
                        color=SPHERE)
-        if self.pole is not None:
+        if self.pole is not None and options.mesh:  # the flag's, shown with it (see _init_extras)
             scene.mesh(self.pole[0], indices=self.pole[3], normals=self.pole[1], per_vertex_color=self.pole[2],
                        two_sided=True)
         if self.surface and options.mesh:
