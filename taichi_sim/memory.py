@@ -23,10 +23,14 @@ from .errors import ConfigError
 # Taichi indexes fields with 32-bit integers; the spring gather holds 2 entries per spring.
 MAX_INDEX = 2**31 - 1
 
-# Bytes per item at a real of r bytes (4 for f32, 8 for f64).
-_PARTICLE_FIXED, _PARTICLE_REALS = 200, 14   # numpy x0, v0, positions and their build copies; state, guard snapshot, mass, flags
-_SPRING_FIXED, _SPRING_REALS = 230, 4        # numpy ends, kinds, rest lengths and their temporaries; Taichi ends, gather lists, rest, k, c, tearing
-_TRIANGLE_FIXED, _TRIANGLE_REALS = 80, 2     # numpy and Taichi vertex ids, per-particle incidence lists
+# Bytes per item at a real of r bytes (4 for f32, 8 for f64): fixed bytes + reals * r.
+# A particle: numpy x0, v0, positions and their build copies; the state, the guard's snapshot,
+# mass and flags. A spring: numpy ends, kinds, rest lengths and their temporaries; Taichi's
+# ends, gather lists, rest length, stiffness, damping, tearing. A triangle: numpy and Taichi
+# vertex ids and the per-particle incidence lists.
+_PARTICLE_FIXED, _PARTICLE_REALS = 200, 14
+_SPRING_FIXED, _SPRING_REALS = 230, 4
+_TRIANGLE_FIXED, _TRIANGLE_REALS = 80, 2
 
 # Scratch of each integrator, in copies of the state (6 reals per particle): its RK stages and
 # stage inputs, candidates, snapshots.
