@@ -51,7 +51,7 @@ def check_cost(scene, rounds: int) -> float:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0], allow_abbrev=False)
     parser.add_argument("--sizes", default="32,64,128")
     parser.add_argument("--precision", default="f32", choices=("f32", "f64"))
     parser.add_argument("--integrator", default="symplectic_euler")

@@ -71,7 +71,7 @@ def record_time(size: tuple[int, int], grid: int, seconds: float, fps: float) ->
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0], allow_abbrev=False)
     parser.add_argument("--size", default="1280x720")
     parser.add_argument("--grid", type=int, default=64)
     parser.add_argument("--frames", type=int, default=60)

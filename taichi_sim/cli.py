@@ -11,10 +11,41 @@ EXIT_USAGE = 2
 
 
 class _Parser(argparse.ArgumentParser):
-    """argparse, but usage errors are one line (plus exit code 2)."""
+    """argparse, but usage errors are one line (plus exit code 2), and an option must be spelled
+    out: with prefix matching ``--step 5`` would silently mean ``--steps 5``."""
+
+    def __init__(self, *args, **kwargs):
+        kwargs["allow_abbrev"] = False
+        super().__init__(*args, **kwargs)
 
     def error(self, message: str):
         raise ConfigError(message)
+
+
+def _version() -> str:
+    """The installed package's version (from its metadata), or the source tree's when the
+    package is run from a checkout that was never installed."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("taichi_sim")
+    except PackageNotFoundError:
+        import tomllib
+        from pathlib import Path
+
+        pyproject = Path(__file__).resolve().parent.parent / "pyproject.toml"
+        return tomllib.loads(pyproject.read_text())["project"]["version"]
+
+
+def scene_assignments(assignments: list[tuple[str, str]]) -> dict[str, str]:
+    """``--set`` pairs as a dict; a parameter set twice is an error (which value was meant?)."""
+    params: dict[str, str] = {}
+    for name, value in assignments:
+        if name in params:
+            raise ConfigError(f"--set {name} given twice ({name}={params[name]} and {name}={value}); "
+                              "give each parameter once")
+        params[name] = value
+    return params
 
 
 def _positive_float(text: str) -> float:
@@ -51,6 +82,12 @@ def _name_list(text: str) -> list[str]:
     return names
 
 
+_SET_HELP = "scene parameter; repeat for several, each at most once (see `taichi-sim list`)"
+_PRECISION_HELP = "floating-point precision of every state and parameter field (default f64)"
+_ARCH_HELP = ("where the simulation runs: cpu (default) or gpu (CUDA, Vulkan or Metal, whichever "
+              "Taichi finds; the choice is printed)")
+
+
 def _add_view_options(p: argparse.ArgumentParser) -> None:
     """Options shared by ``demo`` and ``record``: what to run and how."""
     which = p.add_mutually_exclusive_group()
@@ -59,30 +96,34 @@ def _add_view_options(p: argparse.ArgumentParser) -> None:
                        help="run the scene with 2 or 3 integrators at once, drawn next to each other")
     p.add_argument("--dt", type=_positive_float, default=None, help="step size in s (default: the scene's)")
     p.add_argument("--set", dest="assignments", action="append", type=_assignment, default=[],
-                   metavar="NAME=VALUE", help="scene parameter (repeatable); see `taichi-sim list`")
-    p.add_argument("--seed", type=int, default=0, help="random seed for scenes with randomness")
-    p.add_argument("--precision", choices=("f32", "f64"), default="f64")
+                   metavar="NAME=VALUE", help=_SET_HELP)
+    p.add_argument("--seed", type=int, default=0, help="random seed for scenes with randomness (default 0)")
+    p.add_argument("--precision", choices=("f32", "f64"), default="f64", help=_PRECISION_HELP)
     p.add_argument("--arch", choices=("cpu", "gpu"), default="cpu",
-                   help="where the simulation runs (rendering always uses Vulkan)")
+                   help=_ARCH_HELP + "; rendering always uses Vulkan")
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="taichi-sim", description="Particle and mass-spring simulation on Taichi.")
+    parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = parser.add_subparsers(dest="command", parser_class=_Parser)
 
     sub.add_parser("list", help="list scenes (with parameters) and integrators (with order)")
 
     sim = sub.add_parser("simulate", help="run a scene headless and write an .npz")
-    sim.add_argument("scene")
+    sim.add_argument("scene", help="scene name (see `taichi-sim list`)")
     sim.add_argument("--integrator", default=None, help="integrator name (default: the scene's)")
-    sim.add_argument("--dt", type=_positive_float, default=None, help="step size in s")
+    sim.add_argument("--dt", type=_positive_float, default=None,
+                     help="step size in s (default: the scene's; adaptive methods: the first step, "
+                          "chosen automatically)")
     length = sim.add_mutually_exclusive_group(required=True)
-    length.add_argument("--steps", type=_positive_int)
-    length.add_argument("--t-end", type=_positive_float, help="end time in s")
-    sim.add_argument("--precision", choices=("f32", "f64"), default="f64")
-    sim.add_argument("--arch", choices=("cpu", "gpu"), default="cpu")
+    length.add_argument("--steps", type=_positive_int, metavar="N", help="number of steps to take")
+    length.add_argument("--t-end", type=_positive_float, metavar="T",
+                        help="end time in s (the last step is shortened to land on it)")
+    sim.add_argument("--precision", choices=("f32", "f64"), default="f64", help=_PRECISION_HELP)
+    sim.add_argument("--arch", choices=("cpu", "gpu"), default="cpu", help=_ARCH_HELP)
     sim.add_argument("--set", dest="assignments", action="append", type=_assignment, default=[],
-                     metavar="NAME=VALUE", help="scene parameter (repeatable); see `taichi-sim list`")
+                     metavar="NAME=VALUE", help=_SET_HELP)
     sim.add_argument("--rtol", type=_positive_float, help="relative tolerance (adaptive methods)")
     sim.add_argument("--atol", type=_positive_float, help="absolute tolerance (adaptive methods)")
     sim.add_argument("--linear-solver", choices=("cg", "direct"),
@@ -114,7 +155,9 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--max-energy-growth", type=_positive_float, metavar="F",
                      help="the blow-up guard's energy bound: the run is diverged when its energy "
                           "rises more than F energy scales above the start (default 10)")
-    sim.add_argument("--seed", type=int, default=0, help="random seed for scenes with randomness")
+    sim.add_argument("--seed", type=int, default=0,
+                     help="random seed for scenes with randomness (jitter, wind gusts, tearing noise, "
+                          "the sprinkler; default 0)")
     sim.add_argument("--energy-every", type=int, default=None, metavar="K",
                      help="sample energy every K steps (0: never; default: every step up to 2000 "
                           "steps, else about 2000 samples)")
@@ -146,19 +189,22 @@ def build_parser() -> argparse.ArgumentParser:
     bench = sub.add_parser("bench", help="measure accuracy, stability and speed (CSV, JSON and PNG into --out)")
     bench_sub = bench.add_subparsers(dest="bench_command", parser_class=_Parser, required=True,
                                      metavar="{work-precision,stability,throughput,extremes,stiff-cloth,all}")
-    bench_parsers = {
-        "work-precision": bench_sub.add_parser("work-precision", help="error against cost, observed orders"),
-        "stability": bench_sub.add_parser("stability", help="largest stable step against C/omega_max"),
-        "throughput": bench_sub.add_parser("throughput", help="particle-steps/s by grid, precision, "
-                                           "feature; against the Taichi and warp peers"),
-        "extremes": bench_sub.add_parser("extremes", help="every integrator at extreme stiffness and step: "
-                                         "bounded, reported, or a silent blow-up (exit 1)"),
-        "stiff-cloth": bench_sub.add_parser("stiff-cloth", help="large-step methods on a stiff cloth: error "
-                                            "against wall time, and their artificial damping"),
-        "all": bench_sub.add_parser("all", help="work-precision, stability and throughput, one after the other"),
+    descriptions = {
+        "work-precision": "error against cost for every integrator on each scene, and the observed orders",
+        "stability": "largest stable step of every integrator, bisected, against C/omega_max",
+        "throughput": "particle-steps/s by grid, precision and feature; against the Taichi and warp peers",
+        "extremes": "every integrator at extreme stiffness and step: bounded, reported, or a silent "
+                    "blow-up (exit 1)",
+        "all": "work-precision, stability and throughput, one after the other, with their default "
+               "options (extremes is not included: run `bench extremes`); each writes its NAME.csv, "
+               "NAME.json and NAME.png into --out",
     }
+    bench_parsers = {name: bench_sub.add_parser(name, help=text, description=text)
+                     for name, text in descriptions.items()}
     for name, p in bench_parsers.items():
-        p.add_argument("--out", required=True, metavar="DIR", help=f"folder for {name}.csv, .json and .png")
+        written = ("work-precision, stability and throughput .csv, .json and .png" if name == "all"
+                   else f"{name}.csv, .json and .png")
+        p.add_argument("--out", required=True, metavar="DIR", help=f"folder for {written}")
         p.add_argument("--quick", action="store_true", help="tiny sizes and few repeats (smoke test)")
         p.add_argument("--quiet", action="store_true", help="no tables or progress bar")
         if name != "all":
@@ -197,16 +243,16 @@ def build_parser() -> argparse.ArgumentParser:
     tp.add_argument("--no-peers", action="store_true", help="skip the Taichi and warp peers")
 
     adv = sub.add_parser("advise", help="predicted stability limits and the cheapest integrator for a target error")
-    adv.add_argument("scene")
+    adv.add_argument("scene", help="scene name (see `taichi-sim list`)")
     adv.add_argument("--set", dest="assignments", action="append", type=_assignment, default=[],
-                     metavar="NAME=VALUE", help="scene parameter (repeatable); see `taichi-sim list`")
+                     metavar="NAME=VALUE", help=_SET_HELP)
     adv.add_argument("--target-error", type=_positive_float, metavar="E",
                      help="largest position error (m) wanted at --t-end: recommend an integrator and step")
     adv.add_argument("--t-end", type=_positive_float, default=1.0, help="simulated time in s (default 1)")
     adv.add_argument("--integrators", metavar="A,B,...", help="candidates for the recommendation (default: all)")
-    adv.add_argument("--precision", choices=("f32", "f64"), default="f64")
-    adv.add_argument("--arch", choices=("cpu", "gpu"), default="cpu")
-    adv.add_argument("--seed", type=int, default=0, help="random seed for scenes with randomness")
+    adv.add_argument("--precision", choices=("f32", "f64"), default="f64", help=_PRECISION_HELP)
+    adv.add_argument("--arch", choices=("cpu", "gpu"), default="cpu", help=_ARCH_HELP)
+    adv.add_argument("--seed", type=int, default=0, help="random seed for scenes with randomness (default 0)")
     return parser
 
 
@@ -235,6 +281,8 @@ def cmd_simulate(args) -> int:
     from .integrators import check_options, create_integrator
     from .run import check_run_args, run
     from .scene import build_scene, scene_preset
+    from .scene.params import resolve
+    from .scene.presets import check_scene_memory
 
     preset = scene_preset(args.scene)
     integrator_name = args.integrator or preset.default_integrator
@@ -248,9 +296,11 @@ def cmd_simulate(args) -> int:
     check_run_args(dt, args.steps, args.t_end, adaptive=adaptive)
     if args.energy_every is not None and args.energy_every < 0:
         raise ConfigError(f"--energy-every must be >= 0, got {args.energy_every}")
-    params = dict(args.assignments)
+    params = scene_assignments(args.assignments)
     limits = GuardLimits() if args.max_energy_growth is None else GuardLimits(energy_growth=args.max_energy_growth)
     io.check_output_path(args.out)
+    check_scene_memory(preset, resolve(preset.params, preset.name, params), precision=args.precision,
+                       integrators=(integrator_name,), linear_solver=options.get("linear_solver") or "cg")
 
     runtime.init(arch=args.arch, precision=args.precision)
     scene = build_scene(args.scene, params, seed=args.seed)
@@ -291,13 +341,15 @@ def _session_args(args) -> dict:
     from .integrators import integrator_class
     from .scene import scene_preset
     from .scene.params import resolve
+    from .scene.presets import check_scene_memory
 
     preset = scene_preset(args.scene)
     integrators = args.side_by_side or [args.integrator or preset.default_integrator]
     for name in integrators:
         integrator_class(name)
-    params = dict(args.assignments)
-    resolve(preset.params, preset.name, params)
+    params = scene_assignments(args.assignments)
+    check_scene_memory(preset, resolve(preset.params, preset.name, params), precision=args.precision,
+                       integrators=tuple(integrators), copies=len(integrators))
     return {"scene": preset.name, "integrators": tuple(integrators), "params": params, "dt": args.dt}
 
 

@@ -71,12 +71,21 @@ def _first_order_velocity(scene: Scene, x: np.ndarray) -> np.ndarray:
     return out.x.to_numpy().astype(np.float64)
 
 
+def _umask() -> int:
+    mask = os.umask(0)  # the only portable way to read it is to set it
+    os.umask(mask)
+    return mask
+
+
 def save_npz(path: str | os.PathLike, arrays: dict[str, np.ndarray]) -> Path:
     """Write ``arrays`` to ``path`` atomically: a temporary file beside it, then a rename, so a
-    failure never leaves a partial file."""
+    failure never leaves a partial file. The file gets the mode of any newly created file
+    (0666 less the umask: 0644 under umask 022)."""
     path = check_output_path(path)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent or ".")
     try:
+        # mkstemp creates 0600 so that nobody reads a half-written file; the result is public
+        os.fchmod(fd, 0o666 & ~_umask())
         with os.fdopen(fd, "wb") as f:
             np.savez_compressed(f, **arrays)
         os.replace(tmp, path)

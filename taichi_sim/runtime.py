@@ -46,12 +46,82 @@ def init(arch: str = "cpu", precision: str = "f64", *, debug: bool = False,
                   log_level=ti.WARN)
     if cpu_max_num_threads is not None:
         kwargs["cpu_max_num_threads"] = int(cpu_max_num_threads)
+    log = ""
     with contextlib.redirect_stdout(io.StringIO()):  # ti.init prints "Starting on arch=..."
-        ti.init(**kwargs)
-    chosen = ti.lang.impl.current_cfg().arch
-    if arch == "gpu" and chosen in (ti.x64, ti.arm64):
-        print("taichi_sim: no GPU backend available, running on the CPU", file=sys.stderr)
-    _current.update(arch=arch, precision=precision, backend=str(chosen).split(".")[-1])
+        if arch == "gpu":
+            # Taichi's own log says why CUDA was skipped and which Vulkan device was found, in raw
+            # "[W ...] [cuda_driver.cpp:...]" lines; read them and say it in one line instead.
+            kwargs["log_level"] = ti.TRACE
+            with _capture_fd2() as captured:
+                try:
+                    ti.init(**kwargs)
+                finally:
+                    ti.set_logging_level(ti.WARN)
+            log = captured.text
+        else:
+            ti.init(**kwargs)
+    chosen = str(ti.lang.impl.current_cfg().arch).split(".")[-1]
+    if arch == "gpu":
+        print(f"taichi_sim: --arch gpu: {describe_gpu_choice(chosen, log)}", file=sys.stderr)
+    _current.update(arch=arch, precision=precision, backend=chosen)
+
+
+class _Captured:
+    text = ""
+
+
+@contextlib.contextmanager
+def _capture_fd2():
+    """Collect what is written to file descriptor 2 (Taichi's C++ logger writes there) into
+    ``.text``; on an exception the collected text is written back, so no error is lost."""
+    import tempfile
+
+    captured = _Captured()
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile(mode="w+b") as sink:
+        os.dup2(sink.fileno(), 2)
+        failed = False
+        try:
+            yield captured
+        except BaseException:
+            failed = True
+            raise
+        finally:
+            sys.stderr.flush()
+            os.dup2(saved, 2)
+            os.close(saved)
+            sink.seek(0)
+            captured.text = sink.read().decode(errors="replace")
+            if failed:
+                sys.stderr.write(captured.text)
+
+
+_SOFTWARE_VULKAN = ("llvmpipe", "lavapipe", "swiftshader", "software")
+
+
+def describe_gpu_choice(backend: str, log: str) -> str:
+    """One line saying which backend ``--arch gpu`` got and why, from Taichi's init ``log``
+    (its trace of CUDA loading and of the Vulkan devices found)."""
+    reasons = []
+    if "libcuda.so" in log and "not found" in log:
+        reasons.append("no CUDA driver (libcuda.so not found)")
+    device = None
+    for line in log.splitlines():
+        if "Found Vulkan Device" in line and "(" in line:
+            device = line.split("Found Vulkan Device", 1)[1].split("(", 1)[1].rsplit(")", 1)[0].strip()
+            break
+    why = f"{'; '.join(reasons)}; " if reasons and backend != "cuda" else ""
+    if backend == "cuda":
+        return "running on CUDA"
+    if backend == "vulkan":
+        if device and any(name in device.lower() for name in _SOFTWARE_VULKAN):
+            return (f"{why}running on Vulkan with a software device, {device}: it computes on the CPU, "
+                    "usually slower than --arch cpu")
+        return f"{why}running on Vulkan" + (f" ({device})" if device else "")
+    if backend in ("x64", "arm64"):
+        return f"{why}no GPU backend available, running on the CPU ({backend})"
+    return f"{why}running on {backend}"
 
 
 def is_initialized() -> bool:

@@ -43,12 +43,20 @@ def bench_main(args) -> int:
 
 def _plan_work_precision(args):
     from ..integrators import INTEGRATORS
-    from .workprec import PROBLEMS, QUICK_PROBLEMS
+    from .workprec import EXACT_SCENES, PROBLEMS, QUICK_PROBLEMS
 
     problems = QUICK_PROBLEMS if args.quick else PROBLEMS
     scenes = _names(getattr(args, "scenes", None), list(problems), "scenes") or list(problems)
     integrators = _names(getattr(args, "integrators", None), list(INTEGRATORS), "integrators") or list(INTEGRATORS)
     repeats = getattr(args, "repeats", None) or (1 if args.quick else 5)
+    unsolvable = [] if common.have_scipy() else [s for s in scenes if s not in EXACT_SCENES]
+    if unsolvable:
+        why = (f"their truth is scipy's reference solution and scipy is not installed "
+               f"({common.INSTALL_HINT})")
+        scenes = [s for s in scenes if s not in unsolvable]
+        if not scenes:
+            raise ConfigError(f"work-precision cannot measure {', '.join(unsolvable)}: {why}")
+        print(f"taichi-sim: work-precision skips {', '.join(unsolvable)}: {why}", file=sys.stderr)
     budget = getattr(args, "budget", None) or (20.0 if args.quick else 120.0)
 
     def run(out):
@@ -365,12 +373,16 @@ def advise_main(args) -> int:
     from .. import runtime
     from ..integrators import INTEGRATORS
     from ..scene import build_scene, scene_preset
+    from ..cli import scene_assignments
     from ..scene.params import resolve
+    from ..scene.presets import check_scene_memory
     from .advise import recommend, scene_omegas, stability_table
 
     preset = scene_preset(args.scene)
-    params = dict(args.assignments)
-    resolve(preset.params, preset.name, params)  # ConfigError before any Taichi work
+    params = scene_assignments(args.assignments)
+    # ConfigError before any Taichi work; the pilot runs build one scene per candidate, in turn
+    check_scene_memory(preset, resolve(preset.params, preset.name, params), precision=args.precision,
+                       integrators=("implicit_euler",))
     integrators = _names(args.integrators, list(INTEGRATORS), "integrators")
     if args.target_error is not None and not (math.isfinite(args.target_error) and args.target_error > 0):
         raise ConfigError(f"--target-error must be a finite number > 0, got {args.target_error}")

@@ -35,6 +35,17 @@ def prepare_out_dir(path: str | os.PathLike) -> Path:
     return out
 
 
+INSTALL_HINT = "./run.sh installs it, or .venv/bin/pip install -e '.[bench]'"
+
+
+def have_scipy() -> bool:
+    try:
+        import scipy.integrate  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
 def have_matplotlib() -> bool:
     try:
         import matplotlib  # noqa: F401
@@ -132,13 +143,16 @@ def _csv_value(value):
 
 
 def report_written(paths: dict, quiet: bool) -> None:
+    """List the files written (unless ``quiet``); a plot that was not drawn is said on stderr
+    even when quiet, since a missing file is not a matter of verbosity."""
+    if paths.get("png") is None:
+        print(f"taichi-sim: no plot written ({paths['json'].stem}.png): matplotlib is not installed "
+              f"({INSTALL_HINT})", file=sys.stderr)
     if quiet:
         return
     for kind in ("csv", "json", "png"):
         if paths.get(kind) is not None:
             print(f"wrote {paths[kind]}")
-    if paths.get("png") is None:
-        print("matplotlib is not installed: no plot written (pip install 'taichi_sim[bench]')")
 
 
 def machine_info() -> dict:

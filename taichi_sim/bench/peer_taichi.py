@@ -88,7 +88,7 @@ class TaichiExample:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser()
+    parser = argparse.ArgumentParser(allow_abbrev=False)
     parser.add_argument("--n", type=int, required=True)
     parser.add_argument("--precision", choices=("f32", "f64"), default="f32")
     parser.add_argument("--repeats", type=int, default=7)

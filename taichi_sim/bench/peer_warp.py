@@ -102,7 +102,7 @@ class WarpCloth:
 def main(argv=None) -> int:
     from taichi_sim.bench.peer_taichi import run_peer
 
-    parser = argparse.ArgumentParser()
+    parser = argparse.ArgumentParser(allow_abbrev=False)
     parser.add_argument("--n", type=int, required=True)
     parser.add_argument("--repeats", type=int, default=7)
     parser.add_argument("--batch-seconds", type=float, default=0.25)

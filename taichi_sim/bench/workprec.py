@@ -96,6 +96,9 @@ class Truth:
     info: dict = field(default_factory=dict)
 
 
+EXACT_SCENES = ("simple", "spring")  # closed-form truths; the others need scipy
+
+
 def exact_or_reference(scene, t_end: float) -> Truth:
     """The truth at ``t_end`` for a freshly reset ``scene`` (see the module docstring)."""
     from ..theory import scene_omega_max

@@ -26,6 +26,8 @@ LINE = (0.68, 0.73, 0.80)
 TRAIL = (1.00, 0.80, 0.28)
 GUIDE = (0.36, 0.40, 0.48)
 SPHERE = (0.62, 0.66, 0.72)
+POLE = (0.80, 0.76, 0.68)
+PALE = 0.35  # share of the fabric's colour in the pale squares of the gingham (the rest: light grey)
 FLOOR = ((0.30, 0.32, 0.36), (0.22, 0.24, 0.28))
 EMITTED_YOUNG = (0.45, 0.78, 1.00)
 EMITTED_OLD = (0.16, 0.26, 0.46)
@@ -86,6 +88,14 @@ def _colormap(s):
     return out
 
 
+@ti.func
+def _gingham(colour, weave):
+    """The fabric's colour at ``weave`` in [0, 1]: from a pale tint of ``colour`` (0) to the
+    full colour (1); plain cloth (no grid) has weave 1."""
+    pale = PALE * colour + (1.0 - PALE) * 0.85
+    return pale + (colour - pale) * weave
+
+
 def _unit_sphere(rings: int = 16, segments: int = 32) -> tuple[np.ndarray, np.ndarray]:
     """A latitude-longitude unit sphere: vertices (m, 3) (also its normals) and triangles
     (t, 3), wound counter-clockwise seen from outside."""
@@ -97,6 +107,31 @@ def _unit_sphere(rings: int = 16, segments: int = 32) -> tuple[np.ndarray, np.nd
     a, b, c, d = idx[:-1, :-1], idx[1:, :-1], idx[:-1, 1:], idx[1:, 1:]
     tris = np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3), np.stack([c, b, d], -1).reshape(-1, 3)])
     return verts, tris
+
+
+def _rod(bottom: np.ndarray, top: np.ndarray, radius: float,
+         segments: int = 16) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A closed cylinder from ``bottom`` to ``top`` (m) of ``radius`` (m): vertices (m, 3),
+    normals (m, 3) and triangles (t, 3), wound counter-clockwise seen from outside."""
+    axis = top - bottom
+    axis = axis / np.linalg.norm(axis)
+    helper = np.array([1.0, 0.0, 0.0]) if abs(axis[0]) < 0.9 else np.array([0.0, 0.0, 1.0])
+    u = np.cross(axis, helper)
+    u /= np.linalg.norm(u)
+    w = np.cross(axis, u)
+    phi = np.linspace(0.0, 2.0 * np.pi, segments, endpoint=False)
+    ring = np.cos(phi)[:, None] * u + np.sin(phi)[:, None] * w  # (segments, 3) outward normals
+    # side rings (normals outward), then each cap's ring and centre (normals along the axis)
+    verts = np.concatenate([bottom + radius * ring, top + radius * ring,
+                            top + radius * ring, top[None], bottom + radius * ring, bottom[None]])
+    normals = np.concatenate([ring, ring, np.tile(axis, (segments + 1, 1)), np.tile(-axis, (segments + 1, 1))])
+    k = np.arange(segments)
+    nxt = (k + 1) % segments
+    s = segments
+    side = np.concatenate([np.stack([k, nxt, s + k], -1), np.stack([nxt, s + nxt, s + k], -1)])
+    top_cap = np.stack([np.full(s, 3 * s), 2 * s + k, 2 * s + nxt], -1)
+    bottom_cap = np.stack([np.full(s, 4 * s + 1), 3 * s + 1 + nxt, 3 * s + 1 + k], -1)
+    return verts, normals, np.concatenate([side, top_cap, bottom_cap])
 
 
 @ti.data_oriented
@@ -155,7 +190,9 @@ class SceneDrawer:
             nx, ny = v.grid
             i, j = np.meshgrid(np.arange(nx), np.arange(ny), indexing="ij")
             stripe = max(1, round(max(nx, ny) / 10))
-            weave[:nx * ny] = (0.80 + 0.10 * ((i // stripe) % 2) + 0.10 * ((j // stripe) % 2)).ravel()
+            # Full colour where stripes cross, half where one runs, pale between: contrast
+            # strong enough that the check pattern bends visibly along the cloth's folds.
+            weave[:nx * ny] = (0.5 * ((i // stripe) % 2) + 0.5 * ((j // stripe) % 2)).ravel()
         self.weave = ti.field(ti.f32, self.n)
         self.weave.from_numpy(weave)
 
@@ -210,6 +247,17 @@ class SceneDrawer:
             self.sphere_normals.from_numpy(np.tile(unit, (k, 1)).astype(np.float32))
             self.sphere_indices = ti.field(ti.i32, k * tris.size)
             self.sphere_indices.from_numpy((tris[None] + m * np.arange(k)[:, None, None]).ravel().astype(np.int32))
+        self.pole = None
+        if v.pole is not None:
+            verts, normals, tris = _rod(v.pole.bottom + self.offset, v.pole.top + self.offset, v.pole.radius)
+            # Drawn like the cloth (per-vertex colour, two-sided) and only with it: GGUI 1.7.4
+            # reuses mesh slots from frame to frame, and after a frame whose only mesh was the
+            # pole, later frames on the window lost meshes now and then.
+            self.pole = tuple(ti.Vector.field(3, ti.f32, len(verts)) for _ in range(3)) + (ti.field(ti.i32, tris.size),)
+            self.pole[0].from_numpy(verts.astype(np.float32))
+            self.pole[1].from_numpy(normals.astype(np.float32))
+            self.pole[2].from_numpy(np.tile(np.asarray(POLE, np.float32), (len(verts), 1)))
+            self.pole[3].from_numpy(tris.ravel().astype(np.int32))
         self.floor = None
         if v.plane is not None:
             self.floor = self._floor_mesh()
@@ -315,6 +363,9 @@ class SceneDrawer:
         if self.sphere_vertices is not None:
             scene.mesh(self.sphere_vertices, indices=self.sphere_indices, normals=self.sphere_normals,
                        color=SPHERE)
+        if self.pole is not None and options.mesh:  # the flag's, shown with it (see _init_extras)
+            scene.mesh(self.pole[0], indices=self.pole[3], normals=self.pole[1], per_vertex_color=self.pole[2],
+                       two_sided=True)
         if self.surface and options.mesh:
             scene.mesh(self.pos, indices=self.tri_idx, normals=self.normals,
                        per_vertex_color=self.colors, two_sided=True)
@@ -386,13 +437,13 @@ class SceneDrawer:
             front = nrm.dot(eye - self.pos[v]) >= 0
             # GGUI lights a surface by its normal as given: flip it to the side in view.
             self.normals[v] = ti.cast(nrm if front else -nrm, ti.f32)
-            colour = ti.Vector(BACK) * self.weave[v]
+            colour = _gingham(ti.Vector(BACK), self.weave[v])
             if strain:
                 colour = _colormap(self.strain[v] / scale)
                 if not front:
                     colour = colour * 0.8
             elif front:
-                colour = ti.Vector(FRONT) * self.weave[v]
+                colour = _gingham(ti.Vector(FRONT), self.weave[v])
             self.colors[v] = ti.cast(colour, ti.f32)
 
     def _push_trail(self) -> None:

@@ -5,6 +5,7 @@ from typing import Any
 
 import numpy as np
 
+from ..memory import Size
 from . import cloth as topo
 from .builder import SceneBuilder
 from .events import SpherePath
@@ -171,28 +172,39 @@ def build_cloth(preset: ScenePreset, p: dict[str, Any], seed: int) -> Scene:
     return preset.finish(b, p, seed)
 
 
+def cloth_size(p: dict[str, Any]) -> Size:
+    """Particles, springs and triangles of a cloth, in closed form (nothing allocated)."""
+    nx, ny = p["nx"], p["ny"]
+    counts = topo.spring_counts(nx, ny)
+    springs = sum(counts[kind] for kind, on in ((topo.STRUCTURAL, p["structural"]), (topo.SHEAR, p["shear"]),
+                                                (topo.FLEX, p["flex"])) if on)
+    return Size(nx * ny, springs, 2 * (nx - 1) * (ny - 1))
+
+
+_CLOTH_SIZE = dict(size=cloth_size, size_params=("nx", "ny"))
+
 CLOTH_SCENES = (
     ScenePreset("cloth", "an nx x ny cloth of structural, shear and flex springs, starting flat; "
                 "--set wind/sphere/plane/tear/grab=1 add the extras", CLOTH_PARAMS, build_cloth,
-                default_dt=1e-3, default_integrator="symplectic_euler"),
+                default_dt=1e-3, default_integrator="symplectic_euler", **_CLOTH_SIZE),
     ScenePreset("cloth-sphere", "a cloth falling onto a sphere above the ground",
                 with_defaults(CLOTH_PARAMS, pin="none", sphere=True, plane=True, sphere_friction=0.3),
-                build_cloth, default_dt=1e-3, default_integrator="symplectic_euler"),
+                build_cloth, default_dt=1e-3, default_integrator="symplectic_euler", **_CLOTH_SIZE),
     ScenePreset("cloth-tear", "a cloth held at two sides, torn by a sphere dropping through it",
                 with_defaults(CLOTH_PARAMS, pin="sides", sphere=True, sphere_y=1.5, sphere_radius=0.2,
                               sphere_motion="drop", sphere_speed=0.6, tear=True, tear_strain=0.3,
                               tear_noise=0.3, plane=True, stiffness=1500.0, shear_stiffness=750.0,
                               flex_stiffness=300.0),
-                build_cloth, default_dt=1e-3, default_integrator="symplectic_euler"),
+                build_cloth, default_dt=1e-3, default_integrator="symplectic_euler", **_CLOTH_SIZE),
     ScenePreset("cloth-wind", "a flag pinned to a pole, fluttering in gusty wind",
                 with_defaults(CLOTH_PARAMS, orientation="vertical", pin="pole", height=1.5, wind=True,
                               wind_speed=8.0, wind_heading=15.0, particle_mass=0.0004, stiffness=40.0,
                               shear_stiffness=20.0, flex_stiffness=8.0, jitter=0.002),
-                build_cloth, default_dt=1e-3, default_integrator="symplectic_euler"),
+                build_cloth, default_dt=1e-3, default_integrator="symplectic_euler", **_CLOTH_SIZE),
     # Nearly inextensible cloth at one step per 60 Hz frame: symplectic Euler would need about
     # 2000 steps per frame here (h < 2 / omega_max), XPBD takes one step of 20 substeps.
     ScenePreset("cloth-stiff", "a nearly inextensible cloth (k = 1e6 N/m) at one 1/60 s step per "
                 "frame with XPBD",
                 with_defaults(CLOTH_PARAMS, stiffness=1e6, shear_stiffness=5e5, flex_stiffness=2e5),
-                build_cloth, default_dt=1 / 60, default_integrator="xpbd"),
+                build_cloth, default_dt=1 / 60, default_integrator="xpbd", **_CLOTH_SIZE),
 )

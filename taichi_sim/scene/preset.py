@@ -2,6 +2,7 @@
 from dataclasses import dataclass, replace
 from typing import Any, Callable
 
+from ..memory import Size
 from .builder import SceneBuilder
 from .params import Param
 from .scene import Scene
@@ -9,7 +10,9 @@ from .scene import Scene
 
 @dataclass(frozen=True)
 class ScenePreset:
-    """A scene recipe: ``build(preset, values, seed)`` returns a Scene."""
+    """A scene recipe: ``build(preset, values, seed)`` returns a Scene; ``size(values)`` says, from
+    the parameters alone, how many particles, springs and triangles it will allocate, and
+    ``size_params`` which parameters decide that (named when a size is refused)."""
 
     name: str
     description: str
@@ -17,6 +20,8 @@ class ScenePreset:
     build: Callable[["ScenePreset", dict[str, Any], int], Scene]
     default_dt: float
     default_integrator: str
+    size: Callable[[dict[str, Any]], Size] = lambda values: Size(1, 0)
+    size_params: tuple[str, ...] = ()
 
     def param(self, name: str) -> Param:
         return next(p for p in self.params if p.name == name)

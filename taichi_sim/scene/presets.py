@@ -5,6 +5,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import ConfigError
+from ..memory import Size, check_size
 from ..systems.circle import CircleSystem
 from .builder import SceneBuilder
 from .cloth_scenes import CLOTH_SCENES
@@ -60,7 +61,7 @@ SCENES: dict[str, ScenePreset] = {s.name: s for s in (
         Param("rest_length", 1.0, "m", "spring rest length", minimum=0.0, exclusive=True),
         Param("stretch", 0.5, "m", "initial extension beyond the rest length"),
         *common_params(mass=1.0),
-    ), build_spring, default_dt=0.01, default_integrator="symplectic_euler"),
+    ), build_spring, default_dt=0.01, default_integrator="symplectic_euler", size=lambda p: Size(2, 1)),
     ScenePreset("pendulum", "a chain of particles joined by springs, the top one pinned", (
         Param("particle_count", 5, "", "particles in the chain (the first is pinned)", minimum=2),
         Param("stiffness", 1000.0, "N/m", "stiffness of each link", minimum=0.0),
@@ -69,7 +70,8 @@ SCENES: dict[str, ScenePreset] = {s.name: s for s in (
         *common_params(mass=0.1),
         Param("grab", False, "", "allow pulling a particle with the mouse (a stiff spring)"),
         Param("grab_stiffness", 50.0, "N/m", "stiffness of the grab spring", minimum=0.0),
-    ), build_pendulum, default_dt=1e-3, default_integrator="symplectic_euler"),
+    ), build_pendulum, default_dt=1e-3, default_integrator="symplectic_euler",
+        size=lambda p: Size(p["particle_count"], p["particle_count"] - 1), size_params=("particle_count",)),
     *CLOTH_SCENES,
     SPRINKLER,
 )}
@@ -82,12 +84,28 @@ def scene_preset(name: str) -> ScenePreset:
         raise ConfigError(f"unknown scene {name!r} (choose from {', '.join(SCENES)})") from None
 
 
+def check_scene_memory(preset: ScenePreset, values: dict[str, Any], *, precision: str,
+                       integrators: tuple[str, ...] = (), linear_solver: str = "cg", copies: int = 1) -> int:
+    """Refuse (ConfigError naming the size parameters) a scene too large for the available
+    memory, before anything is allocated (see :mod:`taichi_sim.memory` for the estimate's
+    basis). ``values`` are resolved parameters. Returns the estimate in bytes."""
+    culprits = ", ".join(f"{k} = {values[k]}" for k in preset.size_params) or f"of scene {preset.name!r}"
+    return check_size(preset.size(values), culprits, precision=precision,
+                      integrators=integrators or (preset.default_integrator,), linear_solver=linear_solver,
+                      copies=copies)
+
+
 def build_scene(name: str, params: dict[str, Any] | None = None, *, seed: int = 0) -> Scene:
     """Build the preset ``name`` with ``params`` overriding its defaults.
 
     Values may be Python values or command-line strings. Raises ConfigError (a ValueError)
-    naming the offending scene or parameter. Call :func:`taichi_sim.init` first.
+    naming the offending scene or parameter, also when the scene would need more memory than is
+    available (estimated with the scratch of its default integrator). Call
+    :func:`taichi_sim.init` first.
     """
+    from .. import runtime
+
     preset = scene_preset(name)
     values = resolve(preset.params, name, dict(params or {}))
+    check_scene_memory(preset, values, precision=runtime.precision())
     return preset.build(preset, values, int(seed))

@@ -2,6 +2,7 @@
 import math
 from typing import Any
 
+from ..memory import Size
 from .builder import SceneBuilder
 from .cloth_scenes import sphere_path
 from .events import EmitterSpec
@@ -44,4 +45,5 @@ def build_sprinkler(preset: ScenePreset, p: dict[str, Any], seed: int) -> Scene:
 
 SPRINKLER = ScenePreset("sprinkler", "a sprinkler spraying particles over a ground plane",
                         SPRINKLER_PARAMS, build_sprinkler, default_dt=2e-3,
-                        default_integrator="symplectic_euler")
+                        default_integrator="symplectic_euler",
+                        size=lambda p: Size(p["capacity"], 0), size_params=("capacity",))

@@ -26,6 +26,9 @@ drawn):
   particles are drawn.
 - ``scene.grabber``: the mouse-grab API (``pick(origin, direction)``, ``grab(particle)``,
   ``drag_to(target)``, ``release()``), passed through for the launcher.
+- ``scene.params["pin"] == "pole"`` on a cloth: its pinned edge hangs on a pole, drawn as a
+  rod through the pinned particles (down to the ground, or to y = 0 without one, when the edge
+  is vertical).
 - ``scene.view_bounds`` (optional): ``(lo, hi)``, two (3,) array-likes (m), the box the camera
   frames at the start, overriding the one derived from the initial positions, pins, spheres,
   spray and ground.
@@ -75,6 +78,16 @@ class Emitter:
 
 
 @dataclass(frozen=True)
+class Pole:
+    """A rod from ``bottom`` to ``top`` ((3,) float64, m) of ``radius`` (m): the pole a flag's
+    pinned edge hangs on."""
+
+    bottom: np.ndarray
+    top: np.ndarray
+    radius: float
+
+
+@dataclass(frozen=True)
 class SceneVisual:
     """Everything the renderer draws for one scene.
 
@@ -95,6 +108,7 @@ class SceneVisual:
         line_springs: (L,) int64 ids of the springs drawn as lines and used for the strain
             colour map: a cloth's structural springs, every spring otherwise.
         spheres, plane, emitter: the optional extras (see the module docstring).
+        pole: the rod a cloth pinned with ``pin=pole`` hangs on, or None.
         grabber: the scene's mouse-grab API, or None.
         trail: draw a fading trail behind each particle (the circle ODE).
         guides: static polylines drawn faintly, each (k, 3) float64 (m), e.g. the exact orbit.
@@ -118,6 +132,7 @@ class SceneVisual:
     spheres: Spheres | None
     plane: Plane | None
     emitter: Emitter | None
+    pole: Pole | None
     grabber: Any | None
     trail: bool
     guides: tuple[np.ndarray, ...]
@@ -180,8 +195,9 @@ def describe(scene: Scene) -> SceneVisual:
                             np.full_like(angle, x0[0, 2])], axis=1),)
 
     gravity = np.asarray(arrays.get("gravity", np.zeros(3)), np.float64).reshape(3)
+    pole = _pole(x0[pinned], plane) if scene.params.get("pin") == "pole" and len(triangles) else None
     live = np.ones(n, bool)
-    extra = list(guides)
+    extra = list(guides) + ([np.stack([pole.bottom, pole.top])] if pole is not None else [])
     if emitter is not None:  # dead slots all sit at the nozzle: frame the spray's paths instead
         live[emitter.first:emitter.first + emitter.capacity] = False
         live[emitter.first] = True
@@ -197,8 +213,14 @@ def describe(scene: Scene) -> SceneVisual:
     if len(triangles):
         spacing = float(np.median(rest[line_springs])) if len(line_springs) else 0.02 * size
         radius = 0.3 * spacing
-        # A vertical cloth (a flag) is seen from the front, a horizontal one from above.
-        view = (20.0, 8.0) if scene.params.get("orientation") == "vertical" else (30.0, 30.0)
+        # A vertical cloth (a flag) is seen from the front, a horizontal one from above, or from
+        # low when it falls onto a resting sphere: from above, the draped cloth hides the sphere.
+        if scene.params.get("orientation") == "vertical":
+            view = (20.0, 8.0)
+        elif spheres is not None and scene.params.get("sphere_motion", "static") == "static":
+            view = (30.0, 10.0)
+        else:
+            view = (30.0, 30.0)
     else:
         radius = (0.005 if emitter is not None else 0.025) * size  # a spray is many small drops
         if len(rest):
@@ -209,9 +231,33 @@ def describe(scene: Scene) -> SceneVisual:
         name=scene.name, particle_count=n, first_order=first_order,
         pinned=pinned, grid=grid, triangles=triangles, mesh=mesh if len(triangles) else None,
         tearing=alive is not None, springs=springs, rest_length=rest, spring_alive=alive,
-        line_springs=line_springs.astype(np.int64), spheres=spheres, plane=plane, emitter=emitter,
+        line_springs=line_springs.astype(np.int64), spheres=spheres, plane=plane, emitter=emitter, pole=pole,
         grabber=getattr(scene, "grabber", None), trail=first_order, guides=guides,
         particle_radius=float(radius), bounds=(lo, hi), view=view)
+
+
+def _pole(pins: np.ndarray, plane: Plane | None) -> Pole | None:
+    """The rod through the pinned particles ``pins`` ((k, 3), m): 5 % longer than the pinned
+    edge at its top, and, when the edge is vertical, down to the ground plane (y = 0 without
+    one), as a flagpole stands; None for fewer than two distinct pins."""
+    if len(pins) < 2:
+        return None
+    centre = pins.mean(axis=0)
+    axis = pins[np.argmax(np.linalg.norm(pins - centre, axis=1))] - centre
+    length = 2.0 * float(np.linalg.norm(axis))
+    if length == 0.0:
+        return None
+    axis /= np.linalg.norm(axis)
+    if axis[1] < 0:
+        axis = -axis
+    along = (pins - centre) @ axis
+    top = centre + (along.max() + 0.05 * length) * axis
+    bottom = centre + (along.min() - 0.05 * length) * axis
+    if abs(axis[1]) > 0.9:  # upright: it stands on the ground
+        ground = plane.point[1] if plane is not None and abs(plane.normal[1]) > 0.9 else 0.0
+        bottom = np.array([top[0], min(bottom[1], ground), top[2]])
+        top = np.array([top[0], top[1], top[2]])
+    return Pole(bottom=bottom, top=top, radius=0.012 * length)
 
 
 def _grid(params: dict, n: int) -> tuple[int, int] | None:
