@@ -42,6 +42,7 @@ _SCRATCH_STATES = {"euler": 1, "trapezoid": 3, "midpoint": 3, "rk4": 5, "symplec
 # and its Cholesky factor, taken as 4 times that.
 _IMPLICIT_PARTICLE_REALS, _IMPLICIT_SPRING_REALS, _IMPLICIT_SPRING_FIXED = 40, 10, 8
 _DIRECT_FILL = 4
+_COLOURING_FIXED = 120  # XPBD's edge colouring on the host: Python ints per spring while it runs
 
 
 @dataclass(frozen=True)
@@ -66,6 +67,10 @@ def estimate_bytes(size: Size, *, precision: str = "f64", integrators: tuple[str
             total += n * _IMPLICIT_PARTICLE_REALS * r + s * (_IMPLICIT_SPRING_REALS * r + _IMPLICIT_SPRING_FIXED)
             if linear_solver == "direct":
                 total += _DIRECT_FILL * 9 * (n + 2 * s) * (r + 4)
+        elif name == "xpbd":  # displacement and explicit force per particle, lambda and order per spring
+            total += 6 * r * n + s * (r + 4 + _COLOURING_FIXED)
+        elif name == "projective_dynamics":  # six vec3 per particle; the scalar n x n matrix and factor
+            total += 18 * r * n + _DIRECT_FILL * (n + 2 * s) * (r + 4)
         else:
             total += _SCRATCH_STATES.get(name, 11) * 6 * r * n
     return int(total)

@@ -18,12 +18,14 @@ class ExplicitForces:
     def __init__(self, system: System):
         self.system = system
         self.terms = [term for term in system.terms if term.name not in SOLVED_TERMS]
+        self.serial = False  # run the gather on one thread (small systems: see XPBD)
         self.force = ti.Vector.field(3, runtime.real(), shape=system.particle_count)
 
     @ti.func
     def gather(self, y, t):
         """Fill ``self.force`` at state ``y`` and time ``t`` (s): a top-level parallel loop, so
         call it at a kernel's outermost scope."""
+        ti.loop_config(serialize=self.serial)
         for i in y.x:
             f = ti.Vector.zero(y.x.dtype, 3)
             if self.system.free[i]:

@@ -10,6 +10,9 @@ from .colouring import colour_springs
 from .external import ExplicitForces
 
 FUSED_ITERATIONS = 4  # up to this many sweeps are unrolled into the one kernel of a substep
+# Serial loops below this many springs: on a 64 x 64 cloth (24k springs, 2 cores) a substep took
+# 0.77 ms serial against 1.2 ms parallel, on 128 x 128 (97k) 2.8 ms against 2.7 ms.
+SERIAL_SPRINGS = 40_000
 
 
 @ti.data_oriented
@@ -43,7 +46,7 @@ class XPBD(Integrator):
 
     Args:
         system: a particle system (second order).
-        substeps: substeps per step (>= 1, default 10).
+        substeps: substeps per step (>= 1, default 20).
         iterations: Gauss-Seidel sweeps per substep (>= 1, default 1).
     """
 
@@ -52,7 +55,7 @@ class XPBD(Integrator):
     requires_second_order = True
     description = "extended position-based dynamics: springs as compliant constraints, substepped"
 
-    def __init__(self, system: System, *, substeps: int = 10, iterations: int = 1):
+    def __init__(self, system: System, *, substeps: int = 20, iterations: int = 1):
         super().__init__(system)
         self.substeps = positive_int("substeps", substeps)
         self.iterations = positive_int("iterations", iterations)
@@ -61,7 +64,9 @@ class XPBD(Integrator):
         self.springs = system.term("springs")
         self.grab = system.term("grab")
         self.has_springs, self.has_grab = self.springs is not None, self.grab is not None
-        self.previous = ti.Vector.field(3, real, shape=n)  # positions at the substep's start (m)
+        # The substep's displacement (m): kept apart from the positions so that v = delta / dt
+        # carries no cancellation (in f32, x1 - x0 at a small dt would leave v mostly rounding).
+        self.delta = ti.Vector.field(3, real, shape=n)
         self.starts: list[int] = [0]
         if self.springs is not None:
             order, self.starts = colour_springs(n, self.springs.ends_np)
@@ -71,6 +76,10 @@ class XPBD(Integrator):
             self.multiplier = ti.field(real, shape=max(1, self.springs.spring_count))  # lambda (N s^2)
         self.grab_multiplier = ti.Vector.field(3, real, shape=())
         self.fused = self.iterations <= FUSED_ITERATIONS
+        # Below SERIAL_SPRINGS each parallel loop costs more in thread hand-off than in work
+        # (about 30 us per loop on 2 cores, 17 loops per substep): run the loops on one thread.
+        springs = self.springs.spring_count if self.has_springs else 0
+        self.serial = self.external.serial = springs < SERIAL_SPRINGS
 
     @property
     def colour_count(self) -> int:
@@ -121,12 +130,14 @@ class XPBD(Integrator):
     @ti.func
     def _predict(self, y, dt, t):
         self.external.gather(y, t)
+        ti.loop_config(serialize=self.serial)
         for i in y.x:
-            self.previous[i] = y.x[i]
+            step = ti.Vector.zero(y.x.dtype, 3)
             if self.system.free[i]:
-                y.v[i] += dt * self.external.force[i] / self.system.mass[i]
-                y.x[i] += dt * y.v[i]
+                step = dt * (y.v[i] + dt * self.external.force[i] / self.system.mass[i])
+            self.delta[i] = step
         if ti.static(self.has_springs):
+            ti.loop_config(serialize=self.serial)
             for s in self.multiplier:
                 self.multiplier[s] = 0.0
         if ti.static(self.has_grab):
@@ -134,8 +145,12 @@ class XPBD(Integrator):
 
     @ti.func
     def _sweep(self, y, dt):
+        """One Gauss-Seidel sweep, colour by colour, always in the same order (alternating the
+        order, symmetric Gauss-Seidel, left a 64 x 64 cloth at k = 1e6 N/m with 7 to 100 times the
+        stretch energy)."""
         if ti.static(self.has_springs):
             for c in ti.static(range(self.colour_count)):
+                ti.loop_config(serialize=self.serial)
                 for q in range(self.starts[c], self.starts[c + 1]):
                     self._project_spring(self.order[q], y, dt)
         if ti.static(self.has_grab):
@@ -149,17 +164,18 @@ class XPBD(Integrator):
         if springs.is_alive(s) and k > 0.0:
             i, j = springs.ends[s][0], springs.ends[s][1]
             wi, wj = self._inverse_mass(i), self._inverse_mass(j)
-            d = y.x[i] - y.x[j]
+            moved = self.delta[i] - self.delta[j]
+            d = (y.x[i] - y.x[j]) + moved
             length = d.norm()
             if wi + wj > 0.0 and length > 0.0:
                 u = d / length
                 alpha = 1.0 / (k * dt * dt)  # compliance / dt^2
                 gamma = springs.damping[s] / (k * dt)  # alpha * (damping dt^2) / dt
-                rate = u.dot((y.x[i] - self.previous[i]) - (y.x[j] - self.previous[j]))
+                rate = u.dot(moved)
                 dl = (-(length - springs.rest[s]) - alpha * self.multiplier[s] - gamma * rate) \
                     / ((1.0 + gamma) * (wi + wj) + alpha)
-                y.x[i] += wi * dl * u
-                y.x[j] -= wj * dl * u
+                self.delta[i] += wi * dl * u
+                self.delta[j] -= wj * dl * u
                 self.multiplier[s] += dl
 
     @ti.func
@@ -172,14 +188,16 @@ class XPBD(Integrator):
             if w > 0.0:
                 alpha = 1.0 / (k * dt * dt)
                 gamma = grab.damping[None] / (k * dt)
-                rate = y.x[p] - self.previous[p]
-                dl = (-(y.x[p] - grab.target[None]) - alpha * self.grab_multiplier[None] - gamma * rate) \
+                rate = self.delta[p]
+                dl = (-(y.x[p] - grab.target[None] + rate) - alpha * self.grab_multiplier[None] - gamma * rate) \
                     / ((1.0 + gamma) * w + alpha)
-                y.x[p] += w * dl
+                self.delta[p] += w * dl
                 self.grab_multiplier[None] += dl
 
     @ti.func
     def _velocities(self, y, dt):
+        ti.loop_config(serialize=self.serial)
         for i in y.x:
             if self.system.free[i]:
-                y.v[i] = (y.x[i] - self.previous[i]) / dt
+                y.x[i] += self.delta[i]
+                y.v[i] = self.delta[i] / dt
