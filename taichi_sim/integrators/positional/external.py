@@ -26,7 +26,7 @@ class ExplicitForces:
         """Fill ``self.force`` at state ``y`` and time ``t`` (s): a top-level parallel loop, so
         call it at a kernel's outermost scope."""
         ti.loop_config(serialize=self.serial)
-        for i in y.x:
+        for i in range(self.system.particle_count):  # a range-for: serialize applies
             f = ti.Vector.zero(y.x.dtype, 3)
             if self.system.free[i]:
                 for term in ti.static(self.terms):

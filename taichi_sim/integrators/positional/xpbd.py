@@ -131,14 +131,14 @@ class XPBD(Integrator):
     def _predict(self, y, dt, t):
         self.external.gather(y, t)
         ti.loop_config(serialize=self.serial)
-        for i in y.x:
+        for i in range(self.system.particle_count):  # a range-for: serialize applies
             step = ti.Vector.zero(y.x.dtype, 3)
             if self.system.free[i]:
                 step = dt * (y.v[i] + dt * self.external.force[i] / self.system.mass[i])
             self.delta[i] = step
         if ti.static(self.has_springs):
             ti.loop_config(serialize=self.serial)
-            for s in self.multiplier:
+            for s in range(self.multiplier.shape[0]):
                 self.multiplier[s] = 0.0
         if ti.static(self.has_grab):
             self.grab_multiplier[None] = ti.Vector.zero(y.x.dtype, 3)
@@ -197,7 +197,7 @@ class XPBD(Integrator):
     @ti.func
     def _velocities(self, y, dt):
         ti.loop_config(serialize=self.serial)
-        for i in y.x:
+        for i in range(self.system.particle_count):  # a range-for: serialize applies
             if self.system.free[i]:
                 y.x[i] += self.delta[i]
                 y.v[i] = self.delta[i] / dt
