@@ -146,10 +146,15 @@ def test_grab_pulls_with_both(f64, name):
         t += 1 / 60
     x = scene.state.to_numpy()[0]
     assert np.linalg.norm(x[particle] - target) < 0.05
+    scene.grabber.drag_to(target + 0.1)  # as the launcher does every frame of a drag
+    integrator.reset()
+    integrator.step(scene.state, t, 1 / 60)
     scene.grabber.release()
     integrator.step(scene.state, t, 1 / 60)
+    scene.springs.set_parameters(stiffness=2 * scene.arrays["stiffness"])
+    integrator.step(scene.state, t, 1 / 60)
     if name == "projective_dynamics":
-        assert integrator.factorisations == 2  # while held, then once released
+        assert integrator.factorisations == 3  # held (the moving target needs none), released, stiffer
 
 
 @pytest.mark.parametrize("name, options, message", [

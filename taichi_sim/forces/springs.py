@@ -84,6 +84,8 @@ class Springs(ForceTerm):
         self.tearable = tear_strain is not None
         # Bumped whenever the set of live springs changes (a direct solver re-analyses then).
         self.topology_version = 0
+        # Bumped by set_parameters (a solver that factorised a matrix of the stiffnesses refreshes it).
+        self.parameters_version = 0
         if self.tearable:
             self.alive = ti.field(ti.i32, shape=S)
             self.tear_strain = ti.field(real, shape=S)
@@ -126,6 +128,7 @@ class Springs(ForceTerm):
                              current["stiffness"] if stiffness is None else stiffness,
                              current["spring_damping"] if damping is None else damping,
                              current.get("tear_strain", 0.0) if tear_strain is None else tear_strain)
+        self.parameters_version += 1
 
     def _upload_columns(self, rest_length, stiffness, damping, tear_strain) -> None:
         npr = runtime.np_real()

@@ -32,7 +32,7 @@ class ProjectiveDynamics(Integrator):
     spring graph's Laplacians weighted by stiffness and damping. A is the same for x, y and z
     (an n x n matrix, not 3n x 3n) and is factorised (Taichi's sparse Cholesky) once per
     topology and step size: again only when a spring tears, a grab starts or ends, the step
-    size changes or :meth:`reset` is called (a stiffness, damping or pin changed). Then
+    size or a spring's stiffness or damping changes, or :meth:`refactorise` is called. Then
     v = (x - x0) / h.
 
     What it converges to: every iteration lowers g, and g's minimiser is the backward Euler
@@ -100,7 +100,13 @@ class ProjectiveDynamics(Integrator):
         self.total_iterations = 0
 
     def reset(self) -> None:
-        """Refactorise before the next step (stiffness, damping or pins changed)."""
+        """Nothing to forget: the matrix follows the step size, the springs' topology and
+        parameters (``Springs.set_parameters``) and the grabbed particle by itself, so a grab
+        target that moves every frame costs no refactorisation. Call :meth:`refactorise` after
+        changing which particles are pinned."""
+
+    def refactorise(self) -> None:
+        """Factorise again before the next step (the pins changed)."""
         self.factored_key = None
 
     def step(self, state, t: float, h: float) -> StepReport:
@@ -135,9 +141,9 @@ class ProjectiveDynamics(Integrator):
     # -- the constant matrix --------------------------------------------------------------------
 
     def _factorise_if_needed(self, h: float) -> None:
-        topology = self.springs.topology_version if self.springs is not None else 0
-        grabbed = int(self.grab.particle[None]) if self.grab is not None else -1
-        key = (h, topology, grabbed)
+        springs = (self.springs.topology_version, self.springs.parameters_version) if self.has_springs else ()
+        grabbed = int(self.grab.particle[None]) if self.has_grab else -1
+        key = (h, springs, grabbed)
         if key == self.factored_key:
             return
         start = time.perf_counter()
