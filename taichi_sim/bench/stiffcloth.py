@@ -45,11 +45,21 @@ def cloth_params(size: int, k: float, conservative: bool = False) -> dict:
     return params
 
 
+def fresh_runtime() -> None:
+    """A new Taichi runtime in the study's precision (f64): every run of the study builds a
+    scene, and Taichi never frees fields; past a few hundred field trees it crashed (a
+    segfault, not an error) partway through the study."""
+    from .. import runtime
+
+    runtime.init(arch="cpu", precision="f64")
+
+
 def reference_solution(size: int, k: float, t_end: float) -> tuple[np.ndarray, float]:
     """(positions (n, 3) at t_end, the step used (s)) of the reference (see the module doc)."""
     import taichi_sim as ts
     from ..theory import omega_max_bound
 
+    fresh_runtime()
     scene = ts.build_scene("cloth", cloth_params(size, k))
     steps = math.ceil(t_end / (0.25 * 2.0 / omega_max_bound(scene.arrays)))
     h = t_end / steps
@@ -66,6 +76,7 @@ def timed_run(size: int, k: float, name: str, options: dict, h: float, t_end: fl
     import taichi_sim as ts
     from ..integrators import create_integrator
 
+    fresh_runtime()
     scene = ts.build_scene("cloth", cloth_params(size, k, conservative))
     integrator = create_integrator(name, scene.system, **options)
     # Warm-up through the same path (the guard's and the energy's kernels compile too).
