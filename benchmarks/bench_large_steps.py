@@ -26,16 +26,10 @@ import numpy as np
 import taichi as ti
 
 import taichi_sim as ts
+from taichi_sim.bench.stiffcloth import cloth_params, label
 from taichi_sim.guard import GuardLimits
 
 DT = 1 / 60  # s
-
-
-def cloth_params(n: int, k: float, conservative: bool = False) -> dict:
-    params = {"nx": n, "ny": n, "stiffness": k, "shear_stiffness": k / 2, "flex_stiffness": k / 5}
-    if conservative:
-        params.update(damping=0.0, drag=0.0)
-    return params
 
 
 def parse_method(text: str) -> tuple[str, dict]:
@@ -46,10 +40,6 @@ def parse_method(text: str) -> tuple[str, dict]:
         key, _, value = item.partition("=")
         options[key] = float(value) if "." in value or "e" in value else int(value)
     return name, options
-
-
-def label(name: str, options: dict) -> str:
-    return name + (f"({', '.join(f'{k}={v}' for k, v in options.items())})" if options else "")
 
 
 def step_rate(n: int, k: float, name: str, options: dict, h: float, args) -> list[float]:

@@ -193,3 +193,20 @@ def test_guard_limits_apply(f64):
     result = ts.run(scene, "xpbd", dt=1 / 60, steps=30, energy_every=0, progress=False,
                     guard=GuardLimits(energy_growth=0.01))
     assert result.status.value == "diverged"
+
+
+def test_bench_stiff_cloth_writes_its_study(tmp_path, capsys):
+    """A tiny study: XPBD's three settings and symplectic Euler's point against the reference,
+    with finite errors, and the damping rows."""
+    import csv
+    import json
+
+    assert main(["bench", "stiff-cloth", "--size", "4", "--stiffnesses", "1e4", "--step-sizes", "1/60",
+                 "--t-end", "0.05", "--integrators", "xpbd", "--quiet", "--out", str(tmp_path)]) == 0
+    rows = list(csv.DictReader(open(tmp_path / "stiff-cloth.csv")))
+    assert [r["integrator"] for r in rows] == ["xpbd"] * 3 + ["symplectic_euler"]
+    assert all(r["status"] == "ok" and 0 <= float(r["error_rms"]) < 0.05 for r in rows), rows
+    details = json.load(open(tmp_path / "stiff-cloth.json"))
+    assert len(details["damping"]) == 3 and details["references"]["10000.0"]["method"] == "symplectic_euler"
+    assert (tmp_path / "stiff-cloth.png").stat().st_size > 0
+    assert main(["bench", "stiff-cloth", "--size", "1", "--out", str(tmp_path)]) == 2

@@ -1,6 +1,5 @@
 """Projective dynamics for mass-spring systems: local projections and one constant matrix."""
 
-import math
 import time
 
 import numpy as np
