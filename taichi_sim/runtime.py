@@ -25,7 +25,8 @@ _current: dict = {"arch": None, "precision": None, "backend": None}
 
 
 def init(arch: str = "cpu", precision: str = "f64", *, debug: bool = False,
-         offline_cache: bool = True, cpu_max_num_threads: int | None = None) -> None:
+         offline_cache: bool = True, cpu_max_num_threads: int | None = None,
+         kernel_profiler: bool = False) -> None:
     """Initialise Taichi for taichi_sim.
 
     Args:
@@ -35,6 +36,8 @@ def init(arch: str = "cpu", precision: str = "f64", *, debug: bool = False,
         debug: Taichi debug mode (bounds checks; slow).
         offline_cache: keep compiled kernels on disk so the next process starts fast.
         cpu_max_num_threads: limit the CPU thread pool (default: all cores).
+        kernel_profiler: record each kernel launch's time (``ti.profiler``; it adds a little
+            to every launch, so leave it off except to find where time goes).
     """
     if arch not in ARCHS:
         raise ConfigError(f"arch must be one of {', '.join(ARCHS)}, got {arch!r}")
@@ -43,7 +46,7 @@ def init(arch: str = "cpu", precision: str = "f64", *, debug: bool = False,
     kwargs = dict(arch=ti.cpu if arch == "cpu" else ti.gpu,
                   default_fp=ti.f64 if precision == "f64" else ti.f32,
                   default_ip=ti.i32, debug=debug, offline_cache=offline_cache,
-                  log_level=ti.WARN)
+                  log_level=ti.WARN, kernel_profiler=kernel_profiler)
     if cpu_max_num_threads is not None:
         kwargs["cpu_max_num_threads"] = int(cpu_max_num_threads)
     log = ""

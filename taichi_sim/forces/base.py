@@ -35,6 +35,23 @@ class ForceTerm:
     and ``topology_version``, an int bumped whenever the set of blocks it adds changes (a
     direct solver re-analyses the sparsity pattern then)."""
 
+    reads_other_particles = True
+    """Whether ``force(i, ...)`` may read the state of particles other than i (springs, wind):
+    a kernel that moves particles while it sums their forces must then gather every force
+    first. True unless a term says otherwise (gravity, drag, the grab pull), so that a new
+    term is safe by default."""
+
+    precomputes = False
+    """Whether the term can split its force into a pass over the whole system and a cheap sum
+    per particle: ``@ti.func precompute(y)`` (a loop at the top level of the calling kernel that
+    fills the term's own buffer, e.g. each spring's force once) and
+    ``@ti.func precomputed_force(i, y, mass_i, t)`` (the force on i from that buffer, reading no
+    other particle's state). Kernels that evaluate every particle's force
+    (:meth:`~taichi_sim.systems.ParticleSystem.eval_f`, the fused symplectic Euler step) run the
+    precompute first in the same kernel, so the buffer always belongs to the state at hand;
+    ``force`` stays valid on its own for callers that evaluate single particles (the implicit
+    methods)."""
+
     variational = True
     """Whether the term's force is minus the gradient of its potential :meth:`energy` in x plus
     minus the gradient of its :meth:`dissipation` in v, with a dissipation that does not depend

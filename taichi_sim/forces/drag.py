@@ -9,6 +9,7 @@ class Drag(ForceTerm):
     """Viscous drag -k_drag * v_i (k_drag in N s/m, a 0-D field so it can change at run time)."""
 
     name = "drag"
+    reads_other_particles = False
     has_jacobian = True  # df_i/dv_i = -k_drag I; nothing depends on x or on other particles
 
     def __init__(self, k_drag: float):

@@ -17,6 +17,7 @@ class GrabSpring(ForceTerm):
     """
 
     name = "grab"
+    reads_other_particles = False
     has_jacobian = True  # on the grabbed particle: df/dx = -stiffness I, df/dv = -damping I
 
     def __init__(self, stiffness: float, damping: float):

@@ -16,6 +16,7 @@ class Gravity(ZeroJacobian, ForceTerm):
     """
 
     name = "gravity"
+    reads_other_particles = False
 
     def __init__(self, g, mass_field, free_field):
         self.g = ti.Vector.field(3, runtime.real(), shape=())

@@ -18,6 +18,7 @@ class ExplicitRK(Integrator):
     """
 
     tableau: ButcherTableau
+    fuse_stages = True  # one launch per stage where the system offers it (see _staged_step)
 
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)
@@ -30,6 +31,8 @@ class ExplicitRK(Integrator):
 
     def step(self, state: State, t: float, h: float) -> StepReport:
         tab = self.tableau
+        if self.fuse_stages and hasattr(self.system, "eval_f_staged"):
+            return self._staged_step(state, t, h)
         for i in range(tab.stage_count):
             if i == 0:
                 self.system.eval_f(state, t, self.stages[0])
@@ -39,6 +42,43 @@ class ExplicitRK(Integrator):
         bad = self._advance(state, h)
         status = Status.OK if bad == 0 else Status.DIVERGED
         return StepReport(accepted=True, h=h, next_h=h, f_evals=tab.stage_count, status=status)
+
+    def _staged_step(self, state: State, t: float, h: float) -> StepReport:
+        """The step with each stage's input and the final update folded into the force
+        evaluations' kernels (:meth:`~taichi_sim.systems.ParticleSystem.eval_f_staged`): one
+        launch of two loops per stage. As each particle's k_i is computed, the same thread
+        writes its entry of the next stage's input y + h sum_j a_(i+1)j k_j (into the other of
+        two buffers, so that no particle's input changes while a neighbour may read it), and
+        in the last stage its final update. Nothing is read back: non-finite values are left
+        to the blow-up guard's next check, as for symplectic Euler."""
+        tab = self.tableau
+        count = tab.stage_count
+        combine = self._combinations(state)
+        # The last stage reads the stage input, so it may update the state as it goes; a
+        # single stage reads the state itself, which only local terms make safe.
+        fused_final = count > 1 or self.system.sums_locally()
+        for i in range(count):
+            y = state if i == 0 else self._buffers[i % 2]
+            after = combine[i] if (i < count - 1 or fused_final) else None
+            self.system.eval_f_staged(y, t + tab.c[i] * h, self.stages[i], h, after=after)
+        if not fused_final:
+            self._advance(state, h)
+        return StepReport(accepted=True, h=h, next_h=h, f_evals=count, status=Status.OK)
+
+    def _combinations(self, state: State) -> list:
+        """What each stage's kernel writes after k_i: the next stage's input, or (last) the new
+        state. Kept for the last state seen: each is a kernel's template argument, so a new one
+        compiles new kernels."""
+        if getattr(self, "_combined_for", None) is not state:
+            tab = self.tableau
+            if not hasattr(self, "_buffers"):  # stage inputs alternate between two states
+                second = self.system.make_state() if tab.stage_count > 2 else self.stage_input
+                self._buffers = (second, self.stage_input)
+            self._stage_combinations = [
+                StageCombination(state, self.stages, tab.a[i + 1], self._buffers[(i + 1) % 2])
+                for i in range(tab.stage_count - 1)] + [StageCombination(state, self.stages, tab.b, state)]
+            self._combined_for = state
+        return self._stage_combinations
 
     @ti.kernel
     def _stage_input(self, y: ti.template(), i: ti.template(), h: float):
@@ -60,6 +100,23 @@ class ExplicitRK(Integrator):
             if not ok:
                 bad += 1
         return bad
+
+
+@ti.data_oriented
+class StageCombination:
+    """target = y + h sum_j w_j k_j, one particle at a time (``apply(p, h)``), with the weights
+    w as compile-time constants (the stages with zero weight, not yet computed, are not read).
+    ``target`` may be ``y`` itself (the final update): each particle reads its own entries
+    before writing them."""
+
+    def __init__(self, y: State, stages: list, weights: tuple, target: State):
+        self.y, self.stages, self.weights, self.target = y, stages, tuple(weights), target
+
+    @ti.func
+    def apply(self, p, h):
+        for part in ti.static(range(len(state_parts(self.y)))):
+            ti.static(state_parts(self.target)[part])[p] = (
+                ti.static(state_parts(self.y)[part])[p] + h * weighted_stages(self.stages, self.weights, part, p))
 
 
 def state_parts(state: State) -> tuple:

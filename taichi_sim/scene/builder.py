@@ -1,16 +1,33 @@
 """SceneBuilder: collect what a particle scene asks for, allocate fields once in finalize()."""
 from __future__ import annotations
 
+from contextlib import contextmanager
+from contextvars import ContextVar
 from typing import Any
 
 import numpy as np
 
 from ..forces import Drag, GrabSpring, Gravity, Springs, Wind
+from ..forces.springs.grid import GridSprings, grid_layout
 from ..mesh import TriangleMesh
 from ..systems.particles import ParticleSystem
 from .events import Emitter, EmitterSpec, PlaneCollider, SphereColliders, SpherePath, Tearing
 from .grab import Grabber
 from .scene import Scene
+
+
+_GENERAL_PATHS = ContextVar("general_paths", default=False)
+
+
+@contextmanager
+def general_paths():
+    """Scenes built inside this block use the general spring-list path even where the grid
+    stencil applies (to compare the two, in tests and benchmarks)."""
+    token = _GENERAL_PATHS.set(True)
+    try:
+        yield
+    finally:
+        _GENERAL_PATHS.reset(token)
 
 
 class SceneBuilder:
@@ -35,6 +52,7 @@ class SceneBuilder:
         self._tear_strain = None
         self._emitter: tuple | None = None
         self._grab: tuple | None = None
+        self._grid: tuple[int, int, int] | None = None
         self._count = 0
 
     @property
@@ -104,6 +122,14 @@ class SceneBuilder:
         kind = np.broadcast_to(np.asarray(kind, np.int8), (S,)).copy()
         self._springs.append((ends, rest_length, stiffness, damping, kind))
 
+    def declare_grid(self, first: int, nx: int, ny: int) -> None:
+        """Say that particles ``first + i * ny + j`` (0 <= i < nx, 0 <= j < ny) form a grid.
+        When every spring joins two of them at a stencil offset and nothing tears them,
+        ``finalize`` sums the springs through the grid stencil
+        (:class:`~taichi_sim.forces.springs.grid.GridSprings`); otherwise, silently, through
+        the spring list."""
+        self._grid = (int(first), int(nx), int(ny))
+
     def add_triangles(self, triangles) -> None:
         """Surface triangles ((T, 3) particle ids, counter-clockwise from the front): the cloth
         mesh that wind acts on, that tearing opens and that the renderer draws."""
@@ -169,8 +195,8 @@ class SceneBuilder:
 
         system = ParticleSystem(mass, pinned, active=active)
         features: dict[str, Any] = {"particles": self._count, "pinned": int(pinned.sum()),
-                                    "gravity": False, "drag": False, "springs": 0, "dashpots": False,
-                                    "wind": False, "spheres": 0, "plane": False, "tearing": False,
+                                    "gravity": False, "drag": False, "springs": 0, "grid_stencil": False,
+                                    "dashpots": False, "wind": False, "spheres": 0, "plane": False, "tearing": False,
                                     "emitter": 0, "grab": False, "triangles": 0}
         arrays: dict[str, np.ndarray] = {
             "mass": mass, "pinned": pinned,
@@ -190,10 +216,16 @@ class SceneBuilder:
             tear = None
             if self._tear_strain is not None:
                 tear = np.broadcast_to(np.asarray(self._tear_strain, float), (len(ends),))
-            springs = Springs(self._count, ends, rest, k, c, kind, tear_strain=tear)
+            layout = None
+            if self._grid is not None and tear is None and not _GENERAL_PATHS.get():
+                layout = grid_layout(ends, *self._grid)
+            if layout is not None:
+                springs = GridSprings(self._count, ends, rest, k, c, kind, layout=layout)
+            else:
+                springs = Springs(self._count, ends, rest, k, c, kind, tear_strain=tear)
             system.add_term(springs)
             features.update(springs=springs.spring_count, dashpots=springs.damped,
-                            tearing=springs.tearable)
+                            tearing=springs.tearable, grid_stencil=layout is not None)
         mesh = None
         if self._triangles:
             mesh = TriangleMesh(self._count, np.concatenate(self._triangles), springs)

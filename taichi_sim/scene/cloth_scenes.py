@@ -150,6 +150,7 @@ def build_cloth(preset: ScenePreset, p: dict[str, Any], seed: int) -> Scene:
                                 u_axis=(1, 0, 0), v_axis=(0, -1, 0))
     b = SceneBuilder()
     b.add_particles(x, p["particle_mass"], pinned=cloth_pins(nx, ny, p["pin"]))
+    b.declare_grid(0, nx, ny)
     ends, kind = topo.grid_springs(nx, ny, structural=p["structural"], shear=p["shear"], flex=p["flex"])
     stiffness = np.choose(kind, [p["stiffness"], p["shear_stiffness"], p["flex_stiffness"]]) \
         if len(kind) else np.zeros(0)

@@ -9,6 +9,11 @@ from ..state import State, finite
 from .base import Health, System
 
 
+def _given(hook) -> bool:
+    # "is not" is not allowed inside a kernel, even under ti.static
+    return hook is not None
+
+
 @ti.data_oriented
 class ParticleSystem(System):
     """dx/dt = v, dv/dt = F(x, v, t) / m, with F the sum of the force terms.
@@ -39,6 +44,7 @@ class ParticleSystem(System):
         self.mass_np = mass
         self.pinned_np = pinned
         self.terms = list(terms)
+        self._launchers: dict[tuple, object] = {}
         self.mass = ti.field(runtime.real(), shape=n)
         self.free = ti.field(ti.i32, shape=n)
         moving = ~pinned if active is None else (~pinned & np.asarray(active, bool).reshape(n))
@@ -59,21 +65,139 @@ class ParticleSystem(System):
         return next((t for t in self.terms if t.name == name), None)
 
     def eval_f(self, y: State, t: float, out: State) -> None:
-        self._eval_f(y, out, t)
+        self._launcher(("eval_f", y, out), lambda: self._bind_eval_f(y, out))(t)
 
-    @ti.kernel
-    def _eval_f(self, y: ti.template(), out: ti.template(), t: float):
-        for i in y.x:
-            if self.free[i]:
-                m = self.mass[i]
-                f = ti.Vector.zero(y.x.dtype, 3)
-                for term in ti.static(self.terms):
-                    f += term.force(i, y, m, t)
-                out.x[i] = y.v[i]
-                out.v[i] = f / m
+    def _launcher(self, key: tuple, bind):
+        """The kernel bound to the objects in ``key`` (made by ``bind()`` the first time).
+
+        The hot kernels (a force evaluation, a fused step) are closures over the states they
+        work on, taking only floats: a method kernel with template arguments costs about
+        100 us of Python per call on the development machine, a closure about 50, which is a
+        fifth of a symplectic Euler step at 64 x 64. Each binding compiles once; the closure
+        keeps its objects alive, so their ids stay theirs."""
+        ids = tuple(id(k) if not isinstance(k, str) else k for k in key)
+        launch = self._launchers.get(ids)
+        if launch is None:
+            launch = self._launchers[ids] = bind()
+        return launch
+
+    def _bind_eval_f(self, y, out):
+        system = self
+
+        @ti.kernel
+        def eval_f(t: float):
+            system._eval_f_body(y, out, t)
+
+        return eval_f
+
+    @ti.func
+    def _precompute(self, y):
+        """Every term's whole-system pass (see :attr:`ForceTerm.precomputes`); call at the top
+        level of a kernel, before the loop that sums the forces at the same ``y``."""
+        for term in ti.static(self.terms):
+            if ti.static(term.precomputes):
+                term.precompute(y)
+
+    @ti.func
+    def _summed_force(self, i, y, mass_i, t):
+        """The net force on i (N), in a kernel that ran :meth:`_precompute` at ``y`` first."""
+        f = ti.Vector.zero(y.x.dtype, 3)
+        for term in ti.static(self.terms):
+            if ti.static(term.precomputes):
+                f += term.precomputed_force(i, y, mass_i, t)
             else:
-                out.x[i] = ti.Vector.zero(y.x.dtype, 3)
-                out.v[i] = ti.Vector.zero(y.x.dtype, 3)
+                f += term.force(i, y, mass_i, t)
+        return f
+
+    @ti.func
+    def _derivative(self, i, y, out, t):
+        """out's entry i: (v_i, F_i / m_i), zero when i is pinned (after :meth:`_precompute`)."""
+        if self.free[i]:
+            m = self.mass[i]
+            out.x[i] = y.v[i]
+            out.v[i] = self._summed_force(i, y, m, t) / m
+        else:
+            out.x[i] = ti.Vector.zero(y.x.dtype, 3)
+            out.v[i] = ti.Vector.zero(y.x.dtype, 3)
+
+    @ti.func
+    def _eval_f_body(self, y, out, t):
+        self._precompute(y)
+        for i in y.x:
+            self._derivative(i, y, out, t)
+
+    def eval_f_staged(self, y: State, t: float, out: State, h: float, after=None) -> None:
+        """:meth:`eval_f` with a Runge-Kutta stage's bookkeeping in the same kernel launch.
+
+        ``after`` (or None): an object with ``@ti.func apply(i, h)``, run for each particle
+        right after its derivative is written into ``out`` (the next stage's input
+        y0 + h sum_j a_j k_j, or the final update). It may read particle i of any state and
+        must not write ``y``, or anything a term reads, since other particles may still be
+        reading it, unless every term reads only particle i after its precompute
+        (:meth:`sums_locally`). One launch instead of two saves the Python-side cost that
+        each kernel call has on a CPU."""
+        self._launcher(("staged", y, out, after), lambda: self._bind_staged(y, out, after))(t, h)
+
+    def _bind_staged(self, y, out, after):
+        system = self
+
+        @ti.kernel
+        def eval_f_staged(t: float, h: float):
+            system._eval_f_staged_body(y, out, t, h, after)
+
+        return eval_f_staged
+
+    @ti.func
+    def _eval_f_staged_body(self, y, out, t, h, after: ti.template()):
+        self._precompute(y)
+        for i in y.x:
+            self._derivative(i, y, out, t)
+            if ti.static(_given(after)):
+                after.apply(i, h)
+
+    def sums_locally(self) -> bool:
+        """Whether, after the precompute, particle i's force reads no other particle's state,
+        so a kernel may move each particle as soon as its force is summed."""
+        return all(term.precomputes or not term.reads_other_particles for term in self.terms)
+
+    def symplectic_euler_step(self, y: State, t: float, h: float, scratch: State) -> None:
+        """One symplectic Euler step of ``y`` in place (v += h F/m, then x += h v), in one
+        kernel launch and without reading anything back: the same arithmetic as
+        :meth:`eval_f` followed by the update (the same result up to how the compiler fuses
+        multiply-adds).
+        ``scratch``'s ``v`` holds the accelerations when a term reads other particles after
+        its precompute (wind), so that no particle moves before every force is summed."""
+        self._launcher(("symplectic", y, scratch), lambda: self._bind_symplectic(y, scratch))(t, h)
+
+    def _bind_symplectic(self, y, scratch):
+        system = self
+
+        @ti.kernel
+        def symplectic_euler(t: float, h: float):
+            system._symplectic_body(y, scratch, t, h)
+
+        return symplectic_euler
+
+    @ti.func
+    def _symplectic_body(self, y, scratch, t, h):
+        self._precompute(y)
+        if ti.static(self.sums_locally()):
+            for i in y.x:
+                v = y.v[i]
+                if self.free[i]:
+                    v += h * (self._summed_force(i, y, self.mass[i], t) / self.mass[i])
+                    y.v[i] = v
+                y.x[i] += h * v
+        else:
+            for i in y.x:
+                if self.free[i]:
+                    scratch.v[i] = self._summed_force(i, y, self.mass[i], t) / self.mass[i]
+            for i in y.x:
+                v = y.v[i]
+                if self.free[i]:
+                    v += h * scratch.v[i]
+                    y.v[i] = v
+                y.x[i] += h * v
 
     def forces(self, y: State, out: ti.Field, t: float = 0.0) -> None:
         """Net force (N) on every particle at ``y`` and time ``t`` (s) into a (n,) vec3 field;
@@ -82,11 +206,11 @@ class ParticleSystem(System):
 
     @ti.kernel
     def _forces(self, y: ti.template(), out: ti.template(), t: float):
+        self._precompute(y)
         for i in y.x:
             f = ti.Vector.zero(y.x.dtype, 3)
             if self.free[i]:
-                for term in ti.static(self.terms):
-                    f += term.force(i, y, self.mass[i], t)
+                f = self._summed_force(i, y, self.mass[i], t)
             out[i] = f
 
     def kinetic_energy(self, y: State) -> float:
