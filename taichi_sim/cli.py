@@ -159,8 +159,10 @@ def build_parser() -> argparse.ArgumentParser:
                      help="random seed for scenes with randomness (jitter, wind gusts, tearing noise, "
                           "the sprinkler; default 0)")
     sim.add_argument("--energy-every", type=int, default=None, metavar="K",
-                     help="sample energy every K steps (0: never; default: every step up to 2000 "
-                          "steps, else about 2000 samples)")
+                     help="sample energy (and check for a blow-up) every K steps (0: never; default: "
+                          "at the blow-up guard's checks, 1, 2, 4, ..., 64 and then "
+                          "every 100 force evaluations, at most about 2000 samples). A sample costs "
+                          "about two force evaluations")
     sim.add_argument("--out", required=True, help="output .npz path")
     sim.add_argument("--quiet", action="store_true", help="no summary line or progress bar")
 

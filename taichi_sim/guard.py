@@ -22,9 +22,9 @@ Besides the non-finite values the integrators report, a run has *diverged* when
   stretch one that far.
 
 The check is a few reductions (one kernel over the particles, one per conservative force term:
-:meth:`~taichi_sim.systems.base.System.health`), run after every ``check_work`` units of work
-(f evaluations plus linear-solver iterations) since the last check, and whenever the caller
-asks (the end of a run, each launcher frame): about one force evaluation per hundred, whatever
+:meth:`~taichi_sim.systems.base.System.health`), run after 1, 2, 4, ... units of work (f
+evaluations plus linear-solver iterations) since the start or the last rebase, then after
+every ``check_work`` units, and whenever the caller asks (the end of a run, each launcher frame): about one force evaluation per hundred, whatever
 the integrator. A state that passes is copied into a snapshot, so that a run that fails can
 return its last good state instead of garbage.
 """
@@ -51,7 +51,8 @@ class GuardLimits:
         energy_growth: E - E_ref may reach this many energy scales (plus source allowances).
         reach: a particle may move this many (L + V t) from the scene's centre.
         strain: springs may stretch to this strain (|d|/r - 1) in scenes without tearing.
-        check_work: units of work (f evaluations + linear iterations) between checks.
+        check_work: units of work (f evaluations + linear iterations) between checks, once the
+            first checks (after 1, 2, 4, ... units) have passed.
     """
 
     energy_growth: float = ENERGY_GROWTH
@@ -210,6 +211,10 @@ class Guard:
         self.fastest0 = math.sqrt(2.0 * health.kinetic / max(self.facts.smallest_mass, 1e-300))
         self._moving_mass = moving
         self.work = 0
+        # Checks come after 1, 2, 4, ... units of work, then every check_work: a run that
+        # blows up in its first steps (the usual way for too large a step) is stopped close to
+        # where it went wrong, and a long run still pays about one check per check_work.
+        self.interval = 1
         self.health = health
         if health.nonfinite == 0:
             self._keep(t, step)
@@ -243,7 +248,7 @@ class Guard:
     def spend(self, work: int) -> bool:
         """Count ``work`` (f evaluations + linear iterations of a step); True when a check is due."""
         self.work += max(int(work), 1)
-        return self.work >= self.limits.check_work
+        return self.work >= self.interval
 
     def check(self, t: float, step: int) -> Breach | None:
         """Check the current state (time ``t`` s, ``step`` accepted steps): None when it is
@@ -255,6 +260,7 @@ class Guard:
         if breach is None:
             self.health = health
             self._keep(t, step)
+            self.interval = min(2 * self.interval, self.limits.check_work)
         return breach
 
     def _judge(self, health, t: float) -> Breach | None:

@@ -19,9 +19,10 @@ def test_bad_limits_are_refused_naming_the_limit(field, value):
 
 
 def test_the_exploding_pendulum_is_diverged_and_returns_its_last_good_state(f64):
-    # The run from the issue: exit 0, "ok", 2.4e181 J before the guard existed.
+    # The run from the issue: exit 0, "ok", 2.4e181 J before the guard existed. With a sample
+    # (and so a check) every step, the state returned is the one just before the energy bound.
     scene = ts.build_scene("pendulum")
-    result = ts.run(scene, "euler", dt=0.008, t_end=3.0, progress=False)
+    result = ts.run(scene, "euler", dt=0.008, t_end=3.0, progress=False, energy_every=1)
     assert result.status is ts.Status.DIVERGED
     assert result.message.startswith(f"diverged at step {result.failed_step} (t = ")
     for part in ("with euler, h = 0.008 s", "energy rose to", "the state returned is that of step",
@@ -47,12 +48,23 @@ def test_the_guard_checks_when_energy_sampling_is_off_at_about_one_f_evaluation_
     quiet = ts.build_scene("pendulum")
     ok = ts.run(quiet, "rk4", dt=1e-3, steps=1000, energy_every=0, progress=False)
     assert ok.status is ts.Status.OK
-    assert ok.guard_checks == pytest.approx(ok.f_evals / 100, abs=2)
+    # plus the first checks, 1, 2, 4, ..., 64 units of work apart
+    assert ok.guard_checks == pytest.approx(ok.f_evals / 100 + 7, abs=2)
+
+
+def test_by_default_a_blow_up_is_found_at_the_next_check(f64):
+    scene = ts.build_scene("pendulum")
+    result = ts.run(scene, "euler", dt=0.008, t_end=3.0, progress=False)
+    # checks 1, 2, 4, ... steps apart: the first that fails ends the run, with the state of the
+    # last that passed, at most as many steps back as it is from the start
+    assert result.status is ts.Status.DIVERGED
+    assert 0 < result.steps < result.failed_step <= 2 * result.steps + 1
+    assert np.isfinite(scene.state.to_numpy()[0]).all()
 
 
 def test_a_tighter_limit_trips_sooner(f64):
-    loose = ts.run(ts.build_scene("pendulum"), "euler", dt=0.008, t_end=3.0, progress=False)
-    tight = ts.run(ts.build_scene("pendulum"), "euler", dt=0.008, t_end=3.0, progress=False,
+    loose = ts.run(ts.build_scene("pendulum"), "euler", dt=0.008, t_end=3.0, progress=False, energy_every=1)
+    tight = ts.run(ts.build_scene("pendulum"), "euler", dt=0.008, t_end=3.0, progress=False, energy_every=1,
                    guard=GuardLimits(energy_growth=0.1))
     assert tight.status is ts.Status.DIVERGED and tight.failed_step < loose.failed_step
 

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 import taichi_sim as ts
+from taichi_sim.guard import GuardLimits
 
 EXPLICIT = ["euler", "trapezoid", "midpoint", "rk4", "symplectic_euler"]
 
@@ -84,13 +85,22 @@ def test_fixed_step_run_lands_exactly_on_t_end(f64):
 def test_energy_trace_sampling(f64):
     scene = ts.build_scene("spring")
     short = ts.run(scene, "symplectic_euler", dt=0.01, steps=50)
-    assert len(short.energy) == 51 and short.energy_t[1] == pytest.approx(0.01)
+    np.testing.assert_allclose(short.energy_t, [0, 0.01, 0.03, 0.07, 0.15, 0.31, 0.5])
     scene.reset()
     sparse = ts.run(scene, "symplectic_euler", dt=0.01, steps=95, energy_every=10)
     np.testing.assert_allclose(sparse.energy_t, [0, *np.arange(10, 100, 10) * 0.01, 0.95])
     scene.reset()
+    # longer runs: a sample at each of the guard's checks (1, 2, 4, ..., 64 steps apart, then
+    # every 100 f-evaluations) ...
     long = ts.run(scene, "symplectic_euler", dt=0.001, steps=10000)
-    assert 1000 <= len(long.energy) <= 2100
+    checks = [1, 3, 7, 15, 31, 63, 127, *range(227, 10000, 100), 10000]
+    assert long.guard_checks == len(checks)
+    # (samples at least 10000 / 2000 = 5 steps apart: not at steps 1 and 3)
+    np.testing.assert_allclose(long.energy_t, np.array([0, *checks[2:]]) * 0.001)
+    scene.reset()
+    # ... thinned to about 2000 samples when the checks are more frequent than that
+    dense = ts.run(scene, "symplectic_euler", dt=0.001, steps=4000, guard=GuardLimits(check_work=1))
+    assert len(dense.energy) == 2001 and dense.guard_checks == 4000
 
 
 @pytest.mark.parametrize("kwargs, problem", [
