@@ -184,7 +184,9 @@ def _plan_throughput(args):
                               dt=getattr(args, "dt", None) or 1e-4,
                               repeats=getattr(args, "repeats", None) or (5 if args.quick else 7),
                               batch_seconds=getattr(args, "batch_seconds", None) or (0.02 if args.quick else 0.25),
-                              features_size=features_size, peers=not getattr(args, "no_peers", False))
+                              features_size=features_size, peers=not getattr(args, "no_peers", False),
+                              cli_size=None if args.quick else 128, profile_size=None if args.quick else 128,
+                              start_up=not args.quick, variants=not args.quick)
 
     def run(out):
         from . import plots
@@ -193,7 +195,9 @@ def _plan_throughput(args):
         with common.progress_bar(task_count(config), "throughput", args.quiet) as bar:
             rows, details = run_throughput(config, progress=bar)
         cfg = {k: getattr(config, k) for k in ("sizes", "precisions", "integrators", "dt", "repeats",
-                                               "batch_seconds", "max_step_seconds", "features_size", "peers")}
+                                               "batch_seconds", "max_step_seconds", "features_size", "peers",
+                                               "cli_size", "cli_steps", "profile_size", "start_up",
+                                               "variants")}
         payload = {**_meta("throughput", args, cfg), **details}
         paths = common.write_outputs(out, "throughput", rows, payload, lambda f: plots.throughput(rows, details, f))
         if not args.quiet:
@@ -206,7 +210,7 @@ def _plan_throughput(args):
 def print_throughput(rows: list[dict], details: dict) -> None:
     table = []
     for r in rows:
-        if r.get("kind") == "feature":
+        if r.get("kind") not in ("ours", "duel", "peer"):
             continue
         rate = r.get("particle_steps_per_s")
         label = f"{r.get('name')} (alternated with the peers)" if r.get("kind") == "duel" else r.get("name")
@@ -224,9 +228,39 @@ def print_throughput(rows: list[dict], details: dict) -> None:
                                     r.get("particle_steps_per_s"), r.get("status")] for r in feats]))
     print("\nOur symplectic Euler against the peers (particle-steps/s ratio) and rk4 per-step cost:")
     summary = details.get("summary", [])
-    print(common.format_table(["precision", "n", "ours / taichi example", "ours / warp", "rk4 / symplectic"],
+    print(common.format_table(["precision", "n", "ours / taichi example", "ours / warp", "rk4 / symplectic",
+                               "general path / stencil", "run() overhead"],
                               [[s["precision"], s["n"], s.get("ratio_vs_taichi"), s.get("ratio_vs_warp"),
-                                s.get("rk4_over_symplectic")] for s in summary]))
+                                s.get("rk4_over_symplectic"), s.get("stencil_speedup"),
+                                None if s.get("run_overhead") is None else f"{100 * s['run_overhead']:+.1f} %"]
+                               for s in summary]))
+    kernels = [r for r in rows if r.get("kind") == "kernel" and r.get("kernel")]
+    if kernels:
+        print(f"\nPer-kernel time (Taichi's kernel profiler, {kernels[0]['precision']}, "
+              f"{kernels[0]['n']} x {kernels[0]['n']}; the profiler slows launches, so wall times here are not the "
+              f"table's):")
+        print(common.format_table(["integrator", "kernel loop", "launches / step", "ms / launch", "ms / step",
+                                   "wall ms / step"],
+                                  [[r["integrator"], r["kernel"], r["launches"] / r["steps"], 1e3 * r["mean_s"],
+                                    1e3 * r["total_s"] / r["steps"], 1e3 * r["wall_step_s"]] for r in kernels]))
+    for r in rows:
+        if r.get("kind") == "cli":
+            if r.get("status") == "ok":
+                print(f"\nThrough the command line ({r['precision']}, {r['n']} x {r['n']}, symplectic Euler): "
+                      f"{1e3 * r['step_s']:.3g} ms per step ({r['steps']} steps more took "
+                      f"{r['long_s'] - r['short_s']:.3g} s; start-up and saving cancel out)")
+            else:
+                print(f"\nThrough the command line: {r.get('status')}: {r.get('note')}")
+        if r.get("kind") == "start":
+            if r.get("status") == "ok":
+                print(f"Start-up, `taichi-sim {r['name']}` from process start to exit ({r['precision']}): "
+                      f"{r['warm_s']:.2f} s with Taichi's offline kernel cache, {r['cold_s']:.2f} s without it")
+            else:
+                print(f"Start-up: {r.get('status')}: {r.get('note')}")
+    for s in summary:
+        if s.get("cli_overhead") is not None:
+            print(f"command line per step vs the bare loop ({s['precision']}, {s['n']}): "
+                  f"{100 * s['cli_overhead']:+.1f} % (separate processes, not alternated)")
     for t in details.get("targets", []):
         print(f"target: {t['target']}: {t['value']:.3g} -> {'met' if t['met'] else 'NOT met'}")
     for s in summary:

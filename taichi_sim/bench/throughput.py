@@ -15,8 +15,16 @@ in each batch. Reported per configuration: the median over ``repeats`` batches o
 step (each batch about ``batch_seconds`` long, after a first step that compiles, reported
 separately as ``first_step_s``), particle-steps per second (n^2 particles, pinned ones
 included, as the peers count them) and spring evaluations per second (each spring counted once
-per force evaluation, for us and the peers alike; our gather and the Taichi example compute
-each spring from both ends, warp once with atomics).
+per force evaluation, for us and the peers alike; our grid stencil and warp compute each spring
+once, the Taichi example from both ends).
+
+Besides, unless ``--quick``: the same symplectic Euler on the general spring-list path and
+through :func:`taichi_sim.run` (what ``simulate`` calls) join the alternated batches (the
+stencil's gain and the run loop's overhead); at one size (128 by default) Taichi's kernel
+profiler gives each kernel loop's time for symplectic Euler and rk4, and the command line is
+timed as a whole process with two step counts (the difference takes out start-up and
+saving); and ``taichi-sim simulate cloth --steps 1`` is timed from process start, with and
+without Taichi's offline kernel cache.
 """
 from __future__ import annotations
 
@@ -25,6 +33,7 @@ import statistics
 import subprocess
 import sys
 import tempfile
+import time
 from dataclasses import dataclass, replace
 
 from .common import memory_bytes
@@ -45,6 +54,11 @@ class ThroughputConfig:
     peers: bool = True
     peer_precisions: tuple[str, ...] = ("f32", "f64")
     worker_timeout_s: float = 3600.0
+    cli_size: int | None = 128  # grid side of the command-line measurement (None: skip it)
+    cli_steps: int = 3000
+    profile_size: int | None = 128  # grid side of the per-kernel profile (None: skip it)
+    start_up: bool = True  # time `simulate cloth --steps 1` from process start
+    variants: bool = True  # also duel the general spring-list path and run() (see VARIANTS)
 
 
 def _run_streaming(module: str, args: list[str], *, timeout: float, on_record=None) -> tuple[list[dict], str | None]:
@@ -122,18 +136,91 @@ def duel(contenders: list[tuple[str, list[str], dict]], repeats: int) -> list[di
     return records
 
 
+def _simulate_seconds(args: list[str], env: dict | None = None, timeout: float = 600.0) -> float:
+    """Wall seconds of one ``taichi-sim simulate`` process, start to exit; RuntimeError if it fails."""
+    from .protocol import child_env
+
+    with tempfile.TemporaryDirectory() as folder:
+        command = [sys.executable, "-m", "taichi_sim", "simulate", *args, "--out", f"{folder}/run.npz", "--quiet"]
+        start = time.perf_counter()
+        done = subprocess.run(command, capture_output=True, text=True, timeout=timeout, env=env or child_env())
+        wall = time.perf_counter() - start
+    if done.returncode != 0:
+        raise RuntimeError((done.stderr.strip().splitlines() or ["?"])[-1][:300])
+    return wall
+
+
+def measure_cli(precision: str, n: int, dt: float, steps: int, repeats: int) -> dict:
+    """Seconds per step through the command line: ``simulate`` with ``steps`` and with 10 steps,
+    alternated ``repeats`` times; the difference of the medians over the difference of the step
+    counts takes out start-up and saving."""
+    base = ["cloth", "--set", f"nx={n}", "--set", f"ny={n}", "--integrator", "symplectic_euler",
+            "--dt", repr(dt), "--precision", precision]
+    short, long = [], []
+    try:
+        _simulate_seconds(base + ["--steps", "10"])  # fills the kernel cache
+        for _ in range(repeats):
+            short.append(_simulate_seconds(base + ["--steps", "10"]))
+            long.append(_simulate_seconds(base + ["--steps", str(10 + steps)]))
+    except (RuntimeError, subprocess.TimeoutExpired) as exc:
+        return {"kind": "cli", "name": "taichi-sim simulate", "precision": precision, "n": n, "status": "error",
+                "note": str(exc)}
+    step_s = (statistics.median(long) - statistics.median(short)) / steps
+    return {"kind": "cli", "name": "taichi-sim simulate", "precision": precision, "n": n, "status": "ok",
+            "step_s": step_s, "particle_steps_per_s": n * n / step_s, "steps": steps, "repeats": repeats,
+            "short_s": statistics.median(short), "long_s": statistics.median(long)}
+
+
+def measure_start(precision: str, repeats: int = 3) -> dict:
+    """Process start to exit of ``taichi-sim simulate cloth --steps 1`` (the default cloth and
+    integrator), the median of ``repeats`` runs with Taichi's offline kernel cache on (after one
+    run that fills it) and with it off (``TI_OFFLINE_CACHE=0``: every kernel compiled afresh),
+    alternated."""
+    from .protocol import child_env
+
+    args = ["cloth", "--steps", "1", "--precision", precision]
+    record = {"kind": "start", "name": "simulate cloth --steps 1", "precision": precision}
+    cold_env = {**child_env(), "TI_OFFLINE_CACHE": "0"}
+    cold, warm = [], []
+    try:
+        _simulate_seconds(args)
+        for _ in range(repeats):
+            warm.append(_simulate_seconds(args))
+            cold.append(_simulate_seconds(args, cold_env))
+    except (RuntimeError, subprocess.TimeoutExpired) as exc:
+        return {**record, "status": "error", "note": str(exc)}
+    return {**record, "status": "ok", "cold_s": statistics.median(cold), "warm_s": statistics.median(warm)}
+
+
 def fits_in_memory(n: int) -> bool:
     available = memory_bytes("MemAvailable")
     return available is None or n * n * BYTES_PER_PARTICLE < 0.5 * available
 
 
+# Our served contenders besides the plain one: the same symplectic Euler on the general
+# spring-list path (what the grid stencil saves), and through run() as `simulate` calls it
+# (what the run loop's energy samples, checks and bookkeeping cost).
+VARIANTS = (
+    ("symplectic_euler", {}),
+    ("symplectic_euler, general path", {"path": "general"}),
+    ("symplectic_euler via run()", {"loop": "run", "batch_factor": 4}),
+)
+
+
 def _contenders(config: ThroughputConfig, precision: str, n: int) -> list[tuple[str, list[str], dict]]:
-    """Ours (symplectic Euler, served) and the peers that apply to this precision."""
+    """Ours (symplectic Euler, served, in its variants) and the peers that apply to this precision."""
     timing = ["--n", str(n), "--batch-seconds", str(config.batch_seconds), "--serve"]
-    spec = {"mode": "serve", "precision": precision, "size": n, "integrator": "symplectic_euler", "dt": config.dt,
-            "batch_seconds": config.batch_seconds, "max_step_seconds": config.max_step_seconds}
-    out = [("taichi_sim.bench.throughput_worker", [json.dumps(spec)],
-            {"kind": "duel", "name": "symplectic_euler", "precision": precision, "n": n})]
+    out = []
+    for label, extra in VARIANTS if config.variants else VARIANTS[:1]:
+        # run() sets up its guard at each call (about 10 ms at 128 x 128): its batches are longer,
+        # as a real run is, so that what is compared is the cost per step
+        extra = dict(extra)
+        factor = extra.pop("batch_factor", 1)
+        spec = {"mode": "serve", "precision": precision, "size": n, "integrator": "symplectic_euler",
+                "label": label, "dt": config.dt, "batch_seconds": factor * config.batch_seconds,
+                "max_step_seconds": config.max_step_seconds, **extra}
+        out.append(("taichi_sim.bench.throughput_worker", [json.dumps(spec)],
+                    {"kind": "duel", "name": label, "precision": precision, "n": n}))
     if precision in config.peer_precisions:
         out.append(("taichi_sim.bench.peer_taichi", timing + ["--precision", precision],
                     {"kind": "peer", "name": "taichi example", "precision": precision, "n": n}))
@@ -154,7 +241,8 @@ def task_count(config: ThroughputConfig) -> int:
                 total += len(FEATURE_VARIANTS)
             if config.peers:
                 total += len(_contenders(config, precision, n))
-    return total
+            total += (n == config.cli_size) + (n == config.profile_size)
+    return total + bool(config.start_up)
 
 
 def run_throughput(config: ThroughputConfig, progress=None) -> tuple[list[dict], dict]:
@@ -198,6 +286,22 @@ def run_throughput(config: ThroughputConfig, progress=None) -> tuple[list[dict],
                 rows.extend(duel(contenders, config.repeats))
                 for _ in contenders:
                     tick()
+            if n == config.profile_size:
+                spec = {"mode": "profile", "precision": precision, "size": n, "dt": config.dt,
+                        "integrators": [name for name in ("symplectic_euler", "rk4") if name in config.integrators],
+                        "steps": 300, "batch_seconds": config.batch_seconds, "max_step_seconds": config.max_step_seconds}
+                records, error = _run_streaming("taichi_sim.bench.throughput_worker", [json.dumps(spec)],
+                                                timeout=config.worker_timeout_s)
+                rows.extend(records)
+                if error is not None:
+                    rows.append({"kind": "kernel", "precision": precision, "n": n, "status": "error", "note": error})
+                tick()
+            if n == config.cli_size:
+                rows.append(measure_cli(precision, n, config.dt, config.cli_steps, max(3, config.repeats // 2)))
+                tick()
+    if config.start_up:
+        rows.append(measure_start(config.precisions[0]))
+        tick()
     summary = summarize(rows)
     return rows, {"summary": summary, "targets": check_targets(summary)}
 
@@ -213,7 +317,8 @@ def summarize(rows: list[dict]) -> list[dict]:
     for precision, n in keys:
         same = [r for r in rows if r.get("precision") == precision and r.get("n") == n]
         ours = {r["name"]: r for r in same if r.get("kind") == "ours" and ok(r)}
-        dueled = next((r for r in same if r.get("kind") == "duel" and ok(r)), None)
+        duels = {r["name"]: r for r in same if r.get("kind") == "duel" and ok(r)}
+        dueled = duels.get("symplectic_euler")
         peers = {r["name"]: r for r in same if r.get("kind") == "peer"}
         entry = {"precision": precision, "n": n}
         symplectic = ours.get("symplectic_euler")
@@ -225,6 +330,15 @@ def summarize(rows: list[dict]) -> list[dict]:
         against = dueled or symplectic  # batches alternated with the peers', when they ran
         if dueled:
             entry["duel_particle_steps_per_s"] = dueled["particle_steps_per_s"]
+            general = duels.get("symplectic_euler, general path")
+            if general:
+                entry["stencil_speedup"] = general["step_s"] / dueled["step_s"]
+            through_run = duels.get("symplectic_euler via run()")
+            if through_run:
+                entry["run_overhead"] = through_run["step_s"] / dueled["step_s"] - 1.0
+        cli = next((r for r in same if r.get("kind") == "cli" and ok(r)), None)
+        if cli and (dueled or symplectic):
+            entry["cli_overhead"] = cli["step_s"] / (dueled or symplectic)["step_s"] - 1.0
         for name, peer in peers.items():
             key = "taichi" if name.startswith("taichi") else "warp"
             if ok(peer):
@@ -238,20 +352,28 @@ def summarize(rows: list[dict]) -> list[dict]:
 
 
 TARGET_N, TARGET_PRECISION = 128, "f32"
+TARGET_SIZES = (64, 128, 256)  # where symplectic Euler should do twice the Taichi example's work
+RUN_OVERHEAD = 0.05
 
 
 def check_targets(summary: list[dict]) -> list[dict]:
-    """The issue's throughput targets, at f32 on the 128 x 128 cloth (where measured)."""
-    entry = next((s for s in summary if s["precision"] == TARGET_PRECISION and s["n"] == TARGET_N), None)
-    if entry is None:
-        return []
+    """The throughput targets, at f32: against the Taichi example (twice its particle-steps/s
+    at 64, 128 and 256, 1.5 times everywhere), the run loop's overhead, rk4's cost at 128."""
+    f32 = [s for s in summary if s["precision"] == TARGET_PRECISION]
     out = []
-    ratios = [entry[k] for k in ("ratio_vs_taichi", "ratio_vs_warp") if k in entry]
-    if ratios:
-        worst = min(ratios)
-        out.append({"target": "symplectic Euler particle-steps/s >= the best peer's (f32, 128 x 128)",
-                    "value": worst, "met": worst >= 1.0, "goal_2x_met": worst >= 2.0})
-    if "rk4_over_symplectic" in entry:
+    for entry in f32:
+        if "ratio_vs_taichi" in entry:
+            value = entry["ratio_vs_taichi"]
+            goal = 2.0 if entry["n"] in TARGET_SIZES else 1.5
+            out.append({"target": f"symplectic Euler >= {goal:g} x the Taichi example's particle-steps/s "
+                                  f"(f32, {entry['n']} x {entry['n']})", "value": value, "met": value >= goal})
+    for entry in f32:
+        if "run_overhead" in entry:
+            value = entry["run_overhead"]
+            out.append({"target": f"run() (the simulate path) adds <= 5 % to the bare loop (f32, {entry['n']} x "
+                                  f"{entry['n']})", "value": value, "met": value <= RUN_OVERHEAD})
+    entry = next((s for s in f32 if s["n"] == TARGET_N), None)
+    if entry is not None and "rk4_over_symplectic" in entry:
         value = entry["rk4_over_symplectic"]
         out.append({"target": "rk4 time per step <= 4.5 x symplectic Euler's (f32, 128 x 128)",
                     "value": value, "met": value <= 4.5})

@@ -12,7 +12,13 @@ is one step), arch ("cpu" | "gpu"), and:
   all of them alike. One ``@@ {json}`` line per configuration (and ``@@ {"tick": ...}`` lines
   while warming up, for the progress bar).
 * ``mode: "serve"``: ``integrator``: one configuration, served batch by batch
-  (:mod:`taichi_sim.bench.protocol`) so the driver can alternate it with the peers.
+  (:mod:`taichi_sim.bench.protocol`) so the driver can alternate it with the peers. Options:
+  ``path: "general"`` builds the cloth on the general spring-list path instead of the grid
+  stencil; ``loop: "run"`` times each batch through :func:`taichi_sim.run` as ``simulate``
+  calls it (default energy sampling, guard, no progress bar on a pipe) instead of the bare loop.
+* ``mode: "profile"``: ``integrators``, ``steps``: Taichi's kernel profiler over ``steps``
+  steps of each (after a warm-up), one ``@@`` record per kernel: name, launches, total and
+  mean time. The profiler adds to every launch, so these runs are not the timed ones.
 """
 import json
 import statistics
@@ -37,13 +43,15 @@ class Timed:
     :meth:`batch` times ``steps`` steps (plus the scene's post-step events) from the initial
     state."""
 
-    def __init__(self, scene, integrator, *, dt: float, batch_seconds: float, max_step_seconds: float):
+    def __init__(self, scene, integrator, *, dt: float, batch_seconds: float, max_step_seconds: float,
+                 through_run: bool = False):
         import taichi as ti
 
         self.ti, self.scene, self.integrator, self.dt = ti, scene, integrator, dt
         from taichi_sim.guard import Guard
 
         self.events = bool(scene.post_step)
+        self.through_run = through_run
         self.f_evals = self.linear = self.steps_done = 0
         self.worst = "ok"
         scene.reset()
@@ -54,6 +62,11 @@ class Timed:
         start = time.perf_counter()
         self._advance(1)  # compiles
         self.first = time.perf_counter() - start
+        if through_run:  # and the run loop's own kernels (its guard's check, the snapshot)
+            import taichi_sim as ts
+
+            ts.run(scene, integrator, dt=dt, steps=2, progress=False)
+            scene.reset()
         start = time.perf_counter()
         self._advance(1)
         one = time.perf_counter() - start
@@ -85,8 +98,21 @@ class Timed:
         self.scene.reset()
         self.integrator.reset()
         self.guard.rebase()
+        # checks every check_work units, as in a long run (a rebase starts the 1, 2, 4, ...
+        # schedule again, which would weigh on short batches); run() batches keep theirs
+        self.guard.interval = self.guard.limits.check_work
         start = time.perf_counter()
-        self._advance(self.steps)
+        if self.through_run:
+            import taichi_sim as ts
+
+            result = ts.run(self.scene, self.integrator, dt=self.dt, steps=self.steps, progress=False)
+            self.ti.sync()
+            self.steps_done += self.steps
+            self.f_evals += result.f_evals
+            if result.status is not ts.Status.OK:
+                self.worst = result.status.value
+        else:
+            self._advance(self.steps)
         step_s = (time.perf_counter() - start) / self.steps
         self.samples.append(step_s)
         return {"step_s": step_s}
@@ -115,26 +141,86 @@ def _error(exc: Exception) -> str:
     return f"{type(exc).__name__}: {exc}".strip().splitlines()[0][:300]
 
 
+def profile(scene, names: list[str], *, dt: float, steps: int) -> list[dict]:
+    """Per-kernel times of ``steps`` steps of each integrator (the runtime was initialised with
+    the kernel profiler)."""
+    import taichi as ti
+
+    import taichi_sim as ts
+
+    records = []
+    for name in names:
+        integrator = ts.create_integrator(name, scene.system)
+        scene.reset()
+        for _ in range(3):  # compile
+            integrator.step(scene.state, 0.0, dt)
+        ti.sync()
+        ti.profiler.clear_kernel_profiler_info()
+        start = time.perf_counter()
+        for _ in range(steps):
+            integrator.step(scene.state, 0.0, dt)
+        ti.sync()
+        wall = (time.perf_counter() - start) / steps
+        for r in _kernel_totals():
+            records.append({"kind": "kernel", "integrator": name, "wall_step_s": wall, "steps": steps, **r})
+    return records
+
+
+def _kernel_totals() -> list[dict]:
+    """Taichi's profiler records by offloaded loop: kernel name (Taichi's per-compilation suffix
+    dropped) and loop index, launches, total s, mean s per launch. Taichi 1.7 has no public
+    accessor for the per-kernel statistics it prints, so this reads its profiler object."""
+    import re
+
+    from taichi.profiler import kernel_profiler
+
+    profiler = kernel_profiler.get_default_kernel_profiler()
+    profiler._update_records()  # noqa: SLF001
+    profiler._count_statistics()  # noqa: SLF001
+    totals: dict[str, list] = {}  # a kernel compiled for several arguments: one entry
+    for name, result in profiler._statistical_results.items():  # noqa: SLF001
+        match = re.match(r"^(.*?)_c\d+_\d+_kernel_(\d+)_(\w+)$", name)
+        label = f"{match.group(1)} loop {match.group(2)}" if match else name
+        entry = totals.setdefault(label, [0, 0.0])
+        entry[0] += result.counter
+        entry[1] += result.total_time / 1e3  # ms -> s
+    return [{"kernel": k, "launches": c, "total_s": t, "mean_s": t / max(c, 1)}
+            for k, (c, t) in sorted(totals.items(), key=lambda item: -item[1][1])]
+
+
 def main(argv=None) -> int:
     spec = json.loads((argv or sys.argv[1:])[0])
     import taichi_sim as ts
+    from taichi_sim.scene.builder import general_paths
 
-    ts.init(arch=spec.get("arch", "cpu"), precision=spec["precision"])
+    mode = spec.get("mode", "sweep")
+    ts.init(arch=spec.get("arch", "cpu"), precision=spec["precision"], kernel_profiler=mode == "profile")
     n = int(spec["size"])
     base = {"precision": spec["precision"], "n": n, "dt": spec["dt"], "backend": ts.runtime.backend()}
     timing = {k: spec[k] for k in ("dt", "batch_seconds", "max_step_seconds")}
     start = time.perf_counter()
-    scene = ts.build_scene("cloth", {"nx": n, "ny": n})
+    if spec.get("path") == "general":
+        with general_paths():
+            scene = ts.build_scene("cloth", {"nx": n, "ny": n})
+    else:
+        scene = ts.build_scene("cloth", {"nx": n, "ny": n})
     build = time.perf_counter() - start
 
-    if spec.get("mode") == "serve":
+    if mode == "profile":
+        for record in profile(scene, spec["integrators"], dt=spec["dt"], steps=int(spec["steps"])):
+            emit({**base, **record})
+        emit({"done": True})
+        return 0
+    if mode == "serve":
         name = spec["integrator"]
+        label = spec.get("label", name)
         try:
-            timed = Timed(scene, ts.create_integrator(name, scene.system), **timing)
+            timed = Timed(scene, ts.create_integrator(name, scene.system), **timing,
+                          through_run=spec.get("loop") == "run")
         except Exception as exc:
-            emit({**base, "kind": "ours", "name": name, "status": "error", "note": _error(exc)})
+            emit({**base, "kind": "ours", "name": label, "status": "error", "note": _error(exc)})
             return 0
-        serve({**base, "kind": "ours", "name": name, "build_s": build, **timed.info(), "status": "ok"}, timed.batch)
+        serve({**base, "kind": "ours", "name": label, "build_s": build, **timed.info(), "status": "ok"}, timed.batch)
         return 0
 
     configs = []  # (record, Timed or None)
