@@ -165,3 +165,79 @@ def test_sphere_speed_curve_moves_the_sphere_without_a_jump(runtime):
     drops = -np.diff(y)
     assert np.all(drops >= -1e-12) and drops[-1] == pytest.approx(0.0, abs=1e-12)  # slows to a stop
     assert abs(y[0] - 1.5 + 0.006) < 1e-9 and np.all(np.abs(np.diff(drops)) < 1e-3)
+
+
+# -- the curve editor (no window) -------------------------------------------------------------
+
+def test_curve_editor_adds_drags_and_deletes_points_with_the_mouse(runtime, tmp_path):
+    from taichi_sim.app.curve_editor import CurveEditor
+    from taichi_sim.app.session import Session
+
+    session = Session("sprinkler", ["symplectic_euler"], params={"capacity": 200}, dt=0.01, substeps=5)
+    editor = CurveEditor(session, (1000, 500))
+    assert editor.param == "rate" and {"rate", "speed", "spread"} <= set(editor.choices())
+    view = editor.view()
+    for t, value in ((0.0, 0.0), (3.7, 123.0), (10.0, 1600.0)):
+        u, v = view.to_window(t, value)
+        assert view.to_curve(u, v) == pytest.approx((t, value))
+
+    def click(t, value, button="left"):
+        u, v = editor.view().to_window(t, value)
+        assert editor.update(u, v, left=button == "left", right=button == "right")
+        editor.update(u, v, left=False, right=False)
+
+    click(1.0, 200.0)
+    click(4.0, 800.0)
+    click(2.0, 600.0)
+    assert [t for t, _ in editor.points()] == pytest.approx([1.0, 2.0, 4.0])
+    assert "rate" in session.curves and session.curves["rate"](2.0) == pytest.approx(600.0)
+    # Drag the middle point past its right neighbour: its time stops just short of it.
+    u, v = editor.view().to_window(2.0, 600.0)
+    editor.update(u, v, left=True, right=False)
+    u2, v2 = editor.view().to_window(9.0, 300.0)
+    editor.update(u2, v2, left=True, right=False)
+    editor.update(u2, v2, left=False, right=False)
+    (t1, v1) = editor.points()[1]
+    assert 3.9 < t1 < 4.0 and v1 == pytest.approx(300.0, rel=1e-6)
+    # Dragged below the parameter's minimum (rate >= 0): held at 0.
+    u, v = editor.view().to_window(1.0, 200.0)
+    editor.update(u, v, left=True, right=False)
+    editor.update(u, editor.rect[1], left=True, right=False)
+    editor.update(u, editor.rect[1], left=False, right=False)
+    assert editor.points()[0][1] >= 0.0
+    click(*editor.points()[2], button="right")  # delete the last point
+    assert len(editor.points()) == 2
+    # Outside the strip the mouse is not the editor's.
+    assert not editor.update(0.1, 0.9, left=True, right=False)
+    # The session runs along the curve: the emitter launches its integral.
+    spline = session.curves["rate"]
+    for _ in range(20):
+        session.frame()
+    t = session.runners[0].t
+    assert spline.integral(0.0, t) - 1 < session.runners[0].scene.emitter.emitted <= spline.integral(0.0, t)
+    # Save, clear, load: the same curve again.
+    editor.save(tmp_path / "c.json")
+    editor.clear()
+    assert session.curves == {} and editor.points() == []
+    editor.load(tmp_path / "c.json")
+    assert session.curves == {"rate": spline}
+    editor.select("spread")
+    for k in range(MAX_POINTS):
+        assert editor.add(0.1 * k, 5.0) is not None
+    assert editor.add(99.0, 5.0) is None and str(MAX_POINTS) in editor.message
+
+
+def test_wind_curve_drives_a_cloth_run(runtime, tmp_path):
+    curves = {"wind_speed": Spline(((0.0, 0.0), (0.05, 6.0))), "wind_heading": Spline(((0.0, 0.0), (0.05, 90.0)))}
+    path = save_curves(tmp_path / "w.json", curves, "cloth-wind")
+    out = tmp_path / "w.npz"
+    assert main(["simulate", "cloth-wind", "--steps", "40", "--dt", "2e-3", "--set", "nx=5", "--set", "ny=5",
+                 "--curves", str(path), "--out", str(out), "--quiet"]) == 0
+    data = np.load(out)
+    assert str(data["status"]) == "ok" and "wind_speed" in str(data["curves"])
+    scene = build_scene("cloth-wind", {"nx": 4, "ny": 4})
+    driver = CurveDriver(scene, curves)
+    assert driver.apply(0.05)
+    wind = scene.system.term("wind")
+    assert wind.speed[None] == pytest.approx(6.0)
+    assert np.allclose(wind.direction[None].to_numpy(), [0.0, 0.0, 1.0], atol=1e-12)

@@ -182,11 +182,14 @@ class CurveEditor:
             self.session.set_curve(self.param, None)
         self.held = None
 
-    def update(self, u: float, v: float, *, left: bool, right: bool) -> bool:
-        """Feed one frame's cursor (window units, v up) and buttons. Returns whether the editor
-        took the mouse (the caller then keeps it from the camera and the grab)."""
-        pressed_left = left and not self._left_before
-        pressed_right = right and not self._right_before
+    def update(self, u: float, v: float, *, left: bool, right: bool, clicked: dict | None = None) -> bool:
+        """Feed one frame's cursor (window units, v up) and buttons (held now), and ``clicked``
+        ({"left": bool, "right": bool}: a press event this frame, which catches a click
+        released before the frame polled). Returns whether the editor took the mouse (the
+        caller then keeps it from the camera and the grab)."""
+        clicked = clicked or {}
+        pressed_left = (left and not self._left_before) or clicked.get("left", False)
+        pressed_right = (right and not self._right_before) or clicked.get("right", False)
         self._left_before, self._right_before = left, right
         if self.param is None:
             return False

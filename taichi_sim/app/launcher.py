@@ -25,6 +25,8 @@ from ..render import RenderUnavailable
 from ..render.renderer import Renderer
 from ..render.vulkan import open_window
 from ..scene import SCENES
+from ..curves import MAX_POINTS
+from .curve_editor import EDITOR_RECT, CurveEditor
 from .display import display_problem
 from .input import KEYMAP, CameraControl, GrabberHook, apply_key, help_lines
 from .session import DT_RANGE, SUBSTEPS_MAX, Session, compatible_integrators
@@ -39,6 +41,14 @@ CURRENT = (0.55, 0.85, 1.0)  # the current entry of a list
 #: STATUS_EVERY seconds and when it closes (what the real-window test reads).
 STATUS_ENV = "TAICHI_SIM_STATUS"
 STATUS_EVERY = 0.25  # s
+#: The curve editor's controls: a small window just above its strip (x, y, width, height, y down).
+CURVE_PANEL = (EDITOR_RECT[0], 1.0 - EDITOR_RECT[3] - 0.3, 0.3, 0.3)
+CURVE_SAMPLES = 160  # points of the drawn curve
+CURVE_BACK = (0.10, 0.11, 0.14)
+CURVE_LINE = (1.0, 0.78, 0.25)
+CURVE_GRID = (0.35, 0.37, 0.42)
+CURVE_NOW = (0.55, 0.85, 1.0)
+DEFAULT_CURVES_FILE = "curves.json"
 #: ImGui (inside GGUI) saves its window layout to this file in the current directory.
 IMGUI_INI = "imgui.ini"
 
@@ -88,7 +98,8 @@ class Launcher:
     draw frames with :meth:`draw_frame` without a display (input then is not polled).
     """
 
-    def __init__(self, session: Session, size: tuple[int, int] = (1280, 800), *, window=None):
+    def __init__(self, session: Session, size: tuple[int, int] = (1280, 800), *, window=None,
+                 curves_path: str | os.PathLike | None = None):
         self.session = session
         self.size = size
         self.owns_window = window is None
@@ -109,6 +120,16 @@ class Launcher:
         self._renderers: dict = {}  # one per set of scenes, reused when the session comes back
         self.status_path = os.environ.get(STATUS_ENV) or None
         self._status_at = 0.0
+        # The curve editor: a strip along the bottom (see curve_editor), shown on demand; its
+        # few fields are allocated once (Taichi never frees fields).
+        self.editor = CurveEditor(session, size)
+        self.curves_path = Path(curves_path or DEFAULT_CURVES_FILE)
+        self.show_curves = bool(session.curves)
+        self.curve_message = ""
+        self._curve_lines = ti.Vector.field(2, ti.f32, shape=2 * (CURVE_SAMPLES - 1))
+        self._curve_frame = ti.Vector.field(2, ti.f32, shape=12)  # border and the time marker
+        self._curve_back = ti.Vector.field(2, ti.f32, shape=6)
+        self._curve_points = ti.Vector.field(2, ti.f32, shape=MAX_POINTS)
         self._rebuild()
 
     def _rebuild(self) -> None:
@@ -199,7 +220,11 @@ class Launcher:
     def poll_input(self) -> None:
         """Keys and mouse of this frame (on-screen windows only)."""
         scene_steps = 0  # scene keys pressed in one frame make one switch, not a build per press
+        clicked = {"left": False, "right": False}  # a click shorter than a frame is seen here only
         for event in self.window.get_events(ti.ui.PRESS):
+            if event.key in (ti.ui.LMB, ti.ui.RMB):
+                clicked["left" if event.key == ti.ui.LMB else "right"] = True
+                continue
             action = KEYMAP.get(event.key, ("",))[0]
             if action in ("next_scene", "previous_scene"):
                 scene_steps += 1 if action == "next_scene" else -1
@@ -210,8 +235,16 @@ class Launcher:
         self.window.get_events(ti.ui.RELEASE)  # drained: GGUI queues them until read
         u, v = self.window.get_cursor_pos()
         over = u < PANEL[2] or (u > HUD[0] and v > 1.0 - HUD[3])
-        self.control.update(u, v, left=self.window.is_pressed(ti.ui.LMB),
-                            right=self.window.is_pressed(ti.ui.RMB),
+        left, right = self.window.is_pressed(ti.ui.LMB), self.window.is_pressed(ti.ui.RMB)
+        if self.show_curves:
+            x, y, w, h = CURVE_PANEL
+            over = over or (x <= u <= x + w and 1.0 - y - h <= v <= 1.0 - y)
+            if not over and self.control.held is None:
+                took = self._guard(lambda: self.editor.update(u, v, left=left, right=right,
+                                                              clicked=clicked))
+                if took:
+                    over, right = True, False  # the editor has the mouse: no grab, no orbit
+        self.control.update(u, v, left=left, right=right,
                             middle=self.window.is_pressed(ti.ui.MMB), over_panel=over)
 
     def draw_frame(self, interval: float | None = None) -> None:
@@ -229,6 +262,8 @@ class Launcher:
         self.renderer.render([r.display for r in self.session.runners], self.session.options)
         self._panel()
         self._hud()
+        if self.show_curves:
+            self._curves()
         if self.session.show_help:
             self._help()
 
@@ -283,6 +318,7 @@ class Launcher:
             o.strain = g.checkbox("strain colours (c)", o.strain)
             o.trail = g.checkbox("trail (t)", o.trail)
             s.show_help = g.checkbox("help (h)", s.show_help)
+            self.show_curves = g.checkbox("curve editor", self.show_curves)
             g.text("")
             g.text("Parameters (live)")
             controls = s.param_controls()
@@ -357,6 +393,58 @@ class Launcher:
                 uv, _ = self.renderer.camera.project(np.array(self.renderer.label_points()))
                 order = np.argsort(uv[:, 0])
                 g.text("left to right: " + ", ".join(s.runners[k].name for k in order))
+
+    def _curves(self) -> None:
+        """The curve editor: its strip drawn on the canvas (background, border, the curve, its
+        points, the current time) and its controls in a small window above it."""
+        editor, s = self.editor, self.session
+        editor.sync()
+        canvas = self.renderer.canvas
+        u0, v0, u1, v1 = EDITOR_RECT
+        pts32 = lambda pts: np.array(pts, np.float32)  # the canvas's y runs up, as the editor's v
+        self._curve_back.from_numpy(pts32([(u0, v0), (u1, v0), (u1, v1), (u0, v0), (u1, v1), (u0, v1)]))
+        canvas.triangles(self._curve_back, color=CURVE_BACK)
+        now = editor.time_marker()
+        frame = [(u0, v0), (u1, v0), (u1, v0), (u1, v1), (u1, v1), (u0, v1), (u0, v1), (u0, v0)]
+        frame += [(now, v0), (now, v1)] if now is not None else [(u0, v0), (u0, v1)]
+        view = editor.view()
+        zero = min(max(view.to_window(0.0, 0.0)[1], v0), v1)
+        frame += [(u0, zero), (u1, zero)]
+        self._curve_frame.from_numpy(pts32(frame))
+        canvas.lines(self._curve_frame, width=0.002, color=CURVE_GRID)
+        if now is not None:  # over the grey one
+            self._curve_frame.from_numpy(pts32([(now, v0), (now, v1)] * 6))
+            canvas.lines(self._curve_frame, width=0.003, color=CURVE_NOW)
+        line = editor.polyline(CURVE_SAMPLES)
+        line = [line[0]] * (CURVE_SAMPLES - len(line)) + line  # a flat line pads to the field
+        segments = [p for a, b in zip(line, line[1:]) for p in (a, b)]
+        self._curve_lines.from_numpy(pts32(segments))
+        canvas.lines(self._curve_lines, width=0.004, color=CURVE_LINE)
+        markers = editor.markers()
+        if markers:
+            markers += [markers[-1]] * (MAX_POINTS - len(markers))
+            self._curve_points.from_numpy(pts32(markers))
+            canvas.circles(self._curve_points, radius=0.007, color=CURVE_LINE)
+        with self.gui.sub_window("Curve", *CURVE_PANEL) as g:
+            if editor.param is None:
+                g.text("nothing in this scene can follow a curve")
+                return
+            names = editor.choices()
+            label = lambda n: n + (" *" if n in s.curves else "")
+            g.text("curve of (* = driven): " + label(editor.param))
+            if g.button("next parameter"):
+                self._guard(editor.select, names[(names.index(editor.param) + 1) % len(names)])
+            (t0, t1), (lo, hi) = view.t_range, view.value_range
+            g.text(f"t {t0:g}..{t1:.3g} s, value {lo:.3g}..{hi:.3g}")
+            g.text("left: add/drag  right: delete")
+            if g.button("clear curve"):
+                self._guard(editor.clear)
+            if g.button(f"save {self.curves_path.name}"):
+                self.curve_message = self._guard(editor.save, self.curves_path) or self.error
+            if g.button(f"load {self.curves_path.name}"):
+                self.curve_message = self._guard(editor.load, self.curves_path) or self.error
+            for part in textwrap.wrap(editor.message or self.curve_message, 44):
+                g.text(part)
 
     def _help(self) -> None:
         with self.gui.sub_window("Help", *HELP) as g:
