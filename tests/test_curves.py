@@ -231,7 +231,7 @@ def test_wind_curve_drives_a_cloth_run(runtime, tmp_path):
     curves = {"wind_speed": Spline(((0.0, 0.0), (0.05, 6.0))), "wind_heading": Spline(((0.0, 0.0), (0.05, 90.0)))}
     path = save_curves(tmp_path / "w.json", curves, "cloth-wind")
     out = tmp_path / "w.npz"
-    assert main(["simulate", "cloth-wind", "--steps", "40", "--dt", "2e-3", "--set", "nx=5", "--set", "ny=5",
+    assert main(["simulate", "cloth-wind", "--steps", "40", "--set", "nx=5", "--set", "ny=5",
                  "--curves", str(path), "--out", str(out), "--quiet"]) == 0
     data = np.load(out)
     assert str(data["status"]) == "ok" and "wind_speed" in str(data["curves"])
