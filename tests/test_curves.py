@@ -2,7 +2,6 @@
 JSON file (round trip, every kind of bad file refused), a curve-driven sprinkler emitting the
 integral of its rate curve, the CLI's --curves, and the curve editor's mouse logic (no window)."""
 import json
-import math
 
 import numpy as np
 import pytest
@@ -241,3 +240,40 @@ def test_wind_curve_drives_a_cloth_run(runtime, tmp_path):
     wind = scene.system.term("wind")
     assert wind.speed[None] == pytest.approx(6.0)
     assert np.allclose(wind.direction[None].to_numpy(), [0.0, 0.0, 1.0], atol=1e-12)
+
+
+def test_launcher_draws_the_curve_strip_offscreen(runtime):
+    """The strip is drawn where the editor says: its points in the curve's colour, the time
+    marker in its own (GGUI's canvas has v up, as the editor)."""
+    from taichi_sim.app.curve_panel import CURVE_LINE, CURVE_NOW
+    from taichi_sim.app.launcher import Launcher
+    from taichi_sim.app.session import Session
+    from taichi_sim.render import vulkan
+    from taichi_sim.render.vulkan import open_window
+
+    problem = vulkan.vulkan_problem()
+    if problem:
+        pytest.skip(f"no usable Vulkan: {problem}")
+    size = (480, 320)
+    session = Session("sprinkler", ["symplectic_euler"], params={"capacity": 50}, dt=0.05, substeps=10)
+    window = open_window("curves test", size)
+    try:
+        launcher = Launcher(session, size, window=window)
+        launcher.show_curves = True
+        editor = launcher.editor
+        editor.add(1.0, 300.0)
+        editor.add(6.0, 1200.0)
+        launcher.draw_frame()
+        image = launcher.renderer.read_image().astype(int)
+    finally:
+        window.destroy()
+
+    def near(uv, colour):
+        r, c = int((1.0 - uv[1]) * size[1]), int(uv[0] * size[0])
+        patch = image[max(r - 3, 0):r + 4, max(c - 3, 0):c + 4]
+        return (np.abs(patch - np.round(np.asarray(colour) * 255)).max(axis=2) <= 40).any()
+
+    for uv in editor.markers():
+        assert near(uv, CURVE_LINE)
+    u_now = editor.time_marker()
+    assert session.runners[0].t == pytest.approx(0.5) and near((u_now, 0.2), CURVE_NOW)

@@ -25,8 +25,7 @@ from ..render import RenderUnavailable
 from ..render.renderer import Renderer
 from ..render.vulkan import open_window
 from ..scene import SCENES
-from ..curves import MAX_POINTS
-from .curve_editor import EDITOR_RECT, CurveEditor
+from .curve_panel import CurvePanel
 from .display import display_problem
 from .input import KEYMAP, CameraControl, GrabberHook, apply_key, help_lines
 from .session import DT_RANGE, SUBSTEPS_MAX, Session, compatible_integrators
@@ -41,14 +40,6 @@ CURRENT = (0.55, 0.85, 1.0)  # the current entry of a list
 #: STATUS_EVERY seconds and when it closes (what the real-window test reads).
 STATUS_ENV = "TAICHI_SIM_STATUS"
 STATUS_EVERY = 0.25  # s
-#: The curve editor's controls: a small window just above its strip (x, y, width, height, y down).
-CURVE_PANEL = (EDITOR_RECT[0], 1.0 - EDITOR_RECT[3] - 0.3, 0.3, 0.3)
-CURVE_SAMPLES = 160  # points of the drawn curve
-CURVE_BACK = (0.10, 0.11, 0.14)
-CURVE_LINE = (1.0, 0.78, 0.25)
-CURVE_GRID = (0.35, 0.37, 0.42)
-CURVE_NOW = (0.55, 0.85, 1.0)
-DEFAULT_CURVES_FILE = "curves.json"
 #: ImGui (inside GGUI) saves its window layout to this file in the current directory.
 IMGUI_INI = "imgui.ini"
 
@@ -120,16 +111,9 @@ class Launcher:
         self._renderers: dict = {}  # one per set of scenes, reused when the session comes back
         self.status_path = os.environ.get(STATUS_ENV) or None
         self._status_at = 0.0
-        # The curve editor: a strip along the bottom (see curve_editor), shown on demand; its
-        # few fields are allocated once (Taichi never frees fields).
-        self.editor = CurveEditor(session, size)
-        self.curves_path = Path(curves_path or DEFAULT_CURVES_FILE)
+        self.curve_panel = CurvePanel(session, size, curves_path)  # shown on demand
+        self.editor = self.curve_panel.editor
         self.show_curves = bool(session.curves)
-        self.curve_message = ""
-        self._curve_lines = ti.Vector.field(2, ti.f32, shape=2 * (CURVE_SAMPLES - 1))
-        self._curve_frame = ti.Vector.field(2, ti.f32, shape=12)  # border and the time marker
-        self._curve_back = ti.Vector.field(2, ti.f32, shape=6)
-        self._curve_points = ti.Vector.field(2, ti.f32, shape=MAX_POINTS)
         self._rebuild()
 
     def _rebuild(self) -> None:
@@ -237,11 +221,12 @@ class Launcher:
         over = u < PANEL[2] or (u > HUD[0] and v > 1.0 - HUD[3])
         left, right = self.window.is_pressed(ti.ui.LMB), self.window.is_pressed(ti.ui.RMB)
         if self.show_curves:
-            x, y, w, h = CURVE_PANEL
-            over = over or (x <= u <= x + w and 1.0 - y - h <= v <= 1.0 - y)
+            over = over or self.curve_panel.covers(u, v)
             if not over and self.control.held is None:
-                took = self._guard(lambda: self.editor.update(u, v, left=left, right=right,
-                                                              clicked=clicked))
+                try:  # not _guard: that would clear the panel's error line every frame
+                    took = self.editor.update(u, v, left=left, right=right, clicked=clicked)
+                except ConfigError as exc:
+                    took, self.error = True, str(exc)
                 if took:
                     over, right = True, False  # the editor has the mouse: no grab, no orbit
         self.control.update(u, v, left=left, right=right,
@@ -395,56 +380,7 @@ class Launcher:
                 g.text("left to right: " + ", ".join(s.runners[k].name for k in order))
 
     def _curves(self) -> None:
-        """The curve editor: its strip drawn on the canvas (background, border, the curve, its
-        points, the current time) and its controls in a small window above it."""
-        editor, s = self.editor, self.session
-        editor.sync()
-        canvas = self.renderer.canvas
-        u0, v0, u1, v1 = EDITOR_RECT
-        pts32 = lambda pts: np.array(pts, np.float32)  # the canvas's y runs up, as the editor's v
-        self._curve_back.from_numpy(pts32([(u0, v0), (u1, v0), (u1, v1), (u0, v0), (u1, v1), (u0, v1)]))
-        canvas.triangles(self._curve_back, color=CURVE_BACK)
-        now = editor.time_marker()
-        frame = [(u0, v0), (u1, v0), (u1, v0), (u1, v1), (u1, v1), (u0, v1), (u0, v1), (u0, v0)]
-        frame += [(now, v0), (now, v1)] if now is not None else [(u0, v0), (u0, v1)]
-        view = editor.view()
-        zero = min(max(view.to_window(0.0, 0.0)[1], v0), v1)
-        frame += [(u0, zero), (u1, zero)]
-        self._curve_frame.from_numpy(pts32(frame))
-        canvas.lines(self._curve_frame, width=0.002, color=CURVE_GRID)
-        if now is not None:  # over the grey one
-            self._curve_frame.from_numpy(pts32([(now, v0), (now, v1)] * 6))
-            canvas.lines(self._curve_frame, width=0.003, color=CURVE_NOW)
-        line = editor.polyline(CURVE_SAMPLES)
-        line = [line[0]] * (CURVE_SAMPLES - len(line)) + line  # a flat line pads to the field
-        segments = [p for a, b in zip(line, line[1:]) for p in (a, b)]
-        self._curve_lines.from_numpy(pts32(segments))
-        canvas.lines(self._curve_lines, width=0.004, color=CURVE_LINE)
-        markers = editor.markers()
-        if markers:
-            markers += [markers[-1]] * (MAX_POINTS - len(markers))
-            self._curve_points.from_numpy(pts32(markers))
-            canvas.circles(self._curve_points, radius=0.007, color=CURVE_LINE)
-        with self.gui.sub_window("Curve", *CURVE_PANEL) as g:
-            if editor.param is None:
-                g.text("nothing in this scene can follow a curve")
-                return
-            names = editor.choices()
-            label = lambda n: n + (" *" if n in s.curves else "")
-            g.text("curve of (* = driven): " + label(editor.param))
-            if g.button("next parameter"):
-                self._guard(editor.select, names[(names.index(editor.param) + 1) % len(names)])
-            (t0, t1), (lo, hi) = view.t_range, view.value_range
-            g.text(f"t {t0:g}..{t1:.3g} s, value {lo:.3g}..{hi:.3g}")
-            g.text("left: add/drag  right: delete")
-            if g.button("clear curve"):
-                self._guard(editor.clear)
-            if g.button(f"save {self.curves_path.name}"):
-                self.curve_message = self._guard(editor.save, self.curves_path) or self.error
-            if g.button(f"load {self.curves_path.name}"):
-                self.curve_message = self._guard(editor.load, self.curves_path) or self.error
-            for part in textwrap.wrap(editor.message or self.curve_message, 44):
-                g.text(part)
+        self.curve_panel.draw(self.renderer.canvas, self.gui, self._guard)
 
     def _help(self) -> None:
         with self.gui.sub_window("Help", *HELP) as g:
