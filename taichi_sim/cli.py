@@ -98,6 +98,8 @@ def _add_view_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--set", dest="assignments", action="append", type=_assignment, default=[],
                    metavar="NAME=VALUE", help=_SET_HELP)
     p.add_argument("--seed", type=int, default=0, help="random seed for scenes with randomness (default 0)")
+    p.add_argument("--curves", metavar="FILE", default=None,
+                   help="JSON file of parameter curves over time (see the README's Curves section)")
     p.add_argument("--precision", choices=("f32", "f64"), default="f64", help=_PRECISION_HELP)
     p.add_argument("--arch", choices=("cpu", "gpu"), default="cpu",
                    help=_ARCH_HELP + "; rendering always uses Vulkan")
@@ -164,6 +166,8 @@ def build_parser() -> argparse.ArgumentParser:
                           "every 100 force evaluations, at most about 2000 samples). A sample costs "
                           "about two force evaluations")
     sim.add_argument("--out", required=True, help="output .npz path")
+    sim.add_argument("--curves", metavar="FILE", default=None,
+                     help="JSON file of parameter curves over time (see the README's Curves section)")
     sim.add_argument("--quiet", action="store_true", help="no summary line or progress bar")
 
     demo = sub.add_parser("demo", help="the interactive launcher (needs a display and Vulkan)")
@@ -305,6 +309,7 @@ def cmd_simulate(args) -> int:
     io.check_output_path(args.out)
     check_scene_memory(preset, resolve(preset.params, preset.name, params), precision=args.precision,
                        integrators=(integrator_name,), linear_solver=options.get("linear_solver") or "cg")
+    curves = _load_curves(args, preset)
 
     runtime.init(arch=args.arch, precision=args.precision)
     scene = build_scene(args.scene, params, seed=args.seed)
@@ -315,8 +320,16 @@ def cmd_simulate(args) -> int:
     if warning:  # warn, never refuse
         print(f"taichi-sim: warning: {warning}", file=sys.stderr)
     result = run(scene, integrator, dt=dt, steps=args.steps, t_end=args.t_end,
-                 energy_every=args.energy_every, progress=None if not args.quiet else False, guard=limits)
-    path = io.save_npz(args.out, io.run_arrays(scene, result, integrator=integrator, dt=dt))
+                 energy_every=args.energy_every, progress=None if not args.quiet else False, guard=limits,
+                 curves=curves)
+    arrays = io.run_arrays(scene, result, integrator=integrator, dt=dt)
+    if curves:
+        import numpy as np
+
+        from .curves import curves_json
+
+        arrays["curves"] = np.asarray(curves_json(curves, scene.name))  # the curves it ran with
+    path = io.save_npz(args.out, arrays)
     if result.message:
         print(f"taichi-sim: {result.message}", file=sys.stderr)
     if not args.quiet:
@@ -339,6 +352,16 @@ def cmd_advise(args) -> int:
     return advise_main(args)
 
 
+def _load_curves(args, preset) -> dict | None:
+    """The curves of ``--curves FILE``, checked against the scene's parameters (ConfigError
+    naming the file otherwise), or None."""
+    if getattr(args, "curves", None) is None:
+        return None
+    from .curves import load_curves
+
+    return load_curves(args.curves, preset)
+
+
 def _session_args(args) -> dict:
     """Scene, integrators, parameters and step of ``demo`` / ``record``, checked before any
     Taichi work (ConfigError names the culprit)."""
@@ -354,7 +377,8 @@ def _session_args(args) -> dict:
     params = scene_assignments(args.assignments)
     check_scene_memory(preset, resolve(preset.params, preset.name, params), precision=args.precision,
                        integrators=tuple(integrators), copies=len(integrators))
-    return {"scene": preset.name, "integrators": tuple(integrators), "params": params, "dt": args.dt}
+    return {"scene": preset.name, "integrators": tuple(integrators), "params": params, "dt": args.dt,
+            "curves": _load_curves(args, preset) or {}}
 
 
 def cmd_demo(args) -> int:
@@ -374,7 +398,9 @@ def cmd_demo(args) -> int:
                           substeps=args.substeps or 10, seed=args.seed, interactive=True)
         if args.substeps is not None:
             session.set_real_time(False)
-        Launcher(session, size).run()
+        if spec["curves"]:
+            session.set_curves(spec["curves"])
+        Launcher(session, size, curves_path=args.curves).run()
     except RenderUnavailable as exc:
         print(f"taichi-sim: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
@@ -393,7 +419,7 @@ def cmd_record(args) -> int:
                                           ("--side-by-side", args.side_by_side), ("--dt", args.dt),
                                           ("--set", args.assignments), ("--seconds", args.seconds),
                                           ("--fps", args.fps), ("--size", args.size),
-                                          ("--speed", args.speed)) if given]
+                                          ("--speed", args.speed), ("--curves", args.curves)) if given]
         if extra:
             raise ConfigError(f"--showcase records its own scenes and settings; drop {', '.join(extra)}")
         try:
@@ -410,7 +436,8 @@ def cmd_record(args) -> int:
     spec = _session_args(args)
     clip = Clip(scene=spec["scene"], integrators=spec["integrators"], params=spec["params"],
                 dt=spec["dt"], seconds=args.seconds or 5.0, fps=args.fps or 30.0,
-                size=parse_size(args.size or "1280x720"), speed=args.speed or 1.0, seed=args.seed)
+                size=parse_size(args.size or "1280x720"), speed=args.speed or 1.0, seed=args.seed,
+                curves=spec["curves"])
     check_clip(clip)
     check_output(args.out, clip.size, clip.fps)
     try:

@@ -83,7 +83,8 @@ def check_run_args(dt: float | None, steps: int | None, t_end: float | None, *,
 
 def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: int | None = None,
         t_end: float | None = None, energy_every: int | None = None,
-        progress: bool | None = False, guard: GuardLimits | None = None) -> RunResult:
+        progress: bool | None = False, guard: GuardLimits | None = None,
+        curves: dict | None = None) -> RunResult:
     """Advance ``scene.state`` from t = 0 by ``steps`` accepted steps, or up to ``t_end`` s.
 
     Args:
@@ -99,6 +100,9 @@ def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: 
             states are always sampled.
         progress: show a progress bar on stderr (None: only when stderr is a terminal).
         guard: the blow-up guard's limits (default :class:`~taichi_sim.guard.GuardLimits`).
+        curves: parameter name -> :class:`~taichi_sim.curves.Spline`: each parameter takes its
+            curve's value at the start of every step (the emitter's rate is integrated exactly
+            over the step); a change of a force re-bases the guard (it is put in from outside).
 
     With ``t_end`` the last step is shortened to land exactly on it. The run stops at the
     first step whose status is not OK, or when the blow-up guard finds the state past a bound
@@ -111,6 +115,11 @@ def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: 
         integrator = create_integrator(integrator, scene.system)
     adaptive = integrator.adaptive
     check_run_args(dt, steps, t_end, adaptive=adaptive)
+    driver = None
+    if curves:
+        from .curves import CurveDriver
+        driver = CurveDriver(scene, curves)
+        driver.apply(0.0)
     watch = Guard(scene, guard)
     f_evals = 0
     if adaptive:
@@ -151,6 +160,9 @@ def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: 
             last = False
             if t_end is not None and t + h >= t_end * (1 - 1e-12):
                 h, last = t_end - t, True
+            if driver is not None and driver.apply(t):
+                integrator.reset()
+                watch.rebase(t, done)
             report = integrator.step(scene.state, t, h)
             f_evals += report.f_evals
             linear_iterations += report.linear_iterations

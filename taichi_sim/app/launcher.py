@@ -25,6 +25,7 @@ from ..render import RenderUnavailable
 from ..render.renderer import Renderer
 from ..render.vulkan import open_window
 from ..scene import SCENES
+from .curve_panel import CurvePanel
 from .display import display_problem
 from .input import KEYMAP, CameraControl, GrabberHook, apply_key, help_lines
 from .session import DT_RANGE, SUBSTEPS_MAX, Session, compatible_integrators
@@ -88,7 +89,8 @@ class Launcher:
     draw frames with :meth:`draw_frame` without a display (input then is not polled).
     """
 
-    def __init__(self, session: Session, size: tuple[int, int] = (1280, 800), *, window=None):
+    def __init__(self, session: Session, size: tuple[int, int] = (1280, 800), *, window=None,
+                 curves_path: str | os.PathLike | None = None):
         self.session = session
         self.size = size
         self.owns_window = window is None
@@ -109,6 +111,9 @@ class Launcher:
         self._renderers: dict = {}  # one per set of scenes, reused when the session comes back
         self.status_path = os.environ.get(STATUS_ENV) or None
         self._status_at = 0.0
+        self.curve_panel = CurvePanel(session, size, curves_path)  # shown on demand
+        self.editor = self.curve_panel.editor
+        self.show_curves = bool(session.curves)
         self._rebuild()
 
     def _rebuild(self) -> None:
@@ -199,7 +204,11 @@ class Launcher:
     def poll_input(self) -> None:
         """Keys and mouse of this frame (on-screen windows only)."""
         scene_steps = 0  # scene keys pressed in one frame make one switch, not a build per press
+        clicked = {"left": False, "right": False}  # a click shorter than a frame is seen here only
         for event in self.window.get_events(ti.ui.PRESS):
+            if event.key in (ti.ui.LMB, ti.ui.RMB):
+                clicked["left" if event.key == ti.ui.LMB else "right"] = True
+                continue
             action = KEYMAP.get(event.key, ("",))[0]
             if action in ("next_scene", "previous_scene"):
                 scene_steps += 1 if action == "next_scene" else -1
@@ -210,8 +219,17 @@ class Launcher:
         self.window.get_events(ti.ui.RELEASE)  # drained: GGUI queues them until read
         u, v = self.window.get_cursor_pos()
         over = u < PANEL[2] or (u > HUD[0] and v > 1.0 - HUD[3])
-        self.control.update(u, v, left=self.window.is_pressed(ti.ui.LMB),
-                            right=self.window.is_pressed(ti.ui.RMB),
+        left, right = self.window.is_pressed(ti.ui.LMB), self.window.is_pressed(ti.ui.RMB)
+        if self.show_curves:
+            over = over or self.curve_panel.covers(u, v)
+            if not over and self.control.held is None:
+                try:  # not _guard: that would clear the panel's error line every frame
+                    took = self.editor.update(u, v, left=left, right=right, clicked=clicked)
+                except ConfigError as exc:
+                    took, self.error = True, str(exc)
+                if took:
+                    over, right = True, False  # the editor has the mouse: no grab, no orbit
+        self.control.update(u, v, left=left, right=right,
                             middle=self.window.is_pressed(ti.ui.MMB), over_panel=over)
 
     def draw_frame(self, interval: float | None = None) -> None:
@@ -229,6 +247,8 @@ class Launcher:
         self.renderer.render([r.display for r in self.session.runners], self.session.options)
         self._panel()
         self._hud()
+        if self.show_curves:
+            self._curves()
         if self.session.show_help:
             self._help()
 
@@ -283,6 +303,7 @@ class Launcher:
             o.strain = g.checkbox("strain colours (c)", o.strain)
             o.trail = g.checkbox("trail (t)", o.trail)
             s.show_help = g.checkbox("help (h)", s.show_help)
+            self.show_curves = g.checkbox("curve editor", self.show_curves)
             g.text("")
             g.text("Parameters (live)")
             controls = s.param_controls()
@@ -357,6 +378,9 @@ class Launcher:
                 uv, _ = self.renderer.camera.project(np.array(self.renderer.label_points()))
                 order = np.argsort(uv[:, 0])
                 g.text("left to right: " + ", ".join(s.runners[k].name for k in order))
+
+    def _curves(self) -> None:
+        self.curve_panel.draw(self.renderer.canvas, self.gui, self._guard)
 
     def _help(self) -> None:
         with self.gui.sub_window("Help", *HELP) as g:

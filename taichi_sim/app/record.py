@@ -34,6 +34,7 @@ class Clip:
             simulated time, in steps of dt).
         supersample: render at this multiple of ``size`` and average down (smoother edges).
         colors: palette size of a GIF.
+        curves: parameter name -> :class:`~taichi_sim.curves.Spline` driving it over time.
     """
 
     scene: str
@@ -47,6 +48,7 @@ class Clip:
     seed: int = 0
     supersample: int = 1
     colors: int = 128
+    curves: dict = field(default_factory=dict)
 
     @property
     def frame_count(self) -> int:
@@ -121,6 +123,8 @@ def record(clip: Clip, out: str | Path, *, still: str | Path | None = None, stil
     check_output(out, clip.size, clip.fps)
     start = time.perf_counter()
     session = Session(clip.scene, clip.integrators, params=clip.params, dt=clip.dt, seed=clip.seed)
+    if clip.curves:
+        session.set_curves(clip.curves)
     ss = int(clip.supersample)
     render_size = (clip.size[0] * ss, clip.size[1] * ss)
     window = open_window(f"taichi-sim record {clip.scene}", render_size)

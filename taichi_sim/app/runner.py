@@ -50,6 +50,7 @@ class Runner:
         self.scene = scene
         self.dt = float(dt)
         self._integrators: dict = {}  # bound once per method: scratch fields, compiled kernels
+        self.driver = None  # a CurveDriver when curves drive the scene's parameters
         self.set_integrator(integrator)
         self.restart()
 
@@ -77,6 +78,20 @@ class Runner:
         self.dt = float(dt)
         self._h_next = self.dt
 
+    def set_curves(self, curves: dict | None) -> None:
+        """Drive parameters along ``curves`` (name -> Spline; None or empty: stop), from the
+        current time on, one value per step (ConfigError for a parameter this scene cannot
+        change while it runs)."""
+        from ..curves import CurveDriver
+
+        if self.driver is not None:
+            self.driver.detach()
+            self.driver = None
+        if curves:
+            self.driver = CurveDriver(self.scene, curves)
+            if self.driver.apply(self.t):
+                self.system_changed()
+
     def system_changed(self) -> None:
         """Call after changing the running system from outside (a stiffness, the wind, the grab
         target): methods that cache f between steps forget it, and the blow-up guard takes the
@@ -96,6 +111,9 @@ class Runner:
         self.sim_ms = 0.0
         self._pending = 0.0
         self._h_next = self.dt
+        if self.driver is not None:
+            self.driver.restart()
+            self.driver.apply(0.0)
         self.integrator.reset()  # the state jumped: a cached f is stale
         self.guard = Guard(self.scene)
         self._grab_moves = self._grabber_moves()
@@ -139,6 +157,7 @@ class Runner:
         calls = 0
         adaptive = self.integrator.adaptive
         guard = self.guard
+        driver, forces_changed = self.driver, False
         while not self.frozen and calls < MAX_CALLS_PER_ADVANCE:
             if adaptive:
                 if self._pending <= 1e-12 * max(1.0, self.t):
@@ -148,6 +167,9 @@ class Runner:
                 if self._pending < self.dt * (1.0 - 1e-9):
                     break
                 h = self.dt
+            if driver is not None and driver.apply(self.t):
+                self.integrator.reset()
+                forces_changed = True
             report = self.integrator.step(self.scene.state, self.t, h)
             calls += 1
             self.f_evals += report.f_evals
@@ -171,6 +193,8 @@ class Runner:
             self._pending = 0.0
         if not self.frozen and guard.work:
             self._check(self.dt)
+        if forces_changed and not self.frozen:
+            guard.rebase(self.t, self.steps)  # the curves put that energy in, not a blow-up
         self.sim_ms = 1e3 * (time.perf_counter() - start)
 
     def step_once(self) -> None:

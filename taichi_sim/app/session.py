@@ -10,15 +10,14 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
-from typing import Any, Callable, Sequence
-
-import numpy as np
+from typing import Any, Sequence
 
 from ..errors import ConfigError
 from ..integrators import INTEGRATORS, integrator_class
 from ..render.drawer import DrawOptions
 from ..scene import SCENES, build_scene, scene_preset
 from ..scene.params import Param, resolve
+from ..scene.live import LIVE_SETTERS, applies_live
 from ..scene.scene import Scene
 from ..scene.visual import describe
 from .pacing import Pacer, factor_text
@@ -27,52 +26,6 @@ from .runner import Runner
 MAX_PANELS = 3
 SUBSTEPS_MAX = 500
 DT_RANGE = (1e-5, 0.5)  # s, the step-size slider's range
-
-
-def _set_spring_stiffness(scene: Scene, p: dict) -> bool:
-    springs = scene.springs
-    if springs is None:
-        return False
-    if "shear_stiffness" in p:  # a cloth: one stiffness per spring kind
-        k = np.choose(springs.kind_np, [p["stiffness"], p["shear_stiffness"], p["flex_stiffness"]])
-    else:
-        k = p["stiffness"]
-    springs.set_parameters(stiffness=k)
-    return True
-
-
-def _set_damping(scene: Scene, p: dict) -> bool:
-    if scene.springs is None or not scene.springs.damped:  # dashpots were compiled away
-        return False
-    scene.springs.set_parameters(damping=p["damping"])
-    return True
-
-
-def _term_setter(term: str, apply: Callable[[Any, dict], None]) -> Callable[[Scene, dict], bool]:
-    def setter(scene: Scene, p: dict) -> bool:
-        found = scene.system.term(term) if hasattr(scene.system, "term") else None
-        if found is None:
-            return False
-        apply(found, p)
-        return True
-    return setter
-
-
-#: Parameters applied to a running scene without rebuilding it, when the force they tune exists
-#: (a scene built with zero drag has no drag term: changing drag then needs a rebuild).
-LIVE_SETTERS: dict[str, Callable[[Scene, dict], bool]] = {
-    "stiffness": _set_spring_stiffness,
-    "shear_stiffness": _set_spring_stiffness,
-    "flex_stiffness": _set_spring_stiffness,
-    "damping": _set_damping,
-    "gravity": _term_setter("gravity", lambda t, p: t.set((0.0, -p["gravity"], 0.0))),
-    "drag": _term_setter("drag", lambda t, p: t.set(p["drag"])),
-    "wind": _term_setter("wind", lambda t, p: t.set(enabled=p["wind"])),
-    "wind_speed": _term_setter("wind", lambda t, p: t.set(speed=p["wind_speed"])),
-    "wind_heading": _term_setter("wind", lambda t, p: t.set(heading=p["wind_heading"])),
-    "wind_gust": _term_setter("wind", lambda t, p: t.set(gust=p["wind_gust"])),
-    "wind_drag": _term_setter("wind", lambda t, p: t.set(drag_coefficient=p["wind_drag"])),
-}
 
 
 @dataclass(frozen=True)
@@ -152,6 +105,7 @@ class Session:
         self.generation = 0  # bumped when the scenes are rebuilt: renderers must be too
         self.resets = 0  # bumped by every reset: drawn trails must restart
         self.runners: list[Runner] = []
+        self.curves: dict = {}  # parameter name -> Spline driving it over time (see set_curve)
         self._built: dict[tuple, list[Runner]] = {}  # see _build
         self._build(integrators)
 
@@ -201,6 +155,10 @@ class Session:
         self.runners = runners
         self.options = DrawOptions.for_visual(describe(runners[0].scene))
         self.generation += 1
+        # Curves go on driving a rebuilt scene, unless it no longer has what they tune.
+        self.curves = {k: c for k, c in self.curves.items() if applies_live(runners[0].scene, k)}
+        for r in runners:
+            r.set_curves(self.curves)
 
     @property
     def integrators(self) -> list[str]:
@@ -223,6 +181,7 @@ class Session:
         self.scene_name = preset.name
         self.params = self._resolve(preset, {})
         self.pending = {}
+        self.curves = {}  # curves belong to a scene's parameters
         self.dt = preset.default_dt
         self._build(old, fallback=preset.default_integrator)
         self.pacer.reset()
@@ -247,13 +206,47 @@ class Session:
         return live + setup
 
     def _applies_live(self, name: str) -> bool:
-        scene = self.runners[0].scene
-        if name in ("stiffness", "shear_stiffness", "flex_stiffness"):
-            return scene.springs is not None
-        if name == "damping":
-            return scene.springs is not None and scene.springs.damped
-        term = {"gravity": "gravity", "drag": "drag"}.get(name, "wind")
-        return hasattr(scene.system, "term") and scene.system.term(term) is not None
+        return applies_live(self.runners[0].scene, name)
+
+    # -- curves -------------------------------------------------------------------------------
+
+    def drivable_params(self) -> list[ParamControl]:
+        """The numeric parameters a curve can drive in the running scene (the live ones)."""
+        return [c for c in self.param_controls() if c.live and c.param.kind in (int, float)]
+
+    def set_curve(self, name: str, spline) -> None:
+        """Drive parameter ``name`` along ``spline`` (a :class:`~taichi_sim.curves.Spline` of
+        (t in s, value)) from the next step on; None stops driving it (it goes back to its set
+        value). Raises ConfigError for a parameter that cannot be driven or a value it refuses."""
+        from ..curves import check_curves
+
+        if spline is None:
+            if self.curves.pop(name, None) is not None:
+                for r in self.runners:
+                    r.set_curves(self.curves)
+                    LIVE_SETTERS[name](r.scene, self.params)
+                    r.system_changed()
+            return
+        check_curves({name: spline}, scene_preset(self.scene_name))
+        if not self._applies_live(name):
+            raise ConfigError(f"curve {name}: {self.scene_name} as built cannot change {name!r} while it runs")
+        self.curves[name] = spline
+        for r in self.runners:
+            r.set_curves(self.curves)
+
+    def set_curves(self, curves: dict) -> None:
+        """Replace every curve (name -> Spline; checked first, nothing changes on an error)."""
+        from ..curves import check_curves
+
+        check_curves(dict(curves), scene_preset(self.scene_name))
+        bad = [name for name in curves if not self._applies_live(name)]
+        if bad:
+            raise ConfigError(f"curve {bad[0]}: {self.scene_name} as built cannot change {bad[0]!r} while it runs")
+        for name in list(self.curves):
+            self.set_curve(name, None)
+        self.curves = dict(curves)
+        for r in self.runners:
+            r.set_curves(self.curves)
 
     def value(self, name: str) -> Any:
         """The parameter's value as shown: a pending change, else the running one."""

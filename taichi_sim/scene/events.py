@@ -5,7 +5,7 @@ and adaptive error estimates. Each event is called as ``event(state, t, h)`` aft
 returns True when it changed the system itself (tearing does), not only the state.
 """
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import taichi as ti
@@ -58,10 +58,29 @@ class SphereColliders:
         self.friction = ti.field(real, shape=K)
         self.radius.from_numpy(np.asarray(radii, runtime.np_real()))
         self.friction.from_numpy(np.asarray(frictions, runtime.np_real()))
+        self.paths0 = tuple(self.paths)
+        self.move_to(0.0)
+
+    def set_speed(self, speed: float) -> None:
+        """Move every sphere that travels in a straight line (drop, sweep) at ``speed`` (m/s)
+        from now on, continuing from where it is (a live change must not teleport it)."""
+        for k, path in enumerate(self.paths):
+            v = np.asarray(path.velocity, float)
+            norm = float(np.linalg.norm(v))
+            if norm == 0.0:
+                continue
+            center, _ = path.at(self.t)
+            v_new = v / norm * float(speed)
+            self.paths[k] = replace(path, velocity=tuple(v_new), center0=tuple(center - v_new * self.t))
+
+    def restore(self) -> None:
+        """The paths as built (live speed changes undone), at t = 0."""
+        self.paths = list(self.paths0)
         self.move_to(0.0)
 
     def move_to(self, t: float) -> None:
         """Place every sphere where its path puts it at time t (s)."""
+        self.t = t
         centers, velocities = zip(*(p.at(t) for p in self.paths))
         self.center.from_numpy(np.asarray(centers, runtime.np_real()))
         self.velocity.from_numpy(np.asarray(velocities, runtime.np_real()))
@@ -212,6 +231,11 @@ class Emitter:
         self.live_count = ti.field(ti.i32, shape=())
         self.next_slot = 0
         self.carry = 0.0
+        self.emitted = 0  # particles launched since t = 0
+        self.spec0 = spec
+        # A :class:`~taichi_sim.curves.Spline` of the rate (1/s) over time, set by a curve
+        # driver; None: the constant ``spec.rate``.
+        self.rate_curve = None
         axis = np.asarray(spec.direction, float)
         self.axis = axis / np.linalg.norm(axis)
         helper = np.array([1.0, 0.0, 0.0]) if abs(self.axis[0]) < 0.9 else np.array([0.0, 0.0, 1.0])
@@ -221,11 +245,15 @@ class Emitter:
 
     def __call__(self, state, t: float, h: float) -> None:
         self._age_and_expire(state, h, self.spec.lifetime)
-        self.carry += self.spec.rate * h
+        # A rate curve gives its exact integral over the step; the fraction of a particle
+        # carries over, so after any steps emitted == floor(total) (capacity permitting).
+        due = self.rate_curve.integral(t - h, t) if self.rate_curve is not None else self.spec.rate * h
+        self.carry += max(due, 0.0)
         count = min(int(self.carry), self.capacity)
         self.carry -= int(self.carry)
         if count:
             self._launch(state, count, h)
+            self.emitted += count
 
     def _launch(self, state, count: int, h: float) -> None:
         spec, npr = self.spec, runtime.np_real()
@@ -285,6 +313,8 @@ class Emitter:
         self.live_count[None] = 0
         self.next_slot = 0
         self.carry = 0.0
+        self.emitted = 0
+        self.spec = self.spec0
         self.rng = np.random.default_rng(self.seed)
         free = self.free.to_numpy()
         free[self.first:self.first + self.capacity] = self._slots_free0
@@ -292,5 +322,5 @@ class Emitter:
 
     def arrays(self) -> dict:
         return {"alive": self.alive.to_numpy().astype(bool), "age": self.age.to_numpy().astype(np.float64),
-                "lifetime": np.float64(self.spec.lifetime)}
+                "lifetime": np.float64(self.spec.lifetime), "emitted": np.int64(self.emitted)}
 
