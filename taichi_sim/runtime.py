@@ -64,9 +64,35 @@ def init(arch: str = "cpu", precision: str = "f64", *, debug: bool = False,
         else:
             ti.init(**kwargs)
     chosen = str(ti.lang.impl.current_cfg().arch).split(".")[-1]
+    if offline_cache:
+        _write_kernel_cache_at_exit()
     if arch == "gpu":
         print(f"taichi_sim: --arch gpu: {describe_gpu_choice(chosen, log)}", file=sys.stderr)
     _current.update(arch=arch, precision=precision, backend=chosen)
+
+
+_AT_EXIT = {"registered": False}
+
+
+def _write_kernel_cache_at_exit() -> None:
+    """Make Taichi write its offline kernel cache when the process ends.
+
+    Taichi 1.7 writes the cache when a program is reset (another ``ti.init``, ``ti.reset``),
+    not when the interpreter exits, so a process that initialises once (``simulate``,
+    ``record``, the launcher) compiled every kernel afresh every time: about a second of its
+    start-up. Resetting at exit writes what this process compiled; the next start loads it."""
+    if _AT_EXIT["registered"]:
+        return
+    import atexit
+
+    def reset():
+        try:
+            ti.reset()
+        except Exception:  # noqa: BLE001 - a failure to cache must not fail the exit
+            pass
+
+    atexit.register(reset)
+    _AT_EXIT["registered"] = True
 
 
 class _Captured:

@@ -254,7 +254,7 @@ def print_throughput(rows: list[dict], details: dict) -> None:
         if r.get("kind") == "start":
             if r.get("status") == "ok":
                 print(f"Start-up, `taichi-sim {r['name']}` from process start to exit ({r['precision']}): "
-                      f"{r['warm_s']:.2f} s with Taichi's offline kernel cache, {r['cold_s']:.2f} s without it")
+                      f"{r['warm_s']:.2f} s with Taichi's kernel cache warm, {r['cold_s']:.2f} s with it empty")
             else:
                 print(f"Start-up: {r.get('status')}: {r.get('note')}")
     for s in summary:

@@ -23,8 +23,8 @@ through :func:`taichi_sim.run` (what ``simulate`` calls) join the alternated bat
 stencil's gain and the run loop's overhead); at one size (128 by default) Taichi's kernel
 profiler gives each kernel loop's time for symplectic Euler and rk4, and the command line is
 timed as a whole process with two step counts (the difference takes out start-up and
-saving); and ``taichi-sim simulate cloth --steps 1`` is timed from process start, with and
-without Taichi's offline kernel cache.
+saving); and ``taichi-sim simulate cloth --steps 1`` is timed from process start, with an
+empty and with a warm Taichi kernel cache.
 """
 from __future__ import annotations
 
@@ -173,22 +173,23 @@ def measure_cli(precision: str, n: int, dt: float, steps: int, repeats: int) -> 
 
 def measure_start(precision: str, repeats: int = 3) -> dict:
     """Process start to exit of ``taichi-sim simulate cloth --steps 1`` (the default cloth and
-    integrator), the median of ``repeats`` runs with Taichi's offline kernel cache on (after one
-    run that fills it) and with it off (``TI_OFFLINE_CACHE=0``: every kernel compiled afresh),
-    alternated."""
+    integrator), the median of ``repeats`` runs each way, alternated: with an empty Taichi
+    kernel cache (a new folder each time: every kernel compiled) and with a warm one (filled by
+    the run before; the process writes it at exit)."""
     from .protocol import child_env
 
     args = ["cloth", "--steps", "1", "--precision", precision]
     record = {"kind": "start", "name": "simulate cloth --steps 1", "precision": precision}
-    cold_env = {**child_env(), "TI_OFFLINE_CACHE": "0"}
     cold, warm = [], []
-    try:
-        _simulate_seconds(args)
-        for _ in range(repeats):
-            warm.append(_simulate_seconds(args))
-            cold.append(_simulate_seconds(args, cold_env))
-    except (RuntimeError, subprocess.TimeoutExpired) as exc:
-        return {**record, "status": "error", "note": str(exc)}
+    with tempfile.TemporaryDirectory() as folder:
+        warm_env = {**child_env(), "TI_OFFLINE_CACHE_FILE_PATH": f"{folder}/warm"}
+        try:
+            _simulate_seconds(args, warm_env)
+            for k in range(repeats):
+                warm.append(_simulate_seconds(args, warm_env))
+                cold.append(_simulate_seconds(args, {**child_env(), "TI_OFFLINE_CACHE_FILE_PATH": f"{folder}/cold{k}"}))
+        except (RuntimeError, subprocess.TimeoutExpired) as exc:
+            return {**record, "status": "error", "note": str(exc)}
     return {**record, "status": "ok", "cold_s": statistics.median(cold), "warm_s": statistics.median(warm)}
 
 
