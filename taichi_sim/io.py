@@ -77,20 +77,24 @@ def _umask() -> int:
     return mask
 
 
-def save_npz(path: str | os.PathLike, arrays: dict[str, np.ndarray]) -> Path:
-    """Write ``arrays`` to ``path`` atomically: a temporary file beside it, then a rename, so a
+def write_atomically(path: Path, write, *, binary: bool = True) -> Path:
+    """Create ``path`` with ``write(file)``: a temporary file beside it, then a rename, so a
     failure never leaves a partial file. The file gets the mode of any newly created file
     (0666 less the umask: 0644 under umask 022)."""
-    path = check_output_path(path)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent or ".")
     try:
         # mkstemp creates 0600 so that nobody reads a half-written file; the result is public
         os.fchmod(fd, 0o666 & ~_umask())
-        with os.fdopen(fd, "wb") as f:
-            np.savez_compressed(f, **arrays)
+        with os.fdopen(fd, "wb" if binary else "w", **({} if binary else {"encoding": "utf-8"})) as f:
+            write(f)
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)
         raise
     return path
+
+
+def save_npz(path: str | os.PathLike, arrays: dict[str, np.ndarray]) -> Path:
+    """Write ``arrays`` to ``path`` atomically (see :func:`write_atomically`)."""
+    return write_atomically(check_output_path(path), lambda f: np.savez_compressed(f, **arrays))

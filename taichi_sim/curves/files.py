@@ -17,7 +17,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -165,18 +164,7 @@ def curves_json(curves: Curves, scene: str | None = None) -> str:
 def save_curves(path: str | os.PathLike, curves: Curves, scene: str | None = None) -> Path:
     """Write a curves file atomically (temporary file, then rename). Floats are written with
     ``repr`` precision, so loading gives back identical points."""
-    path = Path(path)
+    from ..io import write_atomically
+
     text = json.dumps(curves_document(curves, scene), indent=1, allow_nan=False) + "\n"
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        mask = os.umask(0)
-        os.umask(mask)
-        os.fchmod(fd, 0o666 & ~mask)
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
+    return write_atomically(Path(path), lambda f: f.write(text), binary=False)
