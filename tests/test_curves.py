@@ -242,18 +242,14 @@ def test_wind_curve_drives_a_cloth_run(runtime, tmp_path):
     assert np.allclose(wind.direction[None].to_numpy(), [0.0, 0.0, 1.0], atol=1e-12)
 
 
-def test_launcher_draws_the_curve_strip_offscreen(runtime):
-    """The strip is drawn where the editor says: its points in the curve's colour, the time
-    marker in its own (GGUI's canvas has v up, as the editor)."""
-    from taichi_sim.app.curve_panel import CURVE_LINE, CURVE_NOW
+def _draw_curve_strip(out: str) -> None:
+    """In a child process: the launcher with the curve strip on, one frame, saved to ``out``
+    (.npz: the image, the point markers, the time marker, the runner's time)."""
     from taichi_sim.app.launcher import Launcher
     from taichi_sim.app.session import Session
-    from taichi_sim.render import vulkan
     from taichi_sim.render.vulkan import open_window
 
-    problem = vulkan.vulkan_problem()
-    if problem:
-        pytest.skip(f"no usable Vulkan: {problem}")
+    ts.init(arch="cpu", precision="f64")
     size = (480, 320)
     session = Session("sprinkler", ["symplectic_euler"], params={"capacity": 50}, dt=0.05, substeps=10)
     window = open_window("curves test", size)
@@ -264,16 +260,41 @@ def test_launcher_draws_the_curve_strip_offscreen(runtime):
         editor.add(1.0, 300.0)
         editor.add(6.0, 1200.0)
         launcher.draw_frame()
-        image = launcher.renderer.read_image().astype(int)
+        np.savez(out, image=launcher.renderer.read_image(), markers=np.asarray(editor.markers()),
+                 now=editor.time_marker(), t=session.runners[0].t)
     finally:
         window.destroy()
+
+
+def test_launcher_draws_the_curve_strip_offscreen(tmp_path):
+    """The strip is drawn where the editor says: its points in the curve's colour, the time
+    marker in its own (GGUI's canvas has v up, as the editor). Drawn in a child process, so its
+    window never shares a test worker with the render tests' shared window (GGUI 1.7 supports
+    one window at a time: closing one can break the others, see test_render.own_windows)."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from taichi_sim.app.curve_panel import CURVE_LINE, CURVE_NOW
+    from taichi_sim.render import vulkan
+
+    problem = vulkan.vulkan_problem()
+    if problem:
+        pytest.skip(f"no usable Vulkan: {problem}")
+    out = tmp_path / "strip.npz"
+    code = (f"import runpy; runpy.run_path({str(Path(__file__))!r})['_draw_curve_strip']({str(out)!r})")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
+                          cwd=Path(__file__).resolve().parents[1])
+    assert done.returncode == 0, done.stderr[-2000:]
+    drawn = np.load(out)
+    image = drawn["image"].astype(int)
+    size = (image.shape[1], image.shape[0])
 
     def near(uv, colour):
         r, c = int((1.0 - uv[1]) * size[1]), int(uv[0] * size[0])
         patch = image[max(r - 3, 0):r + 4, max(c - 3, 0):c + 4]
         return (np.abs(patch - np.round(np.asarray(colour) * 255)).max(axis=2) <= 40).any()
 
-    for uv in editor.markers():
+    for uv in drawn["markers"]:
         assert near(uv, CURVE_LINE)
-    u_now = editor.time_marker()
-    assert session.runners[0].t == pytest.approx(0.5) and near((u_now, 0.2), CURVE_NOW)
+    assert float(drawn["t"]) == pytest.approx(0.5) and near((float(drawn["now"]), 0.2), CURVE_NOW)
