@@ -223,3 +223,25 @@ def test_record_with_energy_and_strain_writes_charts_and_legend(runtime, tmp_pat
     bar = last[_px_box(LEGEND, size)]
     assert _pixels_near(bar[2], strain_colours(np.array([1.0]))[0], 25).any()
     assert COMPONENTS[-1] == "total"
+
+
+def test_the_launcher_draws_the_plot_and_labels_it_in_the_hud(window):
+    from taichi_sim.app.input import apply_key
+    from taichi_sim.app.launcher import Launcher
+
+    session = Session("spring", ["euler", "symplectic_euler"], dt=0.01)
+    launcher = Launcher(session, SIZE, window=window)
+    for _ in range(3):
+        launcher.draw_frame()
+        image = launcher.renderer.read_image()
+    view = launcher.energy_view
+    assert view.geometry is not None and len(view.geometry.rects) == 2
+    assert launcher.renderer.camera.bottom > view.area.y1  # the scenes are framed above the charts
+    box = image[_px_box(view.geometry.rects[0], SIZE)]
+    assert _pixels_near(box, PLOT_BACKGROUND, 6).mean() > 0.5
+    hud = [text for text, _ in view.hud_lines()]
+    assert hud[0].startswith("energy plot:") and any(t.startswith("  spring:") for t in hud)
+    apply_key("e", session, launcher.control)  # off: no charts, full framing
+    launcher.draw_frame()
+    launcher.renderer.read_image()
+    assert view.geometry is None and launcher.renderer.camera.bottom == 0.0

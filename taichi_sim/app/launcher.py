@@ -270,6 +270,8 @@ class Launcher:
         bottom = CHART_AREA.y1 + 0.02 if charts else 0.0
         if self.renderer.camera.bottom != bottom:
             self.renderer.camera.bottom = bottom
+            if not self.control.user_moved:
+                self.renderer.home()  # frame again for the height now free
         legend = s.options.strain and s.options.mesh and self.renderer.visuals[0].mesh is not None
         self.energy_view.update(runners, panel_centres(self.renderer), energy=charts,
                                 strain_scale=s.options.strain_scale if legend else None)
