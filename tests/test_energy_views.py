@@ -245,3 +245,22 @@ def test_the_launcher_draws_the_plot_and_labels_it_in_the_hud(window):
     launcher.draw_frame()
     launcher.renderer.read_image()
     assert view.geometry is None and launcher.renderer.camera.bottom == 0.0
+
+
+def test_record_side_by_side_plots_energy_unless_told_not_to(runtime, tmp_path):
+    from PIL import Image
+
+    from taichi_sim.cli import main
+
+    _release_window()
+    if vulkan.vulkan_problem():
+        pytest.skip("no usable Vulkan")
+    base = ["record", "spring", "--side-by-side", "euler,symplectic_euler", "--seconds", "0.4", "--fps", "5",
+            "--size", "320x200", "--quiet", "--out"]
+    plot_area = []
+    for flag, folder in (([], "on"), (["--no-energy"], "off")):
+        assert main(base + [f"{tmp_path}/{folder}/"] + flag) == 0
+        last = np.asarray(Image.open(sorted((tmp_path / folder).glob("*.png"))[-1]).convert("RGB"))
+        box = last[_px_box(Rect(0.0, CHART_AREA.y0 + 0.03, 1.0, CHART_AREA.y1 - 0.08), (320, 200))]
+        plot_area.append(_pixels_near(box, PLOT_BACKGROUND, 4).mean())
+    assert plot_area[0] > 0.15 and plot_area[1] < 0.01

@@ -16,6 +16,7 @@ from ..render.overlay import WARNING, Label, burn
 from ..render.renderer import Renderer
 from ..render.video import MAX_SIDE, VideoWriter, check_output, save_png
 from ..render.vulkan import open_window
+from .energy import curves_of
 from .energy_view import EnergyView, panel_centres
 from .session import Session
 
@@ -135,6 +136,7 @@ def record(clip: Clip, out: str | Path, *, still: str | Path | None = None, stil
         session.set_curves(clip.curves)
     session.options.strain = clip.strain
     session.options.energy = clip.energy
+    charts = clip.energy and bool(curves_of(session.runners[0].scene))  # the circle ODE has none
     view = EnergyView(CHART_AREA, LEGEND)
     strain_scale = (session.options.strain_scale if clip.strain and session.options.mesh
                     and session.visuals()[0].mesh is not None else None)
@@ -145,7 +147,7 @@ def record(clip: Clip, out: str | Path, *, still: str | Path | None = None, stil
     still_path = None
     try:
         renderer = Renderer(window, session.visuals(), render_size,
-                            bottom=CHART_AREA.y1 + 0.02 if clip.energy else 0.0)
+                            bottom=CHART_AREA.y1 + 0.02 if charts else 0.0)
         with VideoWriter(out, clip.size, clip.fps, colors=clip.colors) as writer, \
                 tqdm(total=clip.frame_count, unit="frame", leave=False, disable=None if progress is None
                      else not progress, desc=Path(out).name) as bar:
