@@ -189,6 +189,11 @@ def build_parser() -> argparse.ArgumentParser:
     rec.add_argument("--size", metavar="WxH", help="video size in pixels (default 1280x720)")
     rec.add_argument("--speed", type=_positive_float,
                      help="simulated seconds per video second (default 1)")
+    rec.add_argument("--energy", action=argparse.BooleanOptionalAction, default=None,
+                     help="plot each run's kinetic, gravitational, spring and total energy under its "
+                          "panel (default: on with --side-by-side)")
+    rec.add_argument("--strain", action="store_true",
+                     help="colour the cloth by spring strain, with a colour bar")
     dest = rec.add_mutually_exclusive_group(required=True)
     dest.add_argument("--out", help="FILE.mp4, FILE.gif, or DIR/ for PNG frames")
     dest.add_argument("--showcase", metavar="DIR",
@@ -487,7 +492,9 @@ def cmd_record(args) -> int:
                                           ("--side-by-side", args.side_by_side), ("--dt", args.dt),
                                           ("--set", args.assignments), ("--seconds", args.seconds),
                                           ("--fps", args.fps), ("--size", args.size),
-                                          ("--speed", args.speed), ("--curves", args.curves)) if given]
+                                          ("--speed", args.speed), ("--curves", args.curves),
+                                          ("--energy", args.energy is not None),
+                                          ("--strain", args.strain)) if given]
         if extra:
             raise ConfigError(f"--showcase records its own scenes and settings; drop {', '.join(extra)}")
         try:
@@ -505,7 +512,8 @@ def cmd_record(args) -> int:
     clip = Clip(scene=spec["scene"], integrators=spec["integrators"], params=spec["params"],
                 dt=spec["dt"], seconds=args.seconds or 5.0, fps=args.fps or 30.0,
                 size=parse_size(args.size or "1280x720"), speed=args.speed or 1.0, seed=args.seed,
-                curves=spec["curves"])
+                curves=spec["curves"], strain=args.strain,
+                energy=bool(args.side_by_side) if args.energy is None else args.energy)
     check_clip(clip)
     check_output(args.out, clip.size, clip.fps)
     try:

@@ -43,10 +43,11 @@ class Renderer:
         size: the window's (width, height) in pixels.
         inset: fraction of the window width a control panel covers on the left; the scenes are
             framed in the rest.
+        bottom: fraction of the window height the energy charts cover at the bottom (likewise).
     """
 
     def __init__(self, window, visuals: Sequence[SceneVisual], size: tuple[int, int], *,
-                 inset: float = 0.0):
+                 inset: float = 0.0, bottom: float = 0.0):
         if not visuals:
             raise ValueError("Renderer needs at least one scene visual")
         self.window = window
@@ -58,9 +59,11 @@ class Renderer:
         self.offsets = layout_offsets(self.visuals)
         self.drawers = [SceneDrawer(v, off) for v, off in zip(self.visuals, self.offsets)]
         self._last_options: Sequence[DrawOptions] | None = None  # of a frame not read yet
+        self._overlay = None  # of that frame
         yaw, pitch = self.visuals[0].view
         self.camera = OrbitCamera(self.size[0] / self.size[1], yaw=math.radians(yaw),
-                                  pitch=math.radians(pitch), inset=inset)
+                                  pitch=math.radians(pitch), inset=inset,
+                                  bottom=bottom)
         self.home()
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
@@ -100,11 +103,14 @@ class Renderer:
         return [np.array([0.5 * (v.bounds[0][0] + v.bounds[1][0]), v.bounds[1][1], v.center[2]]) + off
                 for v, off in zip(self.visuals, self.offsets)]
 
-    def render(self, sources: Sequence, options: DrawOptions | Sequence[DrawOptions]) -> list[int]:
+    def render(self, sources: Sequence, options: DrawOptions | Sequence[DrawOptions], *,
+               overlay=None) -> list[int]:
         """Draw one frame: ``sources[k]`` is scene k's position field or an (n, 3) array.
 
-        ``options`` applies to every scene, or is one per scene. Returns, per scene, how many
-        particles were not drawable (non-finite or huge) and kept their previous position.
+        ``options`` applies to every scene, or is one per scene. ``overlay`` (or None): called
+        with the canvas after the scenes, to draw 2D over them (the energy plot, a legend).
+        Returns, per scene, how many particles were not drawable (non-finite or huge) and kept
+        their previous position.
         Read the frame with :meth:`read_image` (offscreen) or ``window.show()`` (on screen).
         """
         if isinstance(options, DrawOptions):
@@ -113,6 +119,7 @@ class Renderer:
         with _quiet_taichi_warnings():  # GGUI's own staging kernels warn about f64 -> f32
             for drawer, opts in zip(self.drawers, options):
                 drawer.update(opts, self.camera.position)
+        self._overlay = overlay
         self._declare(options)
         self._last_options = options
         return held
@@ -131,6 +138,8 @@ class Renderer:
                 drawer.draw(self.scene, opts)
             self.canvas.set_background_color(BACKGROUND)
             self.canvas.scene(self.scene)
+            if self._overlay is not None:
+                self._overlay(self.canvas)
 
     def clear_trails(self) -> None:
         """Forget every trail (after a reset, so no line joins the old path to the start)."""
