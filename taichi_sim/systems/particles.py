@@ -28,6 +28,12 @@ class ParticleSystem(System):
             like a pinned one until an event activates it (``free`` field).
         terms: force terms (see :class:`taichi_sim.forces.ForceTerm`); more may be added with
             :meth:`add_term` before the first evaluation (one kernel sums them, compiled then).
+
+    Constraints (:class:`~taichi_sim.systems.constraints.Constraints`, set with
+    :meth:`set_constraints` before the first evaluation) are a stage after the sum: every
+    kernel that evaluates forces then gathers each particle's applied force Q first, solves
+    for the multipliers at the same state and adds Jᵀ λ. Without them no field exists and no
+    kernel contains the stage.
     """
 
     second_order = True
@@ -44,6 +50,7 @@ class ParticleSystem(System):
         self.mass_np = mass
         self.pinned_np = pinned
         self.terms = list(terms)
+        self.constraints = None
         self._launchers: dict[tuple, object] = {}
         self.mass = ti.field(runtime.real(), shape=n)
         self.free = ti.field(ti.i32, shape=n)
@@ -59,6 +66,16 @@ class ParticleSystem(System):
     def add_term(self, term: ForceTerm) -> None:
         """Add a force term; only before the first eval_f (its kernel is compiled then)."""
         self.terms.append(term)
+
+    def set_constraints(self, constraints) -> None:
+        """Add the constraint stage; only before the first eval_f (compiled into its kernels).
+        The implicit and positional methods refuse a constrained system (see
+        :attr:`~taichi_sim.integrators.Integrator.takes_constraints`)."""
+        self.constraints = constraints
+
+    def constraint_violation(self, y: State) -> float:
+        """The largest |C| (m) over the constraints at ``y``; 0 without constraints."""
+        return 0.0 if self.constraints is None else self.constraints.violation(y)
 
     def term(self, name: str) -> ForceTerm | None:
         """The force term called ``name`` (``"gravity"``, ``"drag"``, ``"springs"``), if any."""
@@ -110,19 +127,44 @@ class ParticleSystem(System):
         return f
 
     @ti.func
+    def _prepare(self, y, t):
+        """Everything a force evaluation at ``y`` does before the per-particle loop: the
+        precomputes and, with constraints, the applied forces Q and the constraint solve. Call
+        at the top level of a kernel; then :meth:`_net_force` gives each particle's force."""
+        self._precompute(y)
+        if ti.static(_given(self.constraints)):
+            for i in y.x:
+                f = ti.Vector.zero(y.x.dtype, 3)
+                if self.free[i]:
+                    f = self._summed_force(i, y, self.mass[i], t)
+                self.constraints.applied[i] = f
+            self.constraints.solve(y, self.mass, self.free)
+
+    @ti.func
+    def _net_force(self, i, y, mass_i, t):
+        """The net force on free particle i (N), constraint force included, in a kernel that
+        ran :meth:`_prepare` at the same ``y`` (with constraints it reads only particle i)."""
+        f = ti.Vector.zero(y.x.dtype, 3)
+        if ti.static(_given(self.constraints)):
+            f = self.constraints.applied[i] + self.constraints.force[i]
+        else:
+            f = self._summed_force(i, y, mass_i, t)
+        return f
+
+    @ti.func
     def _derivative(self, i, y, out, t):
-        """out's entry i: (v_i, F_i / m_i), zero when i is pinned (after :meth:`_precompute`)."""
+        """out's entry i: (v_i, F_i / m_i), zero when i is pinned (after :meth:`_prepare`)."""
         if self.free[i]:
             m = self.mass[i]
             out.x[i] = y.v[i]
-            out.v[i] = self._summed_force(i, y, m, t) / m
+            out.v[i] = self._net_force(i, y, m, t) / m
         else:
             out.x[i] = ti.Vector.zero(y.x.dtype, 3)
             out.v[i] = ti.Vector.zero(y.x.dtype, 3)
 
     @ti.func
     def _eval_f_body(self, y, out, t):
-        self._precompute(y)
+        self._prepare(y, t)
         for i in y.x:
             self._derivative(i, y, out, t)
 
@@ -149,7 +191,7 @@ class ParticleSystem(System):
 
     @ti.func
     def _eval_f_staged_body(self, y, out, t, h, after: ti.template()):
-        self._precompute(y)
+        self._prepare(y, t)
         for i in y.x:
             self._derivative(i, y, out, t)
             if ti.static(_given(after)):
@@ -157,7 +199,10 @@ class ParticleSystem(System):
 
     def sums_locally(self) -> bool:
         """Whether, after the precompute, particle i's force reads no other particle's state,
-        so a kernel may move each particle as soon as its force is summed."""
+        so a kernel may move each particle as soon as its force is summed. With constraints
+        every force is gathered before that loop (:meth:`_prepare`), so it always does."""
+        if self.constraints is not None:
+            return True
         return all(term.precomputes or not term.reads_other_particles for term in self.terms)
 
     def symplectic_euler_step(self, y: State, t: float, h: float, scratch: State) -> None:
@@ -180,18 +225,18 @@ class ParticleSystem(System):
 
     @ti.func
     def _symplectic_body(self, y, scratch, t, h):
-        self._precompute(y)
+        self._prepare(y, t)
         if ti.static(self.sums_locally()):
             for i in y.x:
                 v = y.v[i]
                 if self.free[i]:
-                    v += h * (self._summed_force(i, y, self.mass[i], t) / self.mass[i])
+                    v += h * (self._net_force(i, y, self.mass[i], t) / self.mass[i])
                     y.v[i] = v
                 y.x[i] += h * v
         else:
             for i in y.x:
                 if self.free[i]:
-                    scratch.v[i] = self._summed_force(i, y, self.mass[i], t) / self.mass[i]
+                    scratch.v[i] = self._net_force(i, y, self.mass[i], t) / self.mass[i]
             for i in y.x:
                 v = y.v[i]
                 if self.free[i]:
@@ -206,11 +251,11 @@ class ParticleSystem(System):
 
     @ti.kernel
     def _forces(self, y: ti.template(), out: ti.template(), t: float):
-        self._precompute(y)
+        self._prepare(y, t)
         for i in y.x:
             f = ti.Vector.zero(y.x.dtype, 3)
             if self.free[i]:
-                f = self._summed_force(i, y, self.mass[i], t)
+                f = self._net_force(i, y, self.mass[i], t)
             out[i] = f
 
     def kinetic_energy(self, y: State) -> float:
@@ -284,8 +329,9 @@ class ParticleSystem(System):
 
     @property
     def supports_jacobian(self) -> bool:
-        """Whether every force term provides its Jacobians (:attr:`ForceTerm.has_jacobian`)."""
-        return all(term.has_jacobian for term in self.terms)
+        """Whether every force term provides its Jacobians (:attr:`ForceTerm.has_jacobian`);
+        never with constraints (their force has no Jacobian here)."""
+        return self.constraints is None and all(term.has_jacobian for term in self.terms)
 
     @property
     def jacobian_pattern_version(self) -> int:
