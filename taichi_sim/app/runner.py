@@ -41,6 +41,8 @@ class Runner:
             stiff problem, to use an implicit one), then ADVICE; "" while running.
         message: ``failure``, the method and step, and ``advice``, in one line; "" while running.
         energy: total energy (J) at the last frame, or None when the system has none.
+        drift: the largest |C| (m) of the scene's constraints at the last check, or None
+            without constraints.
         sim_ms: wall time (ms) of the last :meth:`advance`.
         last_good: (n, 3) float64 positions of the last state that passed the blow-up guard
             (:mod:`taichi_sim.guard`, checked at the end of every frame).
@@ -119,6 +121,7 @@ class Runner:
         self._grab_moves = self._grabber_moves()
         self.last_good = self.guard.last_good_positions()
         self.energy = self.guard.energy0
+        self.drift = self.scene.constraint_violation()
 
     def reset(self) -> None:
         """Back to the scene as built (torn springs mended, emitted particles gone), in place:
@@ -217,6 +220,7 @@ class Runner:
             if drawable:
                 self.last_good = x
                 self.energy = self.guard.health.energy
+                self.drift = self.scene.constraint_violation()
                 return True
             breach_detail = "positions too large to draw"
         else:
