@@ -11,6 +11,7 @@ from taichi_sim.errors import ConfigError
 from taichi_sim.guard import Guard
 from taichi_sim.reference import constraint_violation, particle_energy, particle_rhs
 from taichi_sim.scene import SceneBuilder, build_scene
+from taichi_sim.scene.live import LIVE_SETTERS, applies_live
 from taichi_sim.systems.constraints import Constraints
 
 from helpers import fitted_order
@@ -173,6 +174,9 @@ def test_new_scenes_allocate_only_what_they_use(f64):
     assert spring.constraints is None and spring.system.constraints is None
     assert spring.features["constraints"] == 0 and spring.constraint_violation() is None
     assert not any(k.startswith("constraint") for k in spring.arrays)
+    # the gains are live parameters of a constrained scene only
+    assert applies_live(bead, "ks") and applies_live(bead, "kd") and not applies_live(spring, "ks")
+    assert LIVE_SETTERS["kd"](bead, {"ks": 4.0, "kd": 3.0}) and bead.constraints.gains() == (4.0, 3.0)
 
 
 def test_npz_records_the_violation_at_each_energy_sample(f64, tmp_path):
