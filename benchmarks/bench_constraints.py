@@ -18,14 +18,12 @@ Writes constraint-drift.csv / .json (with the machine and this command line) / .
 """
 import argparse
 import math
+import shlex
 import sys
-from pathlib import Path
 
 import numpy as np
 
 import taichi_sim as ts
-import shlex
-
 from taichi_sim.bench.common import machine_info, prepare_out_dir, write_outputs
 from taichi_sim.scene import build_scene
 
@@ -114,7 +112,8 @@ def main() -> None:
         print(f"{r['integrator']:>16} h={r['h']:<6g} ks={r['ks']:<6g} kd={r['kd']:<6.3g} {r['status']:>8} "
               f"max|C|={r['max_violation']:.3g} m  final|C|={r['final_violation']:.3g} m  "
               f"max|dE|={r['energy_drift']:.3g} J")
-    payload = {"machine": machine_info(), "command": shlex.join([".venv/bin/python", "benchmarks/bench_constraints.py", *sys.argv[1:]]), "scene": "rod-pendulum",
+    command = shlex.join([".venv/bin/python", "benchmarks/bench_constraints.py", *sys.argv[1:]])
+    payload = {"machine": machine_info(), "command": command, "scene": "rod-pendulum",
                "t_end": args.t_end, "sample_s": SAMPLE}
     paths = write_outputs(out_dir, "constraint-drift", table, payload,
                           lambda out: plot(rows, traces, args.t_end, out))
