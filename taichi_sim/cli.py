@@ -395,6 +395,9 @@ def cmd_simulate(args) -> int:
         print(f"{scene.name}: {result.steps} steps{rejected} of {integrator_name} to t = {result.t:.6g} s, "
               f"{result.f_evals} f-evals, {result.wall_time:.3f} s on {runtime.backend()}, "
               f"status {result.status.value} -> {path}")
+        if result.constraint_violation is not None and len(result.constraint_violation):
+            print(f"{scene.name}: largest |C| over the constraints {float(result.constraint_violation.max()):.3g} m "
+                  f"over the run, {result.constraint_violation[-1]:.3g} m at the end")
     return 0 if result.status.value == "ok" else 1
 
 

@@ -9,7 +9,8 @@ Besides the non-finite values the integrators report, a run has *diverged* when
   scale S plus what its sources may inject (:func:`injectable_energy`), where
 
       S = |E_ref| + kinetic + spring energy at the reference + sum over moving particles of
-          m |g| L,   L = the scene's size (the diagonal of its bounding box), at least 1 m;
+          m |g| L,   L = the scene's size (the diagonal of its bounding box, which holds
+          the wires beads are constrained to), at least 1 m;
 
   a scene without sources cannot gain energy at all, so a rise of ten times everything it had
   is not an inaccuracy but a blow-up;
@@ -193,7 +194,12 @@ class Guard:
         x = np.asarray(scene.state.x.to_numpy(), np.float64)
         finite = np.isfinite(x).all(axis=1)
         if finite.any():
-            low, high = x[finite].min(axis=0), x[finite].max(axis=0)
+            reach = x[finite]
+            if getattr(scene, "constraints", None) is not None:
+                # A bead starts at one point of its wire but goes round all of it: the wire
+                # is the scene's size (its height is what gravity can trade for speed).
+                reach = np.concatenate([reach, scene.constraints.extent()])
+            low, high = reach.min(axis=0), reach.max(axis=0)
             self.center = 0.5 * (low + high)
             self.size = max(float(np.linalg.norm(high - low)), 1.0)
         else:

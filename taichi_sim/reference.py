@@ -15,7 +15,8 @@ def particle_rhs(data: Mapping[str, np.ndarray]) -> Callable[[float, np.ndarray]
     """f(t, y) for a particle system, with y = concat(x.ravel(), v.ravel()) of length 6n.
 
     ``data`` needs mass (n,), pinned (n,), gravity (3,), drag (), and optionally springs (S, 2),
-    rest_length, stiffness, spring_damping (S,).
+    rest_length, stiffness, spring_damping (S,), and the constraint rows
+    (``constraint_kind`` ... , see :func:`constraint_force`).
     """
     mass = np.asarray(data["mass"], float)
     free = ~np.asarray(data["pinned"], bool)
@@ -41,11 +42,68 @@ def particle_rhs(data: Mapping[str, np.ndarray]) -> Callable[[float, np.ndarray]
             f_i = -magnitude[:, None] * u * (length > 0)[:, None]
             np.add.at(force, ends[:, 0], f_i)
             np.add.at(force, ends[:, 1], -f_i)
+        if "constraint_kind" in data:
+            force = force + constraint_force(data, x, v, force)
         dx = np.where(free[:, None], v, 0.0)
         dv_dt = np.where(free[:, None], force / mass[:, None], 0.0)
         return np.concatenate([dx.ravel(), dv_dt.ravel()])
 
     return rhs
+
+
+def _constraint_rows(data: Mapping[str, np.ndarray], x: np.ndarray, v: np.ndarray):
+    """Per row: (C (m), Ċ (m/s), J̇ q̇ (m/s²), gradient wrt x_a (3,)) as arrays."""
+    kind = np.asarray(data["constraint_kind"], int)
+    ends = np.asarray(data["constraint_particles"], int)
+    point = np.asarray(data["constraint_point"], float)
+    normal = np.asarray(data["constraint_normal"], float)
+    length = np.asarray(data["constraint_length"], float)
+    a, b = ends[:, 0], ends[:, 1]
+    rod = kind == 1
+    d = x[a] - np.where(rod[:, None], x[np.maximum(b, 0)], point)
+    dv = v[a] - np.where(rod[:, None], v[np.maximum(b, 0)], 0.0)
+    dist = np.linalg.norm(d, axis=1)
+    u = d / np.where(dist > 0, dist, 1.0)[:, None]
+    plane = kind == 2
+    grad = np.where(plane[:, None], normal, u)
+    c = np.where(plane, np.einsum("ij,ij->i", normal, x[a] - point), dist - length)
+    cdot = np.einsum("ij,ij->i", grad, dv)
+    jdot = np.where(plane, 0.0, (np.einsum("ij,ij->i", dv, dv) - cdot**2) / np.where(dist > 0, dist, 1.0))
+    return c, cdot, jdot, grad
+
+
+def constraint_force(data: Mapping[str, np.ndarray], x: np.ndarray, v: np.ndarray,
+                     applied: np.ndarray) -> np.ndarray:
+    """The constraint force Jᵀ λ (N, (n, 3)) on positions x and velocities v given the applied
+    force ``applied`` (N, (n, 3)): (J W Jᵀ) λ = -J̇ q̇ - J W Q - ks C - kd Ċ (Witkin).
+
+    ``data``: constraint_kind (m,) (0: |x_a - p| = L, 1: |x_a - x_b| = L, 2: n . (x_a - p) = 0),
+    constraint_particles (m, 2) (b = -1 unless a rod), constraint_point, constraint_normal
+    (m, 3), constraint_length (m,), constraint_ks, constraint_kd (), mass, pinned (n,)."""
+    n = len(x)
+    kind = np.asarray(data["constraint_kind"], int)
+    ends = np.asarray(data["constraint_particles"], int)
+    m = len(kind)
+    w = np.where(np.asarray(data["pinned"], bool), 0.0, 1.0 / np.asarray(data["mass"], float))
+    c, cdot, jdot, grad = _constraint_rows(data, x, v)
+    jacobian = np.zeros((m, 3 * n))
+    for r in range(m):
+        a, b = ends[r]
+        jacobian[r, 3 * a:3 * a + 3] += grad[r]
+        if kind[r] == 1:
+            jacobian[r, 3 * b:3 * b + 3] -= grad[r]
+    weights = np.repeat(w, 3)
+    matrix = (jacobian * weights) @ jacobian.T
+    rhs = (-jdot - jacobian @ (weights * applied.ravel())
+           - float(data["constraint_ks"]) * c - float(data["constraint_kd"]) * cdot)
+    lam = np.linalg.solve(matrix, rhs)
+    return (jacobian.T @ lam).reshape(n, 3)
+
+
+def constraint_violation(data: Mapping[str, np.ndarray], x: np.ndarray) -> float:
+    """The largest |C| (m) over the constraint rows of ``data`` at positions x (n, 3)."""
+    c, _, _, _ = _constraint_rows(data, x, np.zeros_like(x))
+    return float(np.max(np.abs(c)))
 
 
 def particle_energy(data: Mapping[str, np.ndarray], x: np.ndarray, v: np.ndarray) -> float:

@@ -34,6 +34,8 @@ class RunResult:
             for an OK run. ``steps`` and ``t`` are those of the state left in the scene: for a
             DIVERGED run the last one that passed the guard (see :mod:`taichi_sim.guard`).
         guard_checks: how many times the guard checked the state.
+        constraint_violation: for a scene with constraints, the largest |C| (m) over all
+            constraints at each energy sample (aligned with ``energy_t``); None otherwise.
         x_history, t_history: with ``save_every``, the positions (S, N, 3) (m) (for a
             first-order system its state, (S, N, dim)) at t = 0, every ``save_every`` accepted
             steps and at the end, and their times (S,) (s); None otherwise.
@@ -55,6 +57,7 @@ class RunResult:
     guard_checks: int = 0
     x_history: np.ndarray | None = None
     t_history: np.ndarray | None = None
+    constraint_violation: np.ndarray | None = None
 
 
 def planned_steps(dt: float, t_end: float) -> int:
@@ -152,9 +155,12 @@ def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: 
     next_sample = sample_interval
 
     energy, energy_t = [], []
+    violation = [] if scene.constraints is not None else None
     if has_energy:
         energy.append(watch.energy0)
         energy_t.append(0.0)
+        if violation is not None:
+            violation.append(scene.constraint_violation())
     if history is not None:
         history.keep(0.0)
     status, message = Status.OK, ""
@@ -238,6 +244,8 @@ def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: 
                 if sample:
                     energy.append(watch.health.energy)
                     energy_t.append(t)
+                    if violation is not None:
+                        violation.append(scene.constraint_violation())
                     last_sample = done
             if history is not None and (done % save_every == 0 or end):
                 history.keep(t)
@@ -252,7 +260,8 @@ def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: 
                      linear_iterations=linear_iterations, linear_residual=linear_residual,
                      energy=np.asarray(energy, float)[kept], energy_t=energy_t[kept],
                      message=message, wall_time=wall, failed_step=failed_step, failed_t=failed_t,
-                     guard_checks=watch.checks, x_history=x_history, t_history=t_history)
+                     guard_checks=watch.checks, x_history=x_history, t_history=t_history,
+                     constraint_violation=None if violation is None else np.asarray(violation, float)[kept])
 
 
 class _History:

@@ -201,6 +201,8 @@ class Launcher:
             if depth[0] > 0:
                 status["probe"] = {"particle": index, "px": [float(uv[0][0] * self.size[0]),
                                                               float((1.0 - uv[0][1]) * self.size[1])]}
+        if r.drift is not None:
+            status["constraint_violation"] = r.drift
         if final:
             status["x"] = x.tolist()
         path = Path(self.status_path)

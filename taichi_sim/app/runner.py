@@ -44,6 +44,8 @@ class Runner:
         energy: total energy (J) at the last frame, or None when the system has none.
         energy_trace: an :class:`~taichi_sim.app.energy.EnergyTrace` of the energy at every
             guard check that passed since the last restart (empty for a system without energy).
+        drift: the largest |C| (m) of the scene's constraints at the last check, or None
+            without constraints.
         sim_ms: wall time (ms) of the last :meth:`advance`.
         last_good: (n, 3) float64 positions of the last state that passed the blow-up guard
             (:mod:`taichi_sim.guard`, checked at the end of every frame).
@@ -125,6 +127,7 @@ class Runner:
         self.energy = self.guard.energy0
         self.energy_trace.clear()
         self._sample_energy()
+        self.drift = self.scene.constraint_violation()
 
     def reset(self) -> None:
         """Back to the scene as built (torn springs mended, emitted particles gone), in place:
@@ -224,6 +227,7 @@ class Runner:
                 self.last_good = x
                 self.energy = self.guard.health.energy
                 self._sample_energy()
+                self.drift = self.scene.constraint_violation()
                 return True
             breach_detail = "positions too large to draw"
         else:

@@ -57,9 +57,12 @@ def slider_range(p: Param) -> tuple[float, float]:
 
 
 def compatible_integrators(scene: Scene) -> list[str]:
-    """Integrator names that can step ``scene`` (first-order systems have no velocities)."""
+    """Integrator names that can step ``scene`` (first-order systems have no velocities; a
+    constrained one takes only the methods that evaluate forces through eval_f)."""
+    constrained = getattr(scene.system, "constraints", None) is not None
     return [name for name, cls in INTEGRATORS.items()
-            if not (cls.requires_second_order and not scene.system.second_order)]
+            if not (cls.requires_second_order and not scene.system.second_order)
+            and not (constrained and not cls.takes_constraints)]
 
 
 class Session:
@@ -401,6 +404,8 @@ class Session:
         for r in self.runners:
             energy = "n/a" if r.energy is None else f"{r.energy:.5g} J"
             state = r.failure if r.frozen else f"E = {energy}"
+            if r.drift is not None and not r.frozen:
+                state += f"   max |C| = {r.drift:.2e} m"
             lines.append(f"{r.name}: {r.sim_ms:.1f} ms/frame   {state}")
         lines.append(f"status: {self.status()}")
         for advice in dict.fromkeys(r.advice for r in self.runners if r.frozen):

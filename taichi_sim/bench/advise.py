@@ -53,6 +53,9 @@ def scene_omegas(scene, *, power_iterations: int = 300) -> dict:
         return {"omega_max": 1.0, "omega_bound": 1.0, "method": "exact (circle ODE)"}
     if not scene.system.second_order:
         return {"omega_max": None, "omega_bound": None, "method": "unknown system"}
+    if getattr(scene, "constraints", None) is not None:
+        # the spring model's omega_max says nothing of constraint forces and their feedback
+        return {"omega_max": None, "omega_bound": None, "method": "not predicted with constraint forces"}
     arrays = scene.arrays
     omega, info = omega_max_power(arrays, scene.x0, max_iterations=power_iterations, tol=1e-10)
     return {"omega_max": omega, "omega_bound": omega_max_bound(arrays),
@@ -88,6 +91,8 @@ def stability_table(scene, omegas: dict, t_end: float) -> list[dict]:
                "C": stability_constant(name), "limit": None, "limit_bound": None, "note": ""}
         if cls.requires_second_order and not scene.system.second_order:
             row["note"] = "needs a particle system"
+        elif getattr(scene.system, "constraints", None) is not None and not cls.takes_constraints:
+            row["note"] = "needs a system without constraints"
         elif cls.adaptive:
             row["note"] = "adaptive: the step follows --rtol"
         elif row["C"] is None or omega is None:

@@ -76,6 +76,7 @@ class EmbeddedRK(Integrator):
     tableau: ButcherTableau
     adaptive = True
     initial_step_f_evals = 2
+    takes_constraints = True
     max_growth = 10.0
     min_shrink = 0.2
 

@@ -62,10 +62,21 @@ class Integrator(ABC):
     adaptive: bool = False
     implicit: bool = False
     description: str = ""
+    takes_constraints: bool = False
+    """Whether the method steps a system with constraint forces (``system.constraints``): the
+    methods that only call eval_f (explicit Runge-Kutta, symplectic Euler, the embedded
+    pairs) do; the implicit and positional ones, which assemble the forces term by term, do
+    not and refuse such a system."""
 
     def __init__(self, system: System):
         if self.requires_second_order and not system.second_order:
             raise ConfigError(f"integrator {self.name!r} needs a second-order (particle) system")
+        constraints = getattr(system, "constraints", None)
+        if constraints is not None and not self.takes_constraints:
+            raise ConfigError(
+                f"integrator {self.name!r} cannot step scene {constraints.scene!r}: its constraint "
+                f"forces are computed inside eval_f, which the implicit and positional methods do "
+                f"not use; pick an explicit method (rk4, rk45, symplectic_euler)")
         self.system = system
 
     initial_step_f_evals: int = 0

@@ -19,6 +19,7 @@ class ExplicitRK(Integrator):
 
     tableau: ButcherTableau
     fuse_stages = True  # one launch per stage where the system offers it (see _staged_step)
+    takes_constraints = True
 
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)

@@ -23,6 +23,7 @@ class SymplecticEuler(Integrator):
     name = "symplectic_euler"
     order = 1
     requires_second_order = True
+    takes_constraints = True
     description = "symplectic (semi-implicit) Euler, v then x"
 
     def __init__(self, system: System):

@@ -10,6 +10,7 @@ import numpy as np
 from ..forces import Drag, GrabSpring, Gravity, Springs, Wind
 from ..forces.springs.grid import GridSprings, grid_layout
 from ..mesh import TriangleMesh
+from ..systems.constraints import PLANE, POINT, ROD, Constraints, check_gains
 from ..systems.particles import ParticleSystem
 from .events import Emitter, EmitterSpec, PlaneCollider, SphereColliders, SpherePath, Tearing
 from .grab import Grabber
@@ -54,6 +55,8 @@ class SceneBuilder:
         self._emitter: tuple | None = None
         self._grab: tuple | None = None
         self._grid: tuple[int, int, int] | None = None
+        self._constraints: list[tuple] = []  # (kind, a, b, point, normal, length)
+        self._feedback = (0.0, 0.0)
         self._count = 0
 
     @property
@@ -131,6 +134,56 @@ class SceneBuilder:
         the spring list."""
         self._grid = (int(first), int(nx), int(ny))
 
+    def _particle(self, i, what: str) -> int:
+        i = int(i)
+        if not 0 <= i < self._count:
+            raise ValueError(f"{what} must be the id of a particle already added, got {i}")
+        return i
+
+    def add_circle_wire(self, particle: int, center, normal, radius: float) -> None:
+        """Keep ``particle`` on the circle of ``radius`` (m, > 0) about ``center`` (m) in the
+        plane through it with ``normal``: a bead on a wire, as two constraint rows (on the
+        sphere of that radius, and on the plane)."""
+        i = self._particle(particle, "the bead")
+        radius = float(radius)
+        if not (np.isfinite(radius) and radius > 0):
+            raise ValueError(f"wire radius must be > 0, got {radius}")
+        center = np.asarray(center, float).reshape(3)
+        normal = np.asarray(normal, float).reshape(3)
+        if not np.linalg.norm(normal) > 0:
+            raise ValueError("wire normal must be a nonzero vector")
+        normal = normal / np.linalg.norm(normal)
+        self._constraints.append((POINT, i, -1, center, np.zeros(3), radius))
+        self._constraints.append((PLANE, i, -1, center, normal, 0.0))
+
+    def add_rod(self, a: int, b: int, length: float | None = None) -> None:
+        """A rigid rod: the distance between particles ``a`` and ``b`` stays ``length`` (m,
+        > 0; default their current distance)."""
+        a, b = self._particle(a, "a rod's end"), self._particle(b, "a rod's end")
+        if a == b:
+            raise ValueError("a rod must join two different particles")
+        if length is None:
+            x = self.positions()
+            length = float(np.linalg.norm(x[a] - x[b]))
+        length = float(length)
+        if not (np.isfinite(length) and length > 0):
+            raise ValueError(f"rod length must be > 0, got {length}")
+        self._constraints.append((ROD, a, b, np.zeros(3), np.zeros(3), length))
+
+    def add_plane_constraint(self, particle: int, point, normal) -> None:
+        """Keep ``particle`` on the plane through ``point`` (m) with ``normal``."""
+        i = self._particle(particle, "the particle on a plane")
+        normal = np.asarray(normal, float).reshape(3)
+        if not np.linalg.norm(normal) > 0:
+            raise ValueError("plane normal must be a nonzero vector")
+        self._constraints.append((PLANE, i, -1, np.asarray(point, float).reshape(3),
+                                  normal / np.linalg.norm(normal), 0.0))
+
+    def set_constraint_feedback(self, ks: float, kd: float) -> None:
+        """Feedback gains of the constraints: stiffness ``ks`` (1/s², >= 0) and damping ``kd``
+        (1/s, >= 0), pulling a drifted C back as C̈ + kd Ċ + ks C = 0."""
+        self._feedback = check_gains(ks, kd)
+
     def add_triangles(self, triangles) -> None:
         """Surface triangles ((T, 3) particle ids, counter-clockwise from the front): the cloth
         mesh that wind acts on, that tearing opens and that the renderer draws."""
@@ -203,7 +256,8 @@ class SceneBuilder:
         features: dict[str, Any] = {"particles": self._count, "pinned": int(pinned.sum()),
                                     "gravity": False, "drag": False, "springs": 0, "grid_stencil": False,
                                     "dashpots": False, "wind": False, "spheres": 0, "plane": False, "tearing": False,
-                                    "emitter": 0, "grab": False, "triangles": 0, "self_collision": False}
+                                    "emitter": 0, "grab": False, "triangles": 0, "self_collision": False,
+                                    "constraints": 0}
         arrays: dict[str, np.ndarray] = {
             "mass": mass, "pinned": pinned,
             "gravity": np.zeros(3) if self._gravity is None else self._gravity,
@@ -246,6 +300,18 @@ class SceneBuilder:
             grab_term = GrabSpring(*self._grab)
             system.add_term(grab_term)
             features["grab"] = True
+        constraints = None
+        if self._constraints:
+            kind, a, b, point, normal, length = zip(*self._constraints)
+            moving = ~pinned
+            for row, (i, j) in enumerate(zip(a, b)):
+                if not (moving[i] or (j >= 0 and moving[j])):
+                    raise ValueError(f"constraint {row} holds only pinned particles")
+            constraints = Constraints(self._count, kind, np.stack([a, b], axis=1), np.stack(point),
+                                      np.stack(normal), length, *self._feedback)
+            constraints.scene = name
+            system.set_constraints(constraints)
+            features["constraints"] = constraints.row_count
         spheres = plane = emitter = None
         if self._self_collision is not None:
             if mesh is None:
@@ -279,7 +345,8 @@ class SceneBuilder:
         scene = Scene(name=name, system=system, state=state, x0=x0, v0=v0, params=params,
                       features=features, static_arrays=arrays, default_dt=default_dt,
                       default_integrator=default_integrator, seed=seed, post_step=post_step,
-                      springs=springs, mesh=mesh, spheres=spheres, plane=plane, emitter=emitter)
+                      springs=springs, mesh=mesh, spheres=spheres, plane=plane, emitter=emitter,
+                      constraints=constraints)
         if self._grab is not None:
             grabber = Grabber(scene, grab_term)
             scene.grabber = grabber

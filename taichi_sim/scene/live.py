@@ -61,6 +61,13 @@ def _set_sphere_speed(scene: Scene, p: dict) -> bool:
     return True
 
 
+def _set_gain(scene: Scene, p: dict) -> bool:
+    if scene.constraints is None:
+        return False
+    scene.constraints.set_gains(p["ks"], p["kd"])
+    return True
+
+
 #: name -> setter, for every parameter that can change while a scene runs.
 LIVE_SETTERS: dict[str, Callable[[Scene, dict], bool]] = {
     "stiffness": _set_spring_stiffness,
@@ -79,6 +86,8 @@ LIVE_SETTERS: dict[str, Callable[[Scene, dict], bool]] = {
     "spread": _emitter_setter("spread"),
     "lifetime": _emitter_setter("lifetime"),
     "sphere_speed": _set_sphere_speed,
+    "ks": _set_gain,
+    "kd": _set_gain,
 }
 
 #: Live parameters that only touch post-step events (the emitter, a sphere's path), not the
@@ -96,6 +105,8 @@ def applies_live(scene: Scene, name: str) -> bool:
         return scene.springs is not None and scene.springs.damped
     if name in ("rate", "speed", "spread", "lifetime"):
         return scene.emitter is not None
+    if name in ("ks", "kd"):
+        return scene.constraints is not None
     if name == "sphere_speed":
         return scene.spheres is not None and scene.params.get("sphere_motion") in ("drop", "sweep")
     term = {"gravity": "gravity", "drag": "drag"}.get(name, "wind")

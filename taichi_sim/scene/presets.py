@@ -9,6 +9,7 @@ from ..memory import Size, check_size
 from ..systems.circle import CircleSystem
 from .builder import SceneBuilder
 from .cloth_scenes import CLOTH_SCENES
+from .constraint_scenes import CONSTRAINT_SCENES
 from .params import Param, resolve
 from .preset import ScenePreset, common_params
 from .scene import Scene
@@ -74,6 +75,7 @@ SCENES: dict[str, ScenePreset] = {s.name: s for s in (
         size=lambda p: Size(p["particle_count"], p["particle_count"] - 1), size_params=("particle_count",)),
     *CLOTH_SCENES,
     SPRINKLER,
+    *CONSTRAINT_SCENES,
 )}
 
 

@@ -27,7 +27,8 @@ class Scene:
         seed: the random seed the scene was built with.
         post_step: events applied after every accepted step, in order (colliders, tearing,
             emitter).
-        springs, mesh, spheres, plane, emitter, grabber: the optional parts, or None.
+        springs, mesh, spheres, plane, emitter, grabber, constraints: the optional parts, or
+            None.
     """
 
     name: str
@@ -48,6 +49,7 @@ class Scene:
     plane: Any = None
     emitter: Any = None
     grabber: Any = None
+    constraints: Any = None
 
     @property
     def particle_count(self) -> int:
@@ -103,4 +105,11 @@ class Scene:
             out["sphere_center"] = self.spheres.centers()
         if self.emitter is not None:
             out.update(self.emitter.arrays())
+        if self.constraints is not None:
+            out.update(self.constraints.arrays())
         return out
+
+    def constraint_violation(self) -> float | None:
+        """The largest |C| (m) over the constraints at the current state, or None without
+        constraints."""
+        return None if self.constraints is None else self.constraints.violation(self.state)

@@ -12,6 +12,8 @@ drawn):
 - ``scene.springs``: the springs term, with ``ends_np`` (S, 2), ``kind_np`` (S,) (0 structural,
   1 shear, 2 flex), ``rest`` (an (S,) field, m) and, when ``tearable``, ``alive`` (an (S,) int
   field, nonzero while intact). Springs are drawn as lines: a cloth's structural ones only.
+- ``scene.constraints``: rods (drawn as the springs would be, in a scene without springs) and
+  the circular wires beads ride on (drawn as guides).
 - ``scene.mesh``: the surface triangles, with ``triangles_np`` (T, 3) particle ids wound
   counter-clockwise seen from the front, ``tearable``, and the kernel
   ``fill_index_buffer(out)`` that writes the 3T indices into a 1-D i32 field, a torn triangle
@@ -45,6 +47,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from ..systems.constraints import PLANE, POINT, ROD
 from .cloth import STRUCTURAL
 from .scene import Scene
 
@@ -167,6 +170,11 @@ def describe(scene: Scene) -> SceneVisual:
         alive = term.alive if term.tearable else None
     else:
         springs, kind, rest, alive = np.zeros((0, 2), np.int64), np.zeros(0, np.int64), np.zeros(0), None
+    constraints = getattr(scene, "constraints", None)
+    if term is None and constraints is not None:  # rods are drawn as the springs would be
+        rods = constraints.kind_np == ROD
+        springs = constraints.particles_np[rods].astype(np.int64).reshape(-1, 2)
+        kind, rest = np.zeros(len(springs), np.int64), constraints.length_np[rods].astype(np.float64)
     mesh = getattr(scene, "mesh", None)
     triangles = np.asarray(mesh.triangles_np, np.int64).reshape(-1, 3) if mesh is not None \
         else np.zeros((0, 3), np.int64)
@@ -193,6 +201,8 @@ def describe(scene: Scene) -> SceneVisual:
         radius = float(np.linalg.norm(x0[0, :2]))
         guides = (np.stack([radius * np.cos(angle), radius * np.sin(angle),
                             np.full_like(angle, x0[0, 2])], axis=1),)
+    if constraints is not None:
+        guides += _wires(constraints)
 
     gravity = np.asarray(arrays.get("gravity", np.zeros(3)), np.float64).reshape(3)
     pole = _pole(x0[pinned], plane) if scene.params.get("pin") == "pole" and len(triangles) else None
@@ -284,6 +294,26 @@ def _spray(spec, gravity: np.ndarray, plane: Plane | None) -> np.ndarray:
     if plane is not None:
         paths = paths[(paths - plane.point) @ plane.normal >= 0.0]
     return paths
+
+
+def _wires(constraints) -> tuple[np.ndarray, ...]:
+    """The circles beads are held on (a POINT row and a PLANE row through the same centre on
+    one particle), as closed polylines (129, 3) (m)."""
+    out = []
+    kind, ends = constraints.kind_np, constraints.particles_np
+    for r in np.flatnonzero(kind == POINT):
+        center = constraints.point_np[r]
+        planes = [q for q in np.flatnonzero(kind == PLANE)
+                  if ends[q, 0] == ends[r, 0] and np.allclose(constraints.point_np[q], center)]
+        if not planes:
+            continue
+        n = constraints.normal_np[planes[0]]
+        e1 = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
+        e1 /= np.linalg.norm(e1)
+        e2 = np.cross(n, e1)
+        angle = np.linspace(0.0, 2.0 * math.pi, 129)[:, None]
+        out.append(center + constraints.length_np[r] * (np.cos(angle) * e1 + np.sin(angle) * e2))
+    return tuple(out)
 
 
 def _bounds(x0: np.ndarray, pinned: np.ndarray, *, hanging: bool, swinging: bool, extra,
