@@ -12,7 +12,7 @@ from .cloth_scenes import CLOTH_SCENES
 from .params import Param, resolve
 from .preset import ScenePreset, common_params
 from .scene import Scene
-from .sprinkler import SPRINKLER
+from .sprinkler import SPRINKLER, SPRINKLER_FIRE, SPRINKLER_SMOKE
 
 
 def build_simple(preset: ScenePreset, p: dict[str, Any], seed: int) -> Scene:
@@ -74,6 +74,8 @@ SCENES: dict[str, ScenePreset] = {s.name: s for s in (
         size=lambda p: Size(p["particle_count"], p["particle_count"] - 1), size_params=("particle_count",)),
     *CLOTH_SCENES,
     SPRINKLER,
+    SPRINKLER_FIRE,
+    SPRINKLER_SMOKE,
 )}
 
 
