@@ -149,3 +149,20 @@ def test_live_gravity_keeps_the_buoyancy(f32):
     params = dict(scene.params, gravity=5.0)
     assert LIVE_SETTERS["gravity"](scene, params)
     np.testing.assert_allclose(scene.system.term("gravity").get(), [0.0, params["buoyancy"] - 5.0, 0.0])
+
+
+def test_the_look_follows_a_lifetime_changed_while_running(f32):
+    from taichi_sim.render.drawer import DrawOptions, SceneDrawer
+    from taichi_sim.scene.visual import describe
+
+    scene = ts.build_scene("sprinkler", {"capacity": 200, "lifetime": 0.3})
+    ts.run(scene, ts.create_integrator("symplectic_euler", scene.system), dt=2e-3, steps=100)
+    drawer = SceneDrawer(describe(scene))
+    drawer.sync(scene.state.x)
+    drawer.update(DrawOptions(particles=True), eye=(0.0, 1.0, 3.0))
+    alpha = drawer.effect.colors.to_numpy()[:drawer.effect.count, 3]
+    assert alpha.min() < 0.9  # the oldest are two thirds through a 0.3 s life
+    assert LIVE_SETTERS["lifetime"](scene, dict(scene.params, lifetime=30.0))
+    drawer.update(DrawOptions(particles=True), eye=(0.0, 1.0, 3.0))
+    alpha = drawer.effect.colors.to_numpy()[:drawer.effect.count, 3]
+    assert alpha.min() > 0.93  # young in a 30 s life

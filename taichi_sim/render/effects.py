@@ -152,7 +152,9 @@ class EffectDrawer:
         self.count = self._keys(ti.Vector(self.eye.tolist(), ti.f32))
         if self.count:
             ti.algorithms.parallel_sort(self.key, self.order)
-            self._fill(self.count, float(e.lifetime), self.radius)
+            # the lifetime as it is now: a particle older than the built one is not dead yet
+            lifetime = e.lifetime_now() if e.lifetime_now is not None else e.lifetime
+            self._fill(self.count, float(lifetime), self.radius)
         return self.count
 
     def draw(self, scene) -> None:

@@ -68,9 +68,10 @@ class Plane:
 @dataclass(frozen=True)
 class Emitter:
     """Emitter slots ``first .. first + capacity - 1``: ``alive`` (capacity,) int field,
-    ``age`` (capacity,) float field (s), ``lifetime`` (s), and ``effect``, the look of its
-    particles over their life (``water``, ``fire`` or ``smoke``; see
-    :mod:`taichi_sim.render.effects`)."""
+    ``age`` (capacity,) float field (s), ``lifetime`` (s) as built, and ``effect``, the look of
+    its particles over their life (``water``, ``fire`` or ``smoke``; see
+    :mod:`taichi_sim.render.effects`). ``lifetime_now()``, when given, returns the lifetime (s)
+    as it is now (a slider or a curve may change it while the scene runs)."""
 
     alive: Any
     age: Any
@@ -78,6 +79,7 @@ class Emitter:
     first: int
     capacity: int
     effect: str = "water"
+    lifetime_now: Callable[[], float] | None = None
 
 
 @dataclass(frozen=True)
@@ -189,7 +191,8 @@ def describe(scene: Scene) -> SceneVisual:
         e = scene.emitter
         emitter = Emitter(alive=e.alive, age=e.age, lifetime=float(e.spec.lifetime),
                           first=int(e.first), capacity=int(e.capacity),
-                          effect=str(scene.params.get("effect", "water")))
+                          effect=str(scene.params.get("effect", "water")),
+                          lifetime_now=lambda: float(e.spec.lifetime))
 
     guides: tuple[np.ndarray, ...] = ()
     if scene.name == "simple":  # the exact solution: the initial circle about the z axis
