@@ -83,7 +83,8 @@ def look_func(look: Look):
         for j in ti.static(range(1, keys)):
             if u > ages[j - 1]:  # the last segment u has passed fixes the value
                 s = ti.min((u - ages[j - 1]) / (ages[j] - ages[j - 1]), 1.0)
-                colour = ti.Vector(rgba[j - 1], ti.f32) + s * (ti.Vector(rgba[j], ti.f32) - ti.Vector(rgba[j - 1], ti.f32))
+                before, after = ti.Vector(rgba[j - 1], ti.f32), ti.Vector(rgba[j], ti.f32)
+                colour = before + s * (after - before)
                 size = radius[j - 1] + s * (radius[j] - radius[j - 1])
         colour[0] *= glow
         colour[1] *= glow
