@@ -160,6 +160,9 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--seed", type=int, default=0,
                      help="random seed for scenes with randomness (jitter, wind gusts, tearing noise, "
                           "the sprinkler; default 0)")
+    sim.add_argument("--save-every", type=int, default=None, metavar="K",
+                     help="keep the positions every K steps, at the start and at the end, in the npz "
+                          "(x_history, t_history; default: only the final state)")
     sim.add_argument("--energy-every", type=int, default=None, metavar="K",
                      help="sample energy (and check for a blow-up) every K steps (0: never; default: "
                           "at the blow-up guard's checks, 1, 2, 4, ..., 64 and then "
@@ -186,6 +189,11 @@ def build_parser() -> argparse.ArgumentParser:
     rec.add_argument("--size", metavar="WxH", help="video size in pixels (default 1280x720)")
     rec.add_argument("--speed", type=_positive_float,
                      help="simulated seconds per video second (default 1)")
+    rec.add_argument("--energy", action=argparse.BooleanOptionalAction, default=None,
+                     help="plot each run's kinetic, gravitational, spring and total energy under its "
+                          "panel (default: on with --side-by-side)")
+    rec.add_argument("--strain", action="store_true",
+                     help="colour the cloth by spring strain, with a colour bar")
     dest = rec.add_mutually_exclusive_group(required=True)
     dest.add_argument("--out", help="FILE.mp4, FILE.gif, or DIR/ for PNG frames")
     dest.add_argument("--showcase", metavar="DIR",
@@ -261,7 +269,51 @@ def build_parser() -> argparse.ArgumentParser:
     adv.add_argument("--precision", choices=("f32", "f64"), default="f64", help=_PRECISION_HELP)
     adv.add_argument("--arch", choices=("cpu", "gpu"), default="cpu", help=_ARCH_HELP)
     adv.add_argument("--seed", type=int, default=0, help="random seed for scenes with randomness (default 0)")
+
+    chk = sub.add_parser("check", help="look for a cloth passing through itself in a saved run's frames")
+    chk.add_argument("npz", help="a run written by `simulate` (with --save-every for every frame)")
     return parser
+
+
+def cmd_check(args) -> int:
+    """Self-intersections in every frame of a saved run (x_history, or the final x): exit 0 when
+    none, 1 when some frame has any."""
+    import numpy as np
+
+    from .geometry import self_intersections
+
+    try:
+        with np.load(args.npz) as data:
+            arrays = {k: data[k] for k in ("triangles", "x", "x_history", "t_history", "t", "scene")
+                      if k in data.files}
+    except (OSError, ValueError) as exc:
+        raise ConfigError(f"cannot read {args.npz} as a run's npz: {exc}") from None
+    if "triangles" not in arrays or "x" not in arrays:
+        raise ConfigError(f"{args.npz} has no cloth surface (no `triangles`): only cloth scenes can be checked")
+    frames = arrays.get("x_history", arrays["x"][None])
+    times = arrays.get("t_history", np.atleast_1d(arrays.get("t", np.nan)))
+    counts = []
+    for x in tqdm_frames(frames):
+        try:
+            counts.append(self_intersections(x, arrays["triangles"]).count)
+        except ValueError as exc:
+            raise ConfigError(f"{args.npz}: {exc}") from None
+    counts = np.asarray(counts)
+    name = str(arrays.get("scene", "run"))
+    if not counts.any():
+        print(f"{name}: {len(counts)} frame(s), no triangles intersect")
+        return 0
+    worst = int(counts.argmax())
+    print(f"{name}: {int((counts > 0).sum())} of {len(counts)} frame(s) have intersecting triangles; "
+          f"first at t = {times[int(np.argmax(counts > 0))]:.6g} s, most ({counts[worst]} pairs) at "
+          f"t = {times[worst]:.6g} s")
+    return 1
+
+
+def tqdm_frames(frames):
+    from tqdm import tqdm
+
+    return tqdm(frames, unit="frame", leave=False, disable=None, mininterval=0.5)
 
 
 def cmd_list(args) -> int:
@@ -287,7 +339,7 @@ def cmd_simulate(args) -> int:
     from .guard import GuardLimits
     from .theory import stability_warning
     from .integrators import check_options, create_integrator
-    from .run import check_run_args, run
+    from .run import check_run_args, planned_steps, run
     from .scene import build_scene, scene_preset
     from .scene.params import resolve
     from .scene.presets import check_scene_memory
@@ -304,12 +356,18 @@ def cmd_simulate(args) -> int:
     check_run_args(dt, args.steps, args.t_end, adaptive=adaptive)
     if args.energy_every is not None and args.energy_every < 0:
         raise ConfigError(f"--energy-every must be >= 0, got {args.energy_every}")
+    if args.save_every is not None and args.save_every < 1:
+        raise ConfigError(f"--save-every must be >= 1, got {args.save_every}")
     params = scene_assignments(args.assignments)
     limits = GuardLimits() if args.max_energy_growth is None else GuardLimits(energy_growth=args.max_energy_growth)
     io.check_output_path(args.out)
     check_scene_memory(preset, resolve(preset.params, preset.name, params), precision=args.precision,
                        integrators=(integrator_name,), linear_solver=options.get("linear_solver") or "cg")
     curves = _load_curves(args, preset)
+    if args.save_every:
+        _check_history_memory(preset, resolve(preset.params, preset.name, params), args.save_every,
+                              args.steps if args.steps is not None else
+                              (planned_steps(dt, args.t_end) if dt is not None else None))
 
     runtime.init(arch=args.arch, precision=args.precision)
     scene = build_scene(args.scene, params, seed=args.seed)
@@ -321,7 +379,7 @@ def cmd_simulate(args) -> int:
         print(f"taichi-sim: warning: {warning}", file=sys.stderr)
     result = run(scene, integrator, dt=dt, steps=args.steps, t_end=args.t_end,
                  energy_every=args.energy_every, progress=None if not args.quiet else False, guard=limits,
-                 curves=curves)
+                 curves=curves, save_every=args.save_every)
     arrays = io.run_arrays(scene, result, integrator=integrator, dt=dt)
     if curves:
         import numpy as np
@@ -338,6 +396,21 @@ def cmd_simulate(args) -> int:
               f"{result.f_evals} f-evals, {result.wall_time:.3f} s on {runtime.backend()}, "
               f"status {result.status.value} -> {path}")
     return 0 if result.status.value == "ok" else 1
+
+
+def _check_history_memory(preset, values, save_every: int, steps: int | None) -> None:
+    """Refuse --save-every when the frames it keeps would not fit in memory (an adaptive run's
+    step count is unknown beforehand: not checked)."""
+    from .memory import available_bytes, format_bytes
+
+    if steps is None:
+        return
+    frames = steps // save_every + 2
+    need = 2 * frames * preset.size(values).particles * 3 * 8  # kept, then stacked for the npz
+    available = available_bytes()
+    if available is not None and need > available:
+        raise ConfigError(f"--save-every {save_every}: {frames:,} frames need about {format_bytes(need)} but "
+                          f"only {format_bytes(available)} of memory is available; save less often")
 
 
 def cmd_bench(args) -> int:
@@ -419,7 +492,9 @@ def cmd_record(args) -> int:
                                           ("--side-by-side", args.side_by_side), ("--dt", args.dt),
                                           ("--set", args.assignments), ("--seconds", args.seconds),
                                           ("--fps", args.fps), ("--size", args.size),
-                                          ("--speed", args.speed), ("--curves", args.curves)) if given]
+                                          ("--speed", args.speed), ("--curves", args.curves),
+                                          ("--energy", args.energy is not None),
+                                          ("--strain", args.strain)) if given]
         if extra:
             raise ConfigError(f"--showcase records its own scenes and settings; drop {', '.join(extra)}")
         try:
@@ -437,7 +512,8 @@ def cmd_record(args) -> int:
     clip = Clip(scene=spec["scene"], integrators=spec["integrators"], params=spec["params"],
                 dt=spec["dt"], seconds=args.seconds or 5.0, fps=args.fps or 30.0,
                 size=parse_size(args.size or "1280x720"), speed=args.speed or 1.0, seed=args.seed,
-                curves=spec["curves"])
+                curves=spec["curves"], strain=args.strain,
+                energy=bool(args.side_by_side) if args.energy is None else args.energy)
     check_clip(clip)
     check_output(args.out, clip.size, clip.fps)
     try:
@@ -493,7 +569,8 @@ def main(argv: list[str] | None = None) -> int:
         if args.command is None:
             return cmd_default()
         return {"list": cmd_list, "simulate": cmd_simulate, "demo": cmd_demo,
-                "record": cmd_record, "bench": cmd_bench, "advise": cmd_advise}[args.command](args)
+                "record": cmd_record, "bench": cmd_bench, "advise": cmd_advise,
+                "check": cmd_check}[args.command](args)
     except ConfigError as exc:
         print(f"taichi-sim: error: {exc}", file=sys.stderr)
         return EXIT_USAGE

@@ -51,6 +51,10 @@ def run_arrays(scene: Scene, result: RunResult, *, integrator: Integrator, dt: f
         "energy": result.energy, "energy_t": result.energy_t,
         "failed_step": np.int64(result.failed_step), "failed_t": np.float64(result.failed_t),
     }
+    if result.x_history is not None:
+        data["x_history"], data["t_history"] = result.x_history, result.t_history
+    if scene.mesh is not None:  # the cloth's surface, as built (torn ones included)
+        data["triangles"] = np.asarray(scene.mesh.triangles_np, np.int64)
     if integrator.implicit:
         data["linear_iterations"] = np.int64(result.linear_iterations)
         data["linear_residual"] = np.float64(result.linear_residual)

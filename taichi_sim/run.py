@@ -34,6 +34,9 @@ class RunResult:
             for an OK run. ``steps`` and ``t`` are those of the state left in the scene: for a
             DIVERGED run the last one that passed the guard (see :mod:`taichi_sim.guard`).
         guard_checks: how many times the guard checked the state.
+        x_history, t_history: with ``save_every``, the positions (S, N, 3) (m) (for a
+            first-order system its state, (S, N, dim)) at t = 0, every ``save_every`` accepted
+            steps and at the end, and their times (S,) (s); None otherwise.
     """
 
     status: Status
@@ -50,6 +53,8 @@ class RunResult:
     failed_step: int = 0
     failed_t: float = math.nan
     guard_checks: int = 0
+    x_history: np.ndarray | None = None
+    t_history: np.ndarray | None = None
 
 
 def planned_steps(dt: float, t_end: float) -> int:
@@ -84,7 +89,7 @@ def check_run_args(dt: float | None, steps: int | None, t_end: float | None, *,
 def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: int | None = None,
         t_end: float | None = None, energy_every: int | None = None,
         progress: bool | None = False, guard: GuardLimits | None = None,
-        curves: dict | None = None) -> RunResult:
+        curves: dict | None = None, save_every: int | None = None) -> RunResult:
     """Advance ``scene.state`` from t = 0 by ``steps`` accepted steps, or up to ``t_end`` s.
 
     Args:
@@ -103,6 +108,9 @@ def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: 
         curves: parameter name -> :class:`~taichi_sim.curves.Spline`: each parameter takes its
             curve's value at the start of every step (the emitter's rate is integrated exactly
             over the step); a change of a force re-bases the guard (it is put in from outside).
+        save_every: keep the positions every this many accepted steps, at t = 0 and at the end
+            (``x_history``, ``t_history``); None or 0: keep none. Each kept frame is copied
+            from the device: N x 3 reals.
 
     With ``t_end`` the last step is shortened to land exactly on it. The run stops at the
     first step whose status is not OK, or when the blow-up guard finds the state past a bound
@@ -115,6 +123,10 @@ def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: 
         integrator = create_integrator(integrator, scene.system)
     adaptive = integrator.adaptive
     check_run_args(dt, steps, t_end, adaptive=adaptive)
+    if save_every is not None and (isinstance(save_every, bool) or not isinstance(save_every, int)
+                                   or save_every < 0):
+        raise ConfigError(f"save_every must be an integer >= 0, got {save_every!r}")
+    history = _History(scene) if save_every else None
     driver = None
     if curves:
         from .curves import CurveDriver
@@ -143,6 +155,8 @@ def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: 
     if has_energy:
         energy.append(watch.energy0)
         energy_t.append(0.0)
+    if history is not None:
+        history.keep(0.0)
     status, message = Status.OK, ""
     rejected = done = linear_iterations = 0
     failed_step, failed_t = 0, math.nan
@@ -225,17 +239,47 @@ def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: 
                     energy.append(watch.health.energy)
                     energy_t.append(t)
                     last_sample = done
+            if history is not None and (done % save_every == 0 or end):
+                history.keep(t)
             bar.update(report.h if (t_end is not None and expected is None) else 1)
             if adaptive:
                 h = report.next_h
     wall = time.perf_counter() - start
     energy_t = np.asarray(energy_t, float)
     kept = energy_t <= t  # a diverged run's trace ends at the state it returns
+    x_history, t_history = history.arrays(t) if history is not None else (None, None)
     return RunResult(status=status, steps=done, t=t, f_evals=f_evals, rejected_steps=rejected,
                      linear_iterations=linear_iterations, linear_residual=linear_residual,
                      energy=np.asarray(energy, float)[kept], energy_t=energy_t[kept],
                      message=message, wall_time=wall, failed_step=failed_step, failed_t=failed_t,
-                     guard_checks=watch.checks)
+                     guard_checks=watch.checks, x_history=x_history, t_history=t_history)
+
+
+class _History:
+    """Frames of a run's positions, copied from the device as they are kept."""
+
+    def __init__(self, scene: Scene):
+        self.scene = scene
+        self.frames: list[np.ndarray] = []
+        self.times: list[float] = []
+
+    def keep(self, t: float) -> None:
+        if self.times and self.times[-1] == t:
+            return  # the end of a run that ends on a saving step
+        self.frames.append(np.asarray(self.scene.state.x.to_numpy(), np.float64))
+        self.times.append(t)
+
+    def arrays(self, t_final: float) -> tuple[np.ndarray, np.ndarray]:
+        """The frames up to ``t_final`` (a diverged run ends at the state it returns), with
+        that state last."""
+        times = np.asarray(self.times, float)
+        kept = times <= t_final
+        frames = [f for f, k in zip(self.frames, kept) if k]
+        times = times[kept]
+        if not len(times) or times[-1] != t_final:
+            frames.append(np.asarray(self.scene.state.x.to_numpy(), np.float64))
+            times = np.append(times, t_final)
+        return np.stack(frames), times
 
 
 def failure_message(scene: Scene, integrator: Integrator, status: Status, step: int, t: float, h: float,

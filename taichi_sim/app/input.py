@@ -26,6 +26,7 @@ KEYMAP: dict[str, tuple[str, str]] = {
     "p": ("particles", "show / hide particles"),
     "c": ("strain", "strain colour map on / off"),
     "t": ("trail", "show / hide trails"),
+    "e": ("energy", "show / hide the energy plot"),
     "f": ("home", "frame the view (home)"),
     "Down": ("next_scene", "next scene"),
     "Up": ("previous_scene", "previous scene"),
@@ -61,7 +62,7 @@ def apply_key(key: str, session: Session, camera: "CameraControl") -> str | None
         session.step()
     elif action == "reset":
         session.reset()
-    elif action in ("mesh", "springs", "particles", "strain", "trail"):
+    elif action in ("mesh", "springs", "particles", "strain", "trail", "energy"):
         setattr(options, action, not getattr(options, action))
     elif action == "help":
         session.show_help = not session.show_help

@@ -22,11 +22,14 @@ import taichi as ti
 from .. import runtime
 from ..errors import ConfigError
 from ..render import RenderUnavailable
+from ..render.chart import Rect
 from ..render.renderer import Renderer
 from ..render.vulkan import open_window
 from ..scene import SCENES
 from .curve_panel import CurvePanel
 from .display import display_problem
+from .energy import curves_of
+from .energy_view import EnergyView, panel_centres
 from .input import KEYMAP, CameraControl, GrabberHook, apply_key, help_lines
 from .session import DT_RANGE, SUBSTEPS_MAX, Session, compatible_integrators
 
@@ -36,6 +39,9 @@ HUD_CHAR_PX = 7.5  # width of a character of GGUI's font, for wrapping the HUD's
 HELP = (0.33, 0.1, 0.36, 0.68)
 WARNING = (1.0, 0.45, 0.38)
 CURRENT = (0.55, 0.85, 1.0)  # the current entry of a list
+#: The energy charts (normalised, y up): the curve editor's strip, which hides them when shown.
+CHART_AREA = Rect(0.29, 0.03, 0.98, 0.28)
+LEGEND = Rect(0.955, 0.36, 0.975, 0.64)  # the strain colour bar
 #: Environment variable naming a JSON file the launcher writes its status to, about every
 #: STATUS_EVERY seconds and when it closes (what the real-window test reads).
 STATUS_ENV = "TAICHI_SIM_STATUS"
@@ -114,6 +120,7 @@ class Launcher:
         self.curve_panel = CurvePanel(session, size, curves_path)  # shown on demand
         self.editor = self.curve_panel.editor
         self.show_curves = bool(session.curves)
+        self.energy_view = EnergyView(CHART_AREA, LEGEND)
         self._rebuild()
 
     def _rebuild(self) -> None:
@@ -244,13 +251,30 @@ class Launcher:
         self.frames += 1
         if not self.control.user_moved:
             self.renderer.follow([r.last_good for r in self.session.runners])
-        self.renderer.render([r.display for r in self.session.runners], self.session.options)
+        self._update_overlay()
+        self.renderer.render([r.display for r in self.session.runners], self.session.options,
+                             overlay=self.energy_view.draw)
         self._panel()
         self._hud()
         if self.show_curves:
             self._curves()
         if self.session.show_help:
             self._help()
+
+    def _update_overlay(self) -> None:
+        """Lay out the energy charts (hidden while the curve editor has their strip) and the
+        strain legend; the framing leaves the charts' strip free while they are shown."""
+        s = self.session
+        runners = s.runners
+        charts = s.options.energy and not self.show_curves and bool(curves_of(runners[0].scene))
+        bottom = CHART_AREA.y1 + 0.02 if charts else 0.0
+        if self.renderer.camera.bottom != bottom:
+            self.renderer.camera.bottom = bottom
+            if not self.control.user_moved:
+                self.renderer.home()  # frame again for the height now free
+        legend = s.options.strain and s.options.mesh and self.renderer.visuals[0].mesh is not None
+        self.energy_view.update(runners, panel_centres(self.renderer), energy=charts,
+                                strain_scale=s.options.strain_scale if legend else None)
 
     def _guard(self, action, *args):
         """Run a control action and return its result; a bad value is shown in the panel
@@ -302,6 +326,7 @@ class Launcher:
             o.particles = g.checkbox("particles (p)", o.particles)
             o.strain = g.checkbox("strain colours (c)", o.strain)
             o.trail = g.checkbox("trail (t)", o.trail)
+            o.energy = g.checkbox("energy plot (e)", o.energy)
             s.show_help = g.checkbox("help (h)", s.show_help)
             self.show_curves = g.checkbox("curve editor", self.show_curves)
             g.text("")
@@ -378,6 +403,8 @@ class Launcher:
                 uv, _ = self.renderer.camera.project(np.array(self.renderer.label_points()))
                 order = np.argsort(uv[:, 0])
                 g.text("left to right: " + ", ".join(s.runners[k].name for k in order))
+            for text, colour in self.energy_view.hud_lines():
+                g.text(text, colour)
 
     def _curves(self) -> None:
         self.curve_panel.draw(self.renderer.canvas, self.gui, self._guard)

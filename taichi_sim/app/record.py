@@ -11,13 +11,18 @@ from PIL import Image
 from tqdm import tqdm
 
 from ..errors import ConfigError
+from ..render.chart import Rect
 from ..render.overlay import WARNING, Label, burn
 from ..render.renderer import Renderer
 from ..render.video import MAX_SIDE, VideoWriter, check_output, save_png
 from ..render.vulkan import open_window
+from .energy import curves_of
+from .energy_view import EnergyView, panel_centres
 from .session import Session
 
 MAX_SECONDS = 3600.0
+CHART_AREA = Rect(0.03, 0.09, 0.97, 0.30)  # the energy charts (normalised, y up)
+LEGEND = Rect(0.935, 0.40, 0.955, 0.78)  # the strain colour bar
 
 
 @dataclass(frozen=True)
@@ -35,6 +40,8 @@ class Clip:
         supersample: render at this multiple of ``size`` and average down (smoother edges).
         colors: palette size of a GIF.
         curves: parameter name -> :class:`~taichi_sim.curves.Spline` driving it over time.
+        energy: plot each run's energy under its panel (scenes with an energy).
+        strain: colour the cloth by spring strain, with a colour bar (scenes with a cloth).
     """
 
     scene: str
@@ -49,6 +56,8 @@ class Clip:
     supersample: int = 1
     colors: int = 128
     curves: dict = field(default_factory=dict)
+    energy: bool = False
+    strain: bool = False
 
     @property
     def frame_count(self) -> int:
@@ -125,13 +134,20 @@ def record(clip: Clip, out: str | Path, *, still: str | Path | None = None, stil
     session = Session(clip.scene, clip.integrators, params=clip.params, dt=clip.dt, seed=clip.seed)
     if clip.curves:
         session.set_curves(clip.curves)
+    session.options.strain = clip.strain
+    session.options.energy = clip.energy
+    charts = clip.energy and bool(curves_of(session.runners[0].scene))  # the circle ODE has none
+    view = EnergyView(CHART_AREA, LEGEND)
+    strain_scale = (session.options.strain_scale if clip.strain and session.options.mesh
+                    and session.visuals()[0].mesh is not None else None)
     ss = int(clip.supersample)
     render_size = (clip.size[0] * ss, clip.size[1] * ss)
     window = open_window(f"taichi-sim record {clip.scene}", render_size)
     still_index = min(clip.frame_count - 1, max(0, round(still_at * (clip.frame_count - 1))))
     still_path = None
     try:
-        renderer = Renderer(window, session.visuals(), render_size)
+        renderer = Renderer(window, session.visuals(), render_size,
+                            bottom=CHART_AREA.y1 + 0.02 if charts else 0.0)
         with VideoWriter(out, clip.size, clip.fps, colors=clip.colors) as writer, \
                 tqdm(total=clip.frame_count, unit="frame", leave=False, disable=None if progress is None
                      else not progress, desc=Path(out).name) as bar:
@@ -144,13 +160,16 @@ def record(clip: Clip, out: str | Path, *, still: str | Path | None = None, stil
                     if held > clip.fps:
                         break
                 renderer.follow([r.last_good for r in session.runners])
-                renderer.render([r.display for r in session.runners], session.options)
+                view.update(session.runners, panel_centres(renderer), energy=session.options.energy,
+                            strain_scale=strain_scale)
+                renderer.render([r.display for r in session.runners], session.options, overlay=view.draw)
                 image = renderer.read_image()
                 frame = image if ss == 1 else np.asarray(
                     Image.fromarray(image).resize(clip.size, Image.Resampling.BOX))
-                writer.append(burn(frame, frame_labels(session, renderer, clip.size)))
+                writer.append(burn(frame, frame_labels(session, renderer, clip.size) + view.labels(clip.size)))
                 if still is not None and k == still_index:
-                    still_path = save_png(burn(image, frame_labels(session, renderer, render_size)), still)
+                    still_path = save_png(burn(image, frame_labels(session, renderer, render_size)
+                                               + view.labels(render_size)), still)
                 bar.update()
                 frames = k + 1
         path = writer.path

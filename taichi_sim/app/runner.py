@@ -12,6 +12,7 @@ import time
 import numpy as np
 
 from ..guard import Guard
+from .energy import EnergySample, EnergyTrace
 from ..integrators import Status, create_integrator, integrator_class
 from ..render.drawer import DRAWABLE_LIMIT
 from ..scene.scene import Scene
@@ -41,6 +42,8 @@ class Runner:
             stiff problem, to use an implicit one), then ADVICE; "" while running.
         message: ``failure``, the method and step, and ``advice``, in one line; "" while running.
         energy: total energy (J) at the last frame, or None when the system has none.
+        energy_trace: an :class:`~taichi_sim.app.energy.EnergyTrace` of the energy at every
+            guard check that passed since the last restart (empty for a system without energy).
         sim_ms: wall time (ms) of the last :meth:`advance`.
         last_good: (n, 3) float64 positions of the last state that passed the blow-up guard
             (:mod:`taichi_sim.guard`, checked at the end of every frame).
@@ -51,6 +54,7 @@ class Runner:
         self.dt = float(dt)
         self._integrators: dict = {}  # bound once per method: scratch fields, compiled kernels
         self.driver = None  # a CurveDriver when curves drive the scene's parameters
+        self.energy_trace = EnergyTrace()
         self.set_integrator(integrator)
         self.restart()
 
@@ -119,6 +123,8 @@ class Runner:
         self._grab_moves = self._grabber_moves()
         self.last_good = self.guard.last_good_positions()
         self.energy = self.guard.energy0
+        self.energy_trace.clear()
+        self._sample_energy()
 
     def reset(self) -> None:
         """Back to the scene as built (torn springs mended, emitted particles gone), in place:
@@ -217,6 +223,7 @@ class Runner:
             if drawable:
                 self.last_good = x
                 self.energy = self.guard.health.energy
+                self._sample_energy()
                 return True
             breach_detail = "positions too large to draw"
         else:
@@ -224,6 +231,12 @@ class Runner:
         self.guard.restore()
         self._freeze(Status.DIVERGED, self.t, breach_detail, h)
         return False
+
+    def _sample_energy(self) -> None:
+        """Keep the energy of the check that just passed (no device work: the guard has it)."""
+        health = self.guard.health
+        if health is not None and health.energy is not None:
+            self.energy_trace.add(EnergySample.from_health(self.t, health))
 
     def _freeze(self, status: Status, t: float, detail: str, h: float) -> None:
         self.status = status

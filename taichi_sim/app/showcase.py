@@ -49,6 +49,9 @@ SHOWCASE: tuple[Showcase, ...] = (
              _clip("cloth-sphere", ["symplectic_euler"], params={"nx": 24, "ny": 24})),
     Showcase("cloth-tear", "a sphere drops through a cloth held at two sides and tears it",
              _clip("cloth-tear", ["symplectic_euler"])),
+    Showcase("cloth-fold", "a cloth dropped edge-first piles up in folds without passing through "
+             "itself (self-collision)",
+             _clip("cloth-fold", ["symplectic_euler"], params={"nx": 24, "ny": 24})),
     Showcase("cloth-wind", "a flag on a pole in gusty wind: the two sides in two colours",
              _clip("cloth-wind", ["symplectic_euler"], params={"nx": 24, "ny": 24})),
     Showcase("sprinkler", "a sprinkler: drops that darken and fade with age bounce on the ground",

@@ -25,12 +25,17 @@ class OrbitCamera:
         aspect: width / height of the image.
         inset: fraction of the image width covered on the left (by a control panel): the target
             is drawn centred in the rest, which framing fills.
+        bottom: fraction of the image height covered at the bottom (by the energy charts),
+            likewise left out of the framing.
     """
 
     def __init__(self, aspect: float, target=(0.0, 0.0, 0.0), distance: float = 3.0,
-                 yaw: float = 0.0, pitch: float = 0.0, fov: float = 45.0, inset: float = 0.0):
+                 yaw: float = 0.0, pitch: float = 0.0, fov: float = 45.0, inset: float = 0.0,
+                 bottom: float = 0.0):
         if not 0.0 <= inset < 0.9:
             raise ValueError(f"inset must be in [0, 0.9), got {inset}")
+        if not 0.0 <= bottom < 0.9:
+            raise ValueError(f"bottom must be in [0, 0.9), got {bottom}")
         self.aspect = float(aspect)
         self.target = np.asarray(target, np.float64).reshape(3).copy()
         self.distance = float(distance)
@@ -38,6 +43,7 @@ class OrbitCamera:
         self.pitch = float(np.clip(pitch, -PITCH_LIMIT, PITCH_LIMIT))
         self.fov = float(fov)
         self.inset = float(inset)
+        self.bottom = float(bottom)
 
     # -- pose ---------------------------------------------------------------------------------
 
@@ -64,9 +70,10 @@ class OrbitCamera:
     @property
     def look_at(self) -> np.ndarray:
         """The point the camera looks at (m): the target, shifted sideways so that the target
-        appears centred in the part of the image right of the inset."""
-        right = self.basis()[0]
-        return self.target - self.inset * self.distance * self.tan_half[0] * right
+        appears centred in the part of the image right of the inset and above the bottom strip."""
+        right, up, _ = self.basis()
+        tan_h, tan_v = self.tan_half
+        return self.target - self.distance * (self.inset * tan_h * right + self.bottom * tan_v * up)
 
     @property
     def position(self) -> np.ndarray:
@@ -94,7 +101,7 @@ class OrbitCamera:
         right, up, back = self.basis()
         tan_h, tan_v = self.tan_half
         tan_h *= (1.0 - self.inset) / margin
-        tan_v /= margin
+        tan_v *= (1.0 - self.bottom) / margin
         depth = corners @ back  # toward the camera
         needed = np.maximum(np.abs(corners @ right) / tan_h, np.abs(corners @ up) / tan_v) + depth
         self.distance = max(float(needed.max()), float(depth.max()) + 0.2, 1e-2)
@@ -103,7 +110,7 @@ class OrbitCamera:
         """Distance (m) at which a sphere of ``radius`` (m) around the target just fits the
         narrower view angle (beside the inset)."""
         tan_h, tan_v = self.tan_half
-        return radius / math.sin(math.atan(min(tan_v, tan_h * (1.0 - self.inset))))
+        return radius / math.sin(math.atan(min(tan_v * (1.0 - self.bottom), tan_h * (1.0 - self.inset))))
 
     # -- matrices and mappings ----------------------------------------------------------------
 

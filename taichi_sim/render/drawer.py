@@ -13,6 +13,7 @@ import taichi as ti
 
 from ..forces.springs import incidence_of
 from ..scene.visual import SceneVisual
+from .chart import STRAIN_STOPS
 from .effects import EffectDrawer
 
 #: Coordinates beyond this magnitude (m), NaN or infinite are not drawn (the previous frame's
@@ -43,6 +44,8 @@ class DrawOptions:
         strain: colour the cloth by the stretch of its structural springs instead of the fabric.
         strain_scale: stretch ((length - rest) / rest) drawn in the hottest colour.
         trail: the fading trail of a first-order system's points.
+        energy: the energy plot under each panel (drawn by the launcher and ``record --energy``
+            over the scenes: :mod:`taichi_sim.app.energy_view`).
     """
 
     mesh: bool = True
@@ -51,6 +54,7 @@ class DrawOptions:
     strain: bool = False
     strain_scale: float = 0.1
     trail: bool = True
+    energy: bool = True
 
     @classmethod
     def for_visual(cls, visual: SceneVisual) -> "DrawOptions":
@@ -71,11 +75,12 @@ def _drawable(p):
 
 @ti.func
 def _colormap(s):
-    """Blue -> teal -> yellow -> red for s in [0, 1] (clamped)."""
-    c0 = ti.Vector([0.20, 0.35, 0.85])
-    c1 = ti.Vector([0.15, 0.75, 0.55])
-    c2 = ti.Vector([0.96, 0.85, 0.25])
-    c3 = ti.Vector([0.90, 0.18, 0.14])
+    """Blue -> teal -> yellow -> red for s in [0, 1] (clamped): ``chart.STRAIN_STOPS``, which
+    the legend (``chart.strain_colours``) draws too."""
+    c0 = ti.Vector(STRAIN_STOPS[0])
+    c1 = ti.Vector(STRAIN_STOPS[1])
+    c2 = ti.Vector(STRAIN_STOPS[2])
+    c3 = ti.Vector(STRAIN_STOPS[3])
     u = ti.math.clamp(s, 0.0, 1.0) * 3.0
     out = c0
     if u < 1.0:

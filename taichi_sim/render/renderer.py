@@ -15,6 +15,7 @@ from .drawer import DRAWABLE_LIMIT, DrawOptions, SceneDrawer, layout_offsets
 BACKGROUND = (0.075, 0.085, 0.105)
 AMBIENT = (0.38, 0.38, 0.40)
 LIGHT = (0.72, 0.70, 0.66)
+_BACKGROUND_RGB = np.round(np.asarray(BACKGROUND) * 255).astype(np.int16)
 
 
 @contextlib.contextmanager
@@ -42,10 +43,11 @@ class Renderer:
         size: the window's (width, height) in pixels.
         inset: fraction of the window width a control panel covers on the left; the scenes are
             framed in the rest.
+        bottom: fraction of the window height the energy charts cover at the bottom (likewise).
     """
 
     def __init__(self, window, visuals: Sequence[SceneVisual], size: tuple[int, int], *,
-                 inset: float = 0.0):
+                 inset: float = 0.0, bottom: float = 0.0):
         if not visuals:
             raise ValueError("Renderer needs at least one scene visual")
         self.window = window
@@ -56,9 +58,12 @@ class Renderer:
         self.visuals = list(visuals)
         self.offsets = layout_offsets(self.visuals)
         self.drawers = [SceneDrawer(v, off) for v, off in zip(self.visuals, self.offsets)]
+        self._last_options: Sequence[DrawOptions] | None = None  # of a frame not read yet
+        self._overlay = None  # of that frame
         yaw, pitch = self.visuals[0].view
         self.camera = OrbitCamera(self.size[0] / self.size[1], yaw=math.radians(yaw),
-                                  pitch=math.radians(pitch), inset=inset)
+                                  pitch=math.radians(pitch), inset=inset,
+                                  bottom=bottom)
         self.home()
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
@@ -98,16 +103,29 @@ class Renderer:
         return [np.array([0.5 * (v.bounds[0][0] + v.bounds[1][0]), v.bounds[1][1], v.center[2]]) + off
                 for v, off in zip(self.visuals, self.offsets)]
 
-    def render(self, sources: Sequence, options: DrawOptions | Sequence[DrawOptions]) -> list[int]:
+    def render(self, sources: Sequence, options: DrawOptions | Sequence[DrawOptions], *,
+               overlay=None) -> list[int]:
         """Draw one frame: ``sources[k]`` is scene k's position field or an (n, 3) array.
 
-        ``options`` applies to every scene, or is one per scene. Returns, per scene, how many
-        particles were not drawable (non-finite or huge) and kept their previous position.
+        ``options`` applies to every scene, or is one per scene. ``overlay`` (or None): called
+        with the canvas after the scenes, to draw 2D over them (the energy plot, a legend).
+        Returns, per scene, how many particles were not drawable (non-finite or huge) and kept
+        their previous position.
         Read the frame with :meth:`read_image` (offscreen) or ``window.show()`` (on screen).
         """
         if isinstance(options, DrawOptions):
             options = [options] * len(self.drawers)
         held = [d.sync(src) for d, src in zip(self.drawers, sources)]
+        with _quiet_taichi_warnings():  # GGUI's own staging kernels warn about f64 -> f32
+            for drawer, opts in zip(self.drawers, options):
+                drawer.update(opts, self.camera.position)
+        self._overlay = overlay
+        self._declare(options)
+        self._last_options = options
+        return held
+
+    def _declare(self, options: Sequence[DrawOptions]) -> None:
+        """Hand this frame's camera, lights and geometry to GGUI (the staging fields as they are)."""
         eye = self.camera.position
         right, up, _ = self.camera.basis()
         self.camera.apply(self.ti_camera)
@@ -115,13 +133,13 @@ class Renderer:
         self.scene.ambient_light(AMBIENT)
         light = eye + self.camera.distance * (0.4 * up + 0.3 * right)
         self.scene.point_light(tuple(light.tolist()), LIGHT)
-        with _quiet_taichi_warnings():  # GGUI's own staging kernels warn about f64 -> f32
+        with _quiet_taichi_warnings():
             for drawer, opts in zip(self.drawers, options):
-                drawer.update(opts, eye)
                 drawer.draw(self.scene, opts)
             self.canvas.set_background_color(BACKGROUND)
             self.canvas.scene(self.scene)
-        return held
+            if self._overlay is not None:
+                self._overlay(self.canvas)
 
     def clear_trails(self) -> None:
         """Forget every trail (after a reset, so no line joins the old path to the start)."""
@@ -132,8 +150,26 @@ class Renderer:
         """The drawn frame as an (height, width, 3) uint8 RGB array, top row first.
 
         Reading consumes the frame (a second read returns background only): call once per
-        :meth:`render`.
+        :meth:`render`. GGUI 1.7.4 on Mesa's software Vulkan now and then hands back a frame of
+        background only although the scene was declared (seen under load, after a window had
+        drawn other renderers' scenes; never reproducible on demand): such a frame is declared
+        again from the same staging fields and read again, twice at most. A view that shows
+        nothing at all pays for the two extra frames.
         """
+        image = self._read()
+        for _ in range(2):
+            if self._last_options is None or not self._is_background(image):
+                break
+            self._declare(self._last_options)
+            image = self._read()
+        self._last_options = None
+        return image
+
+    def _read(self) -> np.ndarray:
         buf = self.window.get_image_buffer_as_numpy()  # (W, H, 4) float in [0, 1], y up
         rgb = np.flip(np.transpose(buf[:, :, :3], (1, 0, 2)), axis=0)
         return (np.clip(rgb, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+
+    @staticmethod
+    def _is_background(image: np.ndarray) -> bool:
+        return bool(np.all(np.abs(image.astype(np.int16) - _BACKGROUND_RGB) <= 2))

@@ -51,6 +51,7 @@ class SceneBuilder:
         self._spheres: list[tuple] = []
         self._plane: tuple | None = None
         self._tear_strain = None
+        self._self_collision = None
         self._emitter: tuple | None = None
         self._grab: tuple | None = None
         self._grid: tuple[int, int, int] | None = None
@@ -172,6 +173,11 @@ class SceneBuilder:
             raise ValueError("restitution must be in [0, 1]")
         self._plane = (point, normal, float(restitution), float(friction))
 
+    def enable_self_collision(self, thickness: float, friction: float = 0.0, iterations: int = 4) -> None:
+        """Keep the cloth's vertices ``thickness`` (m) off its other triangles after every step
+        (see :class:`~taichi_sim.collide.SelfCollision`; needs triangles)."""
+        self._self_collision = (float(thickness), float(friction), int(iterations))
+
     def set_tearing(self, tear_strain) -> None:
         """Springs break past this strain: a scalar or one value per spring (in the order added)."""
         self._tear_strain = tear_strain
@@ -205,7 +211,8 @@ class SceneBuilder:
         features: dict[str, Any] = {"particles": self._count, "pinned": int(pinned.sum()),
                                     "gravity": False, "drag": False, "springs": 0, "grid_stencil": False,
                                     "dashpots": False, "wind": False, "turbulence": False, "spheres": 0,
-                                    "plane": False, "tearing": False, "emitter": 0, "grab": False, "triangles": 0}
+                                    "plane": False, "tearing": False, "emitter": 0, "grab": False, "triangles": 0,
+                                    "self_collision": False}
         arrays: dict[str, np.ndarray] = {
             "mass": mass, "pinned": pinned,
             "gravity": np.zeros(3) if self._gravity is None else self._gravity,
@@ -254,6 +261,15 @@ class SceneBuilder:
             system.add_term(grab_term)
             features["grab"] = True
         spheres = plane = emitter = None
+        if self._self_collision is not None:
+            if mesh is None:
+                raise ValueError("self_collision acts on triangles: add_triangles first")
+            from ..collide import SelfCollision
+
+            thickness, friction, iterations = self._self_collision
+            post_step.append(SelfCollision(system, mesh, x0, thickness=thickness, friction=friction,
+                                           iterations=iterations))
+            features["self_collision"] = True
         if self._spheres:
             paths, radii, frictions = zip(*self._spheres)
             spheres = SphereColliders(list(paths), list(radii), list(frictions), system.free)

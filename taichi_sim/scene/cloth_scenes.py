@@ -78,6 +78,13 @@ CLOTH_PARAMS: tuple[Param, ...] = (
           minimum=0.0, exclusive=True),
     Param("tear_noise", 0.0, "", "relative amplitude of a seeded smooth noise map on thresholds (0..1)",
           minimum=0.0),
+    # the cloth against itself
+    Param("self_collision", False, "", "keep the cloth from passing through itself (vertex-triangle "
+          "contacts after each step)"),
+    Param("thickness", 0.01, "m", "distance a vertex keeps from the cloth's other triangles",
+          minimum=0.0, exclusive=True),
+    Param("self_friction", 0.2, "", "Coulomb friction coefficient between layers of the cloth", minimum=0.0),
+    Param("collision_iterations", 4, "", "rounds of contact resolution per step", minimum=1),
     # grab
     Param("grab", False, "", "allow pulling a particle with the mouse (a stiff spring)"),
     Param("grab_stiffness", 200.0, "N/m", "stiffness of the grab spring", minimum=0.0),
@@ -168,6 +175,8 @@ def build_cloth(preset: ScenePreset, p: dict[str, Any], seed: int) -> Scene:
     if p["plane"]:
         b.set_plane((0.0, p["plane_height"], 0.0), (0.0, 1.0, 0.0), min(p["restitution"], 1.0),
                     p["plane_friction"])
+    if p["self_collision"]:
+        b.enable_self_collision(p["thickness"], p["self_friction"], int(p["collision_iterations"]))
     if p["grab"]:
         b.enable_grab(p["grab_stiffness"], damping=2 * math.sqrt(p["grab_stiffness"] * p["particle_mass"]))
     return preset.finish(b, p, seed)
@@ -201,6 +210,12 @@ CLOTH_SCENES = (
                 with_defaults(CLOTH_PARAMS, orientation="vertical", pin="pole", height=1.5, wind=True,
                               wind_speed=8.0, wind_heading=15.0, particle_mass=0.0004, stiffness=40.0,
                               shear_stiffness=20.0, flex_stiffness=8.0, jitter=0.002),
+                build_cloth, default_dt=1e-3, default_integrator="symplectic_euler", **_CLOTH_SIZE),
+    ScenePreset("cloth-fold", "a cloth dropped edge-first onto the ground, piling up in folds on "
+                "itself (self-collision on)",
+                with_defaults(CLOTH_PARAMS, orientation="vertical", pin="none", height=1.1, plane=True,
+                              plane_friction=0.6, restitution=0.0, self_collision=True, jitter=0.002,
+                              flex_stiffness=20.0),
                 build_cloth, default_dt=1e-3, default_integrator="symplectic_euler", **_CLOTH_SIZE),
     # Nearly inextensible cloth at one step per 60 Hz frame: symplectic Euler would need about
     # 2000 steps per frame here (h < 2 / omega_max), XPBD takes one step of 20 substeps.

@@ -19,6 +19,9 @@ class Health:
         energy: total energy (J), or None for a system without one.
         kinetic: kinetic energy (J); 0 for a first-order system.
         spring_energy: potential energy of the springs (J); 0 without springs.
+        gravity_energy: potential energy of gravity (J, m g h summed over the free particles);
+            0 without gravity. The rest of ``energy - kinetic - spring_energy - gravity_energy``
+            is any other conservative term's (the grab's pull).
         max_strain: largest strain |d|/r - 1 of a live spring with k > 0; 0 without springs.
     """
 
@@ -27,6 +30,7 @@ class Health:
     energy: float | None
     kinetic: float = 0.0
     spring_energy: float = 0.0
+    gravity_energy: float = 0.0
     max_strain: float = 0.0
 
 

@@ -235,21 +235,24 @@ class ParticleSystem(System):
     def health(self, y: State, center) -> Health:
         """:class:`Health` of ``y`` in one kernel: a gather over the particles of the non-finite
         count, the farthest distance from ``center``, the kinetic energy, the potential energy
-        each term attributes to each particle, and the springs' largest strain."""
-        nonfinite, farthest2, kinetic, potential, spring_energy, strain = self._health(
+        each term attributes to each particle (the springs' and gravity's also apart), and the
+        springs' largest strain."""
+        nonfinite, farthest2, kinetic, potential, spring_energy, gravity_energy, strain = self._health(
             y, float(center[0]), float(center[1]), float(center[2]))
         return Health(nonfinite=int(nonfinite), farthest=float(farthest2) ** 0.5,
                       energy=float(kinetic) + float(potential), kinetic=float(kinetic),
-                      spring_energy=float(spring_energy), max_strain=float(strain))
+                      spring_energy=float(spring_energy), gravity_energy=float(gravity_energy),
+                      max_strain=float(strain))
 
     @ti.kernel
     def _health(self, y: ti.template(), cx: float, cy: float, cz: float) -> (
-            ti.i32, float, float, float, float, float):
+            ti.i32, float, float, float, float, float, float):
         bad = 0
         farthest2 = 0.0
         kinetic = 0.0
         potential = 0.0
         spring_energy = 0.0
+        gravity_energy = 0.0
         worst = 0.0
         c = ti.Vector([cx, cy, cz])
         for i in y.x:
@@ -264,9 +267,11 @@ class ParticleSystem(System):
                         if ti.static(hasattr(term, "strain_at")):
                             spring_energy += u
                             ti.atomic_max(worst, term.strain_at(i, y))
+                        if ti.static(term.name == "gravity"):
+                            gravity_energy += u
             else:
                 bad += 1
-        return bad, farthest2, kinetic, potential, spring_energy, worst
+        return bad, farthest2, kinetic, potential, spring_energy, gravity_energy, worst
 
     def potential_energy(self, y: State) -> float:
         """Potential energy (J) of every conservative term at ``y``."""

@@ -1,0 +1,117 @@
+"""A spatial hash of primitives' swept boxes (triangles or edges), rebuilt in kernels each stage."""
+import taichi as ti
+
+from .. import runtime
+
+MAX_CELLS_PER_AXIS = 4  # a box spanning more cells is clipped and counted as overflow
+
+
+@ti.data_oriented
+class PrimitiveHash:
+    """Primitives of ``corners`` vertices (3: triangles, 2: edges) bucketed by the cells their
+    boxes overlap (a counting sort, no limit per bucket).
+
+    A primitive's box covers its corners at the start and the end of a step, grown by ``margin``
+    (m); it is kept per primitive (``lo``, ``hi``, ``cell_lo``, ``cell_hi``) for the queries.
+    Cells are cubes of side ``cell`` (m), hashed into ``buckets`` (a power of two) lists sharing
+    one array of ``entries_per_primitive`` x count entries. A box clipped to
+    :data:`MAX_CELLS_PER_AXIS` cells per axis, or entries past the array's end, add to
+    ``overflow`` (:meth:`overflowed`): pairs there can be missed, and the stage reports it.
+    """
+
+    def __init__(self, count: int, corners: int, cell: float, margin: float, *,
+                 entries_per_primitive: int = 16):
+        real = runtime.real()
+        self.n, self.corners = count, corners
+        self.buckets = 1 << max(10, (4 * count - 1).bit_length())
+        self.capacity = max(1, entries_per_primitive * count)
+        self.cell = ti.field(real, shape=())
+        self.margin = ti.field(real, shape=())
+        self.cell[None], self.margin[None] = float(cell), float(margin)
+        self.lo = ti.Vector.field(3, real, shape=max(count, 1))
+        self.hi = ti.Vector.field(3, real, shape=max(count, 1))
+        self.cell_lo = ti.Vector.field(3, ti.i32, shape=max(count, 1))
+        self.cell_hi = ti.Vector.field(3, ti.i32, shape=max(count, 1))
+        self.count = ti.field(ti.i32, shape=self.buckets)
+        self.start = ti.field(ti.i32, shape=self.buckets + 1)  # bucket b: items[start[b]:start[b+1]]
+        self.fill = ti.field(ti.i32, shape=self.buckets)
+        self.items = ti.field(ti.i32, shape=self.capacity)
+        self.overflow = ti.field(ti.i32, shape=())
+
+    @ti.func
+    def cell_of(self, p):
+        return ti.floor(p / self.cell[None]).cast(ti.i32)
+
+    @ti.func
+    def bucket(self, c):
+        h = (c[0] * 73856093) ^ (c[1] * 19349663) ^ (c[2] * 83492791)
+        return h & (self.buckets - 1)
+
+    @ti.func
+    def box_cells(self, lo, hi):
+        """The cell range (inclusive) of box [lo, hi], clipped to MAX_CELLS_PER_AXIS per axis, and
+        whether it was clipped."""
+        c_lo = self.cell_of(lo)
+        c_hi = self.cell_of(hi)
+        clipped = 0
+        for k in ti.static(range(3)):
+            if c_hi[k] - c_lo[k] >= MAX_CELLS_PER_AXIS:
+                c_hi[k] = c_lo[k] + MAX_CELLS_PER_AXIS - 1
+                clipped = 1
+        return c_lo, c_hi, clipped
+
+    @ti.func
+    def entries(self, b):
+        """The range of bucket b's entries in ``items`` (clipped to the array)."""
+        return self.start[b], ti.min(self.start[b + 1], self.capacity)
+
+    @ti.func
+    def first_shared_cell(self, cell, c_lo, c_hi, p):
+        """Whether ``cell`` is the first cell that query range [c_lo, c_hi] shares with primitive
+        p's range: so that each pair is handled once, however many cells they share."""
+        first = ti.max(c_lo, self.cell_lo[p])
+        last = ti.min(c_hi, self.cell_hi[p])
+        return all(cell == first) and all(first <= last)
+
+    @ti.kernel
+    def build(self, x0: ti.template(), x1: ti.template(), prims: ti.template(), alive: ti.template()):
+        """Bucket every primitive ``prims[p]`` (a vector of vertex ids) with ``alive[p]`` != 0 by
+        its swept box from positions x0 to x1."""
+        for b in self.count:
+            self.count[b] = 0
+        self.overflow[None] = 0
+        for p in range(self.n):
+            ids = prims[p]
+            lo = ti.min(x0[ids[0]], x1[ids[0]])
+            hi = ti.max(x0[ids[0]], x1[ids[0]])
+            for k in ti.static(range(1, self.corners)):
+                lo = ti.min(lo, ti.min(x0[ids[k]], x1[ids[k]]))
+                hi = ti.max(hi, ti.max(x0[ids[k]], x1[ids[k]]))
+            lo -= self.margin[None]
+            hi += self.margin[None]
+            self.lo[p], self.hi[p] = lo, hi
+            c_lo, c_hi, clipped = self.box_cells(lo, hi)
+            self.cell_lo[p], self.cell_hi[p] = c_lo, c_hi
+            if alive[p]:
+                if clipped:
+                    ti.atomic_add(self.overflow[None], 1)
+                for i, j, k in ti.ndrange((c_lo[0], c_hi[0] + 1), (c_lo[1], c_hi[1] + 1), (c_lo[2], c_hi[2] + 1)):
+                    ti.atomic_add(self.count[self.bucket(ti.Vector([i, j, k]))], 1)
+        ti.loop_config(serialize=True)
+        for b in range(self.buckets):  # exclusive prefix sum: a few thousand additions
+            if b == 0:
+                self.start[0] = 0
+            self.start[b + 1] = self.start[b] + self.count[b]
+            self.fill[b] = self.start[b]
+        for p in range(self.n):
+            if alive[p]:
+                c_lo, c_hi = self.cell_lo[p], self.cell_hi[p]
+                for i, j, k in ti.ndrange((c_lo[0], c_hi[0] + 1), (c_lo[1], c_hi[1] + 1), (c_lo[2], c_hi[2] + 1)):
+                    slot = ti.atomic_add(self.fill[self.bucket(ti.Vector([i, j, k]))], 1)
+                    if slot < self.capacity:
+                        self.items[slot] = p
+                    else:
+                        ti.atomic_add(self.overflow[None], 1)
+
+    def overflowed(self) -> int:
+        return int(self.overflow[None])

@@ -1,0 +1,141 @@
+"""The exact self-intersection check (taichi_sim.geometry) and the run's saved history."""
+import numpy as np
+import pytest
+
+import taichi_sim as ts
+from taichi_sim.cli import main
+from taichi_sim.geometry import predicates, self_intersections
+
+TRI = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+
+
+def pair(t1, t2):
+    """Two separate triangles as one mesh (no shared vertex)."""
+    return np.concatenate([t1, t2]), np.array([[0, 1, 2], [3, 4, 5]])
+
+
+@pytest.mark.parametrize("t2, meets", [
+    # pierces the interior
+    (np.array([[0.2, 0.2, -1.0], [0.3, 0.2, 1.0], [0.2, 0.4, 1.0]]), True),
+    # the same, lifted just off: above z = 0 by the smallest float step at 1
+    (np.array([[0.2, 0.2, 1e-300], [0.3, 0.2, 1.0], [0.2, 0.4, 1.0]]), False),
+    # a vertex touching the face: closed triangles meet
+    (np.array([[0.2, 0.2, 0.0], [0.3, 0.2, 1.0], [0.2, 0.4, 1.0]]), True),
+    # edge through edge (neither vertex inside the other)
+    (np.array([[0.5, -0.5, -0.5], [0.5, 0.5, 0.5], [0.5, -0.5, 0.5]]), True),
+    # coplanar, overlapping
+    (np.array([[0.1, 0.1, 0.0], [2.0, 0.1, 0.0], [0.1, 2.0, 0.0]]), True),
+    # coplanar, one inside the other
+    (np.array([[0.1, 0.1, 0.0], [0.2, 0.1, 0.0], [0.1, 0.2, 0.0]]), True),
+    # coplanar, apart across the hypotenuse by one ulp
+    (np.array([[0.5, np.nextafter(0.5, 1.0), 0.0], [1.0, 1.0, 0.0], [0.6, 1.0, 0.0]]), False),
+    # coplanar, touching the hypotenuse at its midpoint
+    (np.array([[0.5, 0.5, 0.0], [1.0, 1.0, 0.0], [0.6, 1.0, 0.0]]), True),
+    # parallel planes
+    (TRI + [0.0, 0.0, 1e-12], False),
+])
+def test_pairs_of_triangles(t2, meets):
+    x, tris = pair(TRI, t2)
+    report = self_intersections(x, tris)
+    assert report.count == int(meets)
+    swapped = self_intersections(*pair(t2, TRI))
+    assert swapped.count == int(meets)
+
+
+def test_neighbours_sharing_a_vertex_are_not_checked():
+    x = np.concatenate([TRI, [[0.2, 0.2, -1.0], [0.3, 0.2, 1.0]]])
+    tris = np.array([[0, 1, 2], [0, 3, 4]])  # crossing, but sharing vertex 0
+    assert self_intersections(x, tris).candidates == 0
+
+
+def test_the_float_filter_agrees_with_exact_arithmetic(monkeypatch):
+    rng = np.random.default_rng(3)
+    # nearly coplanar and nearly touching: where rounding could flip a sign
+    a, b, c = rng.normal(size=(3, 4000, 3))
+    d = a + rng.uniform(-1, 1, (4000, 1)) * (b - a) + rng.uniform(-1, 1, (4000, 1)) * (c - a)
+    d += rng.normal(size=d.shape) * np.where(rng.random((4000, 1)) < 0.5, 1e-15, 0.0)
+    filtered = predicates.orient3d(a, b, c, d)
+    exact = np.array([predicates._orient3d_exact(*p) for p in zip(a, b, c, d)])
+    assert np.array_equal(filtered, exact)
+    naive = np.sign(np.einsum("ij,ij->i", b - a, np.cross(c - a, d - a)))
+    assert (naive != exact).sum() > 100  # cases where plain floating point gets the sign wrong
+
+
+def test_a_flat_cloth_is_clean_and_a_folded_one_is_not(f64):
+    scene = ts.build_scene("cloth", {"nx": 16, "ny": 16})
+    tris = scene.mesh.triangles_np
+    assert self_intersections(scene.x0, tris).count == 0
+    x = scene.x0.copy()
+    mid = np.median(x[:, 0])
+    right = x[:, 0] > mid
+    x[right, 0] = mid - 0.5 * (x[right, 0] - mid)  # folded back onto the left half...
+    x[right, 1] += 0.02 * np.sin(9 * x[right, 2])  # ...through it, along waves
+    report = self_intersections(x, tris)
+    assert report.count > 10
+    i, j = report.pairs.T
+    assert np.all(i < j) and not np.any((tris[i][:, :, None] == tris[j][:, None, :]).any(axis=(1, 2)))
+
+
+def test_degenerate_and_bad_input():
+    x = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [0, 1, 0], [1, 1, 0], [0, 0, 0.0]])
+    report = self_intersections(x, np.array([[0, 1, 2], [3, 4, 5], [-1, 2, 3]]))
+    assert report.degenerate.tolist() == [0] and report.count == 0  # collinear, torn: left out
+    with pytest.raises(ValueError, match="x holds non-finite"):
+        self_intersections(np.full((3, 3), np.nan), np.array([[0, 1, 2]]))
+    with pytest.raises(ValueError, match="triangles refers to vertex 7"):
+        self_intersections(x, np.array([[0, 1, 7]]))
+    with pytest.raises(ValueError, match="x must be"):
+        self_intersections(np.zeros((3, 2)), np.array([[0, 1, 2]]))
+    with pytest.raises(ValueError, match="triangles must be"):
+        self_intersections(x, np.array([[0.0, 1, 2]]))
+
+
+def test_save_every_keeps_the_run_frame_by_frame(f64, tmp_path):
+    out = tmp_path / "run.npz"
+    assert main(["simulate", "cloth", "--set", "nx=6", "--set", "ny=6", "--steps", "25",
+                 "--save-every", "10", "--out", str(out), "--quiet"]) == 0
+    data = np.load(out)
+    assert data["t_history"].tolist() == pytest.approx([0.0, 0.01, 0.02, 0.025])
+    assert data["x_history"].shape == (4, 36, 3)
+    assert np.array_equal(data["x_history"][0], data["x0"]) and np.array_equal(data["x_history"][-1], data["x"])
+    assert data["triangles"].shape == (50, 3)
+    scene = ts.build_scene("cloth", {"nx": 6, "ny": 6})
+    result = ts.run(scene, "symplectic_euler", dt=1e-3, steps=20, save_every=10)
+    assert np.allclose(result.x_history[1], data["x_history"][1])  # the API keeps the same frames
+    assert ts.run(scene, "symplectic_euler", dt=1e-3, steps=2).x_history is None
+    with pytest.raises(ValueError, match="save_every"):
+        ts.run(scene, "symplectic_euler", dt=1e-3, steps=2, save_every=-1)
+    assert main(["simulate", "cloth", "--steps", "3", "--save-every", "0", "--out", str(out)]) == 2
+
+
+def test_a_diverged_run_keeps_frames_up_to_the_state_it_returns(f64):
+    scene = ts.build_scene("pendulum", {})
+    result = ts.run(scene, "euler", dt=0.008, steps=2000, save_every=5)
+    assert result.status.value == "diverged"
+    assert result.t_history[-1] == result.t and np.all(np.diff(result.t_history) > 0)
+    assert np.array_equal(result.x_history[-1], scene.state.x.to_numpy())
+
+
+def test_check_command_reports_frames_with_intersections(f64, tmp_path, capsys):
+    out = tmp_path / "run.npz"
+    assert main(["simulate", "cloth", "--set", "nx=8", "--set", "ny=8", "--steps", "20",
+                 "--save-every", "10", "--out", str(out), "--quiet"]) == 0
+    assert main(["check", str(out)]) == 0
+    assert "3 frame(s), no triangles intersect" in capsys.readouterr().out
+    data = dict(np.load(out))
+    x = data["x_history"][1].copy()
+    x[x[:, 0] > 0.5, 1] += 5.0  # lift the right half...
+    x[x[:, 0] > 0.5, 0] -= 0.5  # ...onto the left one, then drop its middle row through it
+    x[x[:, 0] > 0.3, 1] -= 5.0 * (np.abs(x[x[:, 0] > 0.3, 2] - x[:, 2].mean()) < 0.2)
+    data["x_history"][1] = x
+    np.savez(tmp_path / "edited.npz", **data)
+    expected = self_intersections(x, data["triangles"]).count
+    assert expected > 0
+    assert main(["check", str(tmp_path / "edited.npz")]) == 1
+    assert f"1 of 3 frame(s) have intersecting triangles; first at t = 0.01 s, most ({expected} pairs)" \
+        in capsys.readouterr().out
+    spring = tmp_path / "spring.npz"
+    assert main(["simulate", "spring", "--steps", "2", "--out", str(spring), "--quiet"]) == 0
+    assert main(["check", str(spring)]) == 2
+    assert "no cloth surface" in capsys.readouterr().err
+    assert main(["check", str(tmp_path / "missing.npz")]) == 2
