@@ -129,6 +129,8 @@ def injectable_energy(scene, facts: SceneFacts, elapsed: float) -> dict[str, tup
 
     * wind: its kinetic energy, 1/2 M w_max^2 with w_max = speed (1 + 2 gust), the fastest gust
       (a wind cannot drive cloth faster than itself);
+    * turbulence: 1/2 M w^2 with w = amplitude x time, the most speed its bounded acceleration
+      gives a particle within ``elapsed``, or within a lifetime in a scene with an emitter;
     * an emitter: a full ring buffer of particles, each at its launch energy
       1/2 m speed^2 + m |g| max(nozzle height, 0) (nothing it launches gains energy later);
     * a moving sphere (kinematic: it pushes whatever is in its way): what it gives the cloth
@@ -145,6 +147,11 @@ def injectable_energy(scene, facts: SceneFacts, elapsed: float) -> dict[str, tup
     if wind is not None and wind.is_enabled:
         w = wind.fastest_speed()
         out["wind"] = (0.5 * mass * w * w, w)
+    turbulence = scene.system.term("turbulence") if hasattr(scene.system, "term") else None
+    if turbulence is not None:
+        duration = elapsed if scene.emitter is None else min(elapsed, scene.emitter.spec.lifetime)
+        w = turbulence.get() * duration
+        out["turbulence"] = (0.5 * mass * w * w, w)
     if scene.emitter is not None:
         spec = scene.emitter.spec
         m = float(np.asarray(scene.static_arrays["mass"])[scene.emitter.first])

@@ -15,8 +15,10 @@ def particle_rhs(data: Mapping[str, np.ndarray]) -> Callable[[float, np.ndarray]
     """f(t, y) for a particle system, with y = concat(x.ravel(), v.ravel()) of length 6n.
 
     ``data`` needs mass (n,), pinned (n,), gravity (3,), drag (), and optionally springs (S, 2),
-    rest_length, stiffness, spring_damping (S,), and the constraint rows
-    (``constraint_kind`` ... , see :func:`constraint_force`).
+    rest_length, stiffness, spring_damping (S,), the constraint rows (``constraint_kind`` ...,
+    see :func:`constraint_force`), and turbulence_amplitude () with its waves turbulence_k,
+    turbulence_direction (M, 3), turbulence_omega, turbulence_phase (M,) (see
+    :class:`taichi_sim.forces.Turbulence`).
     """
     mass = np.asarray(data["mass"], float)
     free = ~np.asarray(data["pinned"], bool)
@@ -29,10 +31,20 @@ def particle_rhs(data: Mapping[str, np.ndarray]) -> Callable[[float, np.ndarray]
         rest = np.asarray(data["rest_length"], float)
         k = np.asarray(data["stiffness"], float)
         c = np.asarray(data["spring_damping"], float)
+    turbulence = None
+    if "turbulence_amplitude" in data:
+        amplitude = float(data["turbulence_amplitude"])
+        k_t, d_t = np.asarray(data["turbulence_k"], float), np.asarray(data["turbulence_direction"], float)
+        omega_t, phase_t = np.asarray(data["turbulence_omega"], float), np.asarray(data["turbulence_phase"], float)
+
+        def turbulence(x, t):  # written out here, so the reference does not import the simulator
+            return amplitude / len(omega_t) * np.sin(x @ k_t.T - omega_t * t + phase_t) @ d_t
 
     def rhs(t: float, y: np.ndarray) -> np.ndarray:
         x, v = y[: 3 * n].reshape(n, 3), y[3 * n:].reshape(n, 3)
         force = mass[:, None] * gravity - drag * v
+        if turbulence is not None:
+            force += mass[:, None] * turbulence(x, t)
         if has_springs:
             d = x[ends[:, 0]] - x[ends[:, 1]]
             length = np.linalg.norm(d, axis=1)

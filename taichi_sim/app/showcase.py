@@ -54,8 +54,12 @@ SHOWCASE: tuple[Showcase, ...] = (
              _clip("cloth-fold", ["symplectic_euler"], params={"nx": 24, "ny": 24})),
     Showcase("cloth-wind", "a flag on a pole in gusty wind: the two sides in two colours",
              _clip("cloth-wind", ["symplectic_euler"], params={"nx": 24, "ny": 24})),
-    Showcase("sprinkler", "a sprinkler: particles coloured by age bounce on the ground",
+    Showcase("sprinkler", "a sprinkler: drops that darken and fade with age bounce on the ground",
              _clip("sprinkler", ["symplectic_euler"])),
+    Showcase("sprinkler-fire", "a burner: buoyant, turbulent flames cool from yellow to red, "
+             "shrink and fade", _clip("sprinkler-fire", ["symplectic_euler"])),
+    Showcase("sprinkler-smoke", "a smoke plume: slow grey puffs rise, grow and thin out",
+             _clip("sprinkler-smoke", ["symplectic_euler"], speed=1.5)),
 )
 
 

@@ -14,6 +14,7 @@ import taichi as ti
 from ..forces.springs import incidence_of
 from ..scene.visual import SceneVisual
 from .chart import STRAIN_STOPS
+from .effects import EffectDrawer
 
 #: Coordinates beyond this magnitude (m), NaN or infinite are not drawn (the previous frame's
 #: position of that particle is kept instead).
@@ -30,8 +31,6 @@ SPHERE = (0.62, 0.66, 0.72)
 POLE = (0.80, 0.76, 0.68)
 PALE = 0.35  # share of the fabric's colour in the pale squares of the gingham (the rest: light grey)
 FLOOR = ((0.30, 0.32, 0.36), (0.22, 0.24, 0.28))
-EMITTED_YOUNG = (0.45, 0.78, 1.00)
-EMITTED_OLD = (0.16, 0.26, 0.46)
 
 
 @dataclass
@@ -267,9 +266,9 @@ class SceneDrawer:
         if v.plane is not None:
             self.floor = self._floor_mesh()
         self.emitter = v.emitter
+        self.effect = None
         if self.emitter is not None:
-            self.emitted = ti.Vector.field(3, ti.f32, self.emitter.capacity)
-            self.emitted_colors = ti.Vector.field(3, ti.f32, self.emitter.capacity)
+            self.effect = EffectDrawer(self.emitter, self.pos, v.particle_radius)
 
     def _floor_mesh(self):
         """A checkerboard square on the plane, 3x the scene's size, centred below it."""
@@ -337,8 +336,9 @@ class SceneDrawer:
 
     def update(self, options: DrawOptions, eye) -> None:
         """Recompute what this frame draws from the staged positions: index buffers (when springs
-        can tear), cloth normals and colours, the trail, live emitter particles. ``eye`` is the
-        camera position (m), which decides the side of the cloth each vertex shows."""
+        can tear), cloth normals and colours, the trail, live emitter particles (far to near,
+        with their effect's look). ``eye`` is the camera position (m), which decides the side
+        of the cloth each vertex shows and the order of translucent particles."""
         if self.tearing:
             if self.surface and options.mesh:
                 self.visual.mesh.fill_index_buffer(self.tri_idx)
@@ -354,8 +354,8 @@ class SceneDrawer:
         if self.sphere_vertices is not None:
             centers = np.asarray(self.visual.spheres.centers(), np.float64).reshape(-1, 1, 3) + self.offset
             self.sphere_vertices.from_numpy((centers + self.sphere_shape).reshape(-1, 3).astype(np.float32))
-        if self.emitter is not None and options.particles:
-            self.emitted_count = self._gather_emitted()
+        if self.effect is not None and options.particles:
+            self.effect.update(eye)
 
     def draw(self, scene, options: DrawOptions) -> None:
         """Declare this frame's geometry on a ``ti.ui`` scene (call :meth:`update` first)."""
@@ -385,9 +385,8 @@ class SceneDrawer:
             if regular:
                 scene.particles(self.pos, radius=v.particle_radius, per_vertex_color=self.point_colors,
                                 index_count=regular)
-            if self.emitter is not None and self.emitted_count:
-                scene.particles(self.emitted, radius=v.particle_radius,
-                                per_vertex_color=self.emitted_colors, index_count=self.emitted_count)
+            if self.effect is not None:
+                self.effect.draw(scene)
 
     # -- kernels ------------------------------------------------------------------------------
 
@@ -489,21 +488,6 @@ class SceneDrawer:
         for k, p in ti.ndrange(count, m):
             age = (k + 1) / count  # 1 for the newest sample
             self.trail_colors[((start + k) % cap) * m + p] = ti.cast(ti.Vector(TRAIL) * (0.15 + 0.85 * age), ti.f32)
-
-    @ti.kernel
-    def _gather_emitted(self) -> ti.i32:
-        """Compact the live emitter particles (coloured by age / lifetime) into ``emitted``."""
-        k = 0
-        ti.loop_config(serialize=True)
-        for slot in range(self.emitter.capacity):
-            if self.emitter.alive[slot] != 0:
-                p = self.pos[self.emitter.first + slot]
-                age = ti.math.clamp(self.emitter.age[slot] / self.emitter.lifetime, 0.0, 1.0)
-                self.emitted[k] = p
-                self.emitted_colors[k] = ti.cast(ti.Vector(EMITTED_YOUNG) * (1.0 - age)
-                                                 + ti.Vector(EMITTED_OLD) * age, ti.f32)
-                k += 1
-        return k
 
 
 def layout_offsets(visuals, *, gap: float = 0.25) -> list[np.ndarray]:

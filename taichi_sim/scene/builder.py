@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from ..forces import Drag, GrabSpring, Gravity, Springs, Wind
+from ..forces import Drag, GrabSpring, Gravity, Springs, Turbulence, Wind
 from ..forces.springs.grid import GridSprings, grid_layout
 from ..mesh import TriangleMesh
 from ..systems.constraints import PLANE, POINT, ROD, Constraints, check_gains
@@ -48,6 +48,7 @@ class SceneBuilder:
         self._drag: float | None = None
         self._triangles: list[np.ndarray] = []
         self._wind: dict | None = None
+        self._turbulence: dict | None = None
         self._spheres: list[tuple] = []
         self._plane: tuple | None = None
         self._tear_strain = None
@@ -206,6 +207,13 @@ class SceneBuilder:
         arguments: speed, heading, gust, gust_frequency, drag_coefficient, seed, enabled)."""
         self._wind = wind
 
+    def set_turbulence(self, *, amplitude: float, scale: float, frequency: float) -> None:
+        """A seeded random acceleration field on every particle (see
+        :class:`taichi_sim.forces.Turbulence`): ``amplitude`` (m/s^2, > 0 to add it), eddy
+        ``scale`` (m), ``frequency`` (Hz). Its waves come from the scene's seed."""
+        if amplitude > 0:
+            self._turbulence = {"amplitude": float(amplitude), "scale": float(scale), "frequency": float(frequency)}
+
     def add_sphere(self, path: SpherePath, radius: float, friction: float = 0.0) -> None:
         """A sphere collider of ``radius`` (m) moving along ``path``."""
         if radius <= 0:
@@ -255,9 +263,9 @@ class SceneBuilder:
         system = ParticleSystem(mass, pinned, active=active)
         features: dict[str, Any] = {"particles": self._count, "pinned": int(pinned.sum()),
                                     "gravity": False, "drag": False, "springs": 0, "grid_stencil": False,
-                                    "dashpots": False, "wind": False, "spheres": 0, "plane": False, "tearing": False,
-                                    "emitter": 0, "grab": False, "triangles": 0, "self_collision": False,
-                                    "constraints": 0}
+                                    "dashpots": False, "wind": False, "turbulence": False, "spheres": 0,
+                                    "plane": False, "tearing": False, "emitter": 0, "grab": False, "triangles": 0,
+                                    "self_collision": False, "constraints": 0}
         arrays: dict[str, np.ndarray] = {
             "mass": mass, "pinned": pinned,
             "gravity": np.zeros(3) if self._gravity is None else self._gravity,
@@ -295,6 +303,11 @@ class SceneBuilder:
                 raise ValueError("wind acts on triangles: add_triangles first")
             system.add_term(Wind(mesh, **self._wind))
             features["wind"] = True
+        if self._turbulence is not None:
+            turbulence = Turbulence(**self._turbulence, seed=seed)
+            system.add_term(turbulence)
+            features["turbulence"] = True
+            arrays.update(turbulence.arrays())
         grabber = None
         if self._grab is not None:
             grab_term = GrabSpring(*self._grab)

@@ -74,7 +74,7 @@ LIVE_SETTERS: dict[str, Callable[[Scene, dict], bool]] = {
     "shear_stiffness": _set_spring_stiffness,
     "flex_stiffness": _set_spring_stiffness,
     "damping": _set_damping,
-    "gravity": _term_setter("gravity", lambda t, p: t.set((0.0, -p["gravity"], 0.0))),
+    "gravity": _term_setter("gravity", lambda t, p: t.set((0.0, p.get("buoyancy", 0.0) - p["gravity"], 0.0))),
     "drag": _term_setter("drag", lambda t, p: t.set(p["drag"])),
     "wind": _term_setter("wind", lambda t, p: t.set(enabled=p["wind"])),
     "wind_speed": _term_setter("wind", lambda t, p: t.set(speed=p["wind_speed"])),

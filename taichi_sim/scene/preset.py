@@ -26,9 +26,11 @@ class ScenePreset:
     def param(self, name: str) -> Param:
         return next(p for p in self.params if p.name == name)
 
-    def finish(self, builder: SceneBuilder, values: dict[str, Any], seed: int) -> Scene:
-        """Add gravity and drag from ``values`` and finalize."""
-        builder.set_gravity(values["gravity"])
+    def finish(self, builder: SceneBuilder, values: dict[str, Any], seed: int, *,
+               gravity: float | None = None) -> Scene:
+        """Add gravity (``values["gravity"]`` unless ``gravity`` (m/s^2, pointing -y) says
+        otherwise) and drag from ``values`` and finalize."""
+        builder.set_gravity(values["gravity"] if gravity is None else gravity)
         builder.set_drag(values["drag"])
         return builder.finalize(name=self.name, params=values, default_dt=self.default_dt,
                                 default_integrator=self.default_integrator, seed=seed)

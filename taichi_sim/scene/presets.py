@@ -13,7 +13,7 @@ from .constraint_scenes import CONSTRAINT_SCENES
 from .params import Param, resolve
 from .preset import ScenePreset, common_params
 from .scene import Scene
-from .sprinkler import SPRINKLER
+from .sprinkler import SPRINKLER, SPRINKLER_FIRE, SPRINKLER_SMOKE
 
 
 def build_simple(preset: ScenePreset, p: dict[str, Any], seed: int) -> Scene:
@@ -75,6 +75,8 @@ SCENES: dict[str, ScenePreset] = {s.name: s for s in (
         size=lambda p: Size(p["particle_count"], p["particle_count"] - 1), size_params=("particle_count",)),
     *CLOTH_SCENES,
     SPRINKLER,
+    SPRINKLER_FIRE,
+    SPRINKLER_SMOKE,
     *CONSTRAINT_SCENES,
 )}
 

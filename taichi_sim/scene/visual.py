@@ -25,7 +25,7 @@ drawn):
   live particle), ``age`` (a (capacity,) float field, s), ``first`` (the particle id of slot 0),
   ``capacity`` and ``spec`` (its ``lifetime`` (s) colours particles by age; ``position``,
   ``direction``, ``speed`` (m/s) and ``spread`` (degrees) frame the spray). Only live emitter
-  particles are drawn.
+  particles are drawn, with the look ``scene.params["effect"]`` names (water without one).
 - ``scene.grabber``: the mouse-grab API (``pick(origin, direction)``, ``grab(particle)``,
   ``drag_to(target)``, ``release()``), passed through for the launcher.
 - ``scene.params["pin"] == "pole"`` on a cloth: its pinned edge hangs on a pole, drawn as a
@@ -71,13 +71,18 @@ class Plane:
 @dataclass(frozen=True)
 class Emitter:
     """Emitter slots ``first .. first + capacity - 1``: ``alive`` (capacity,) int field,
-    ``age`` (capacity,) float field (s), ``lifetime`` (s)."""
+    ``age`` (capacity,) float field (s), ``lifetime`` (s) as built, and ``effect``, the look of
+    its particles over their life (``water``, ``fire`` or ``smoke``; see
+    :mod:`taichi_sim.render.effects`). ``lifetime_now()``, when given, returns the lifetime (s)
+    as it is now (a slider or a curve may change it while the scene runs)."""
 
     alive: Any
     age: Any
     lifetime: float
     first: int
     capacity: int
+    effect: str = "water"
+    lifetime_now: Callable[[], float] | None = None
 
 
 @dataclass(frozen=True)
@@ -193,7 +198,9 @@ def describe(scene: Scene) -> SceneVisual:
     if getattr(scene, "emitter", None) is not None:
         e = scene.emitter
         emitter = Emitter(alive=e.alive, age=e.age, lifetime=float(e.spec.lifetime),
-                          first=int(e.first), capacity=int(e.capacity))
+                          first=int(e.first), capacity=int(e.capacity),
+                          effect=str(scene.params.get("effect", "water")),
+                          lifetime_now=lambda: float(e.spec.lifetime))
 
     guides: tuple[np.ndarray, ...] = ()
     if scene.name == "simple":  # the exact solution: the initial circle about the z axis
@@ -211,7 +218,9 @@ def describe(scene: Scene) -> SceneVisual:
     if emitter is not None:  # dead slots all sit at the nozzle: frame the spray's paths instead
         live[emitter.first:emitter.first + emitter.capacity] = False
         live[emitter.first] = True
-        extra.append(_spray(scene.emitter.spec, gravity, plane))
+        drag = float(arrays.get("drag", 0.0))
+        tau = float(np.asarray(arrays["mass"])[emitter.first]) / drag if drag > 0 else math.inf
+        extra.append(_spray(scene.emitter.spec, gravity, plane, tau))
     lo, hi = _bounds(x0[live], pinned[live], hanging=bool(np.any(gravity != 0)),
                      swinging=not len(triangles), extra=extra, spheres=spheres, plane=plane)
     override = getattr(scene, "view_bounds", None)
@@ -277,9 +286,10 @@ def _grid(params: dict, n: int) -> tuple[int, int] | None:
     return None
 
 
-def _spray(spec, gravity: np.ndarray, plane: Plane | None) -> np.ndarray:
-    """Points (m) on the ballistic paths of the spray's axis and cone edges over a lifetime,
-    up to where they meet the ground plane."""
+def _spray(spec, gravity: np.ndarray, plane: Plane | None, tau: float = math.inf) -> np.ndarray:
+    """Points (m) on the paths of the spray's axis and cone edges over a lifetime, up to where
+    they meet the ground plane: under gravity and linear drag with time constant ``tau`` =
+    mass / drag (s; inf: ballistic), exactly (turbulence left out)."""
     axis = np.asarray(spec.direction, np.float64)
     axis /= np.linalg.norm(axis)
     helper = np.array([1.0, 0.0, 0.0]) if abs(axis[0]) < 0.9 else np.array([0.0, 0.0, 1.0])
@@ -289,8 +299,13 @@ def _spray(spec, gravity: np.ndarray, plane: Plane | None) -> np.ndarray:
     c, s = math.cos(math.radians(spec.spread)), math.sin(math.radians(spec.spread))
     dirs = np.stack([axis, c * axis + s * u, c * axis - s * u, c * axis + s * w, c * axis - s * w])
     t = np.linspace(0.0, spec.lifetime, 40)[:, None, None]
-    paths = (np.asarray(spec.position, np.float64) + spec.speed * dirs[None] * t
-             + 0.5 * gravity * t**2).reshape(-1, 3)
+    v0 = spec.speed * dirs[None]
+    if math.isinf(tau):
+        paths = np.asarray(spec.position, np.float64) + v0 * t + 0.5 * gravity * t**2
+    else:  # x = x0 + g tau t + (v0 - g tau) tau (1 - exp(-t / tau))
+        paths = np.asarray(spec.position, np.float64) + gravity * tau * t \
+            + (v0 - gravity * tau) * tau * -np.expm1(-t / tau)
+    paths = paths.reshape(-1, 3)
     if plane is not None:
         paths = paths[(paths - plane.point) @ plane.normal >= 0.0]
     return paths
