@@ -85,21 +85,36 @@ def pixel(uv, size=SIZE):
     return int((1.0 - uv[1]) * size[1]), int(uv[0] * size[0])
 
 
+def drawn(renderer, sources, options, shows):
+    """Render and read frames until ``shows(image)`` holds, three frames at most; the last image.
+
+    GGUI 1.7.4 on Mesa's software Vulkan now and then leaves a mesh out of a frame while drawing
+    the rest (the cloth, the flag's pole, the sphere, the floor: in about one full CI run in
+    three, never on demand). A mesh missing from three frames in a row still fails the test.
+    """
+    for _ in range(3):
+        renderer.render(sources, options)
+        image = renderer.read_image()
+        if shows(image):
+            break
+    return image
+
+
 # -- drawing (offscreen Vulkan) -------------------------------------------------------------------
 
 def test_cloth_frame_shows_cloth_where_the_cloth_is(window):
     scene = ts.build_scene("cloth", {"nx": 12, "ny": 12})
     renderer = Renderer(window, [describe(scene)], SIZE)
-    renderer.render([scene.state.x], DrawOptions(mesh=True, particles=False))
-    image = renderer.read_image()
-    assert image.shape == (SIZE[1], SIZE[0], 3)
-    bg = background_mask(image)
     # centres of the flat cloth's inner cells project onto cloth-coloured pixels
     x = scene.x0.reshape(12, 12, 3)
     centres = (0.25 * (x[:-1, :-1] + x[1:, :-1] + x[:-1, 1:] + x[1:, 1:]))[2:-2, 2:-2].reshape(-1, 3)
     uv, depth = renderer.camera.project(centres)
     assert np.all(depth > 0)
     rows, cols = zip(*(pixel(p) for p in uv))
+    image = drawn(renderer, [scene.state.x], DrawOptions(mesh=True, particles=False),
+                  lambda image: not background_mask(image)[rows, cols].any())
+    assert image.shape == (SIZE[1], SIZE[0], 3)
+    bg = background_mask(image)
     assert not bg[rows, cols].any()
     colours = image[rows, cols].astype(int)
     assert np.all(np.abs(colours[:, 0] - colours[:, 2]) > 40)  # warm or cool fabric, not grey
@@ -414,11 +429,14 @@ def test_a_flag_hangs_on_a_drawn_pole(window):
     assert np.allclose(pole.bottom[[0, 2]], pins[0, [0, 2]]) and np.allclose(pole.top[[0, 2]], pins[0, [0, 2]])
     assert pole.bottom[1] == 0.0 and pole.top[1] > pins[:, 1].max()  # stands on the ground, tops the flag
     renderer = Renderer(window, [visual], SIZE)
-    renderer.render([scene.state.x], DrawOptions(particles=False, springs=False))
-    bg = background_mask(renderer.read_image())
     below_flag = np.linspace(pole.bottom, pins[pins[:, 1].argmin()], 7)[1:-1]  # where no cloth is
     uv, _ = renderer.camera.project(below_flag)
-    assert not any(bg[pixel(p)] for p in uv)
+
+    def pole_drawn(image):
+        bg = background_mask(image)
+        return not any(bg[pixel(p)] for p in uv)
+
+    assert pole_drawn(drawn(renderer, [scene.state.x], DrawOptions(particles=False, springs=False), pole_drawn))
 
 
 def test_the_sphere_shows_under_the_draped_cloth(window, monkeypatch):
@@ -432,9 +450,13 @@ def test_the_sphere_shows_under_the_draped_cloth(window, monkeypatch):
     runner.advance(1.5)  # draped: the cloth rests on the sphere
     assert runner.status is Status.OK
     renderer = Renderer(window, [visual], SIZE)
-    renderer.render([runner.display], DrawOptions.for_visual(visual))
-    image = renderer.read_image().astype(int)
-    sphere = (image[..., 0] - image[..., 1] > 60) & (image[..., 2] - image[..., 1] > 60)
+
+    def magenta(image):
+        image = image.astype(int)
+        return (image[..., 0] - image[..., 1] > 60) & (image[..., 2] - image[..., 1] > 60)
+
+    image = drawn(renderer, [runner.display], DrawOptions.for_visual(visual), lambda im: magenta(im).mean() > 0.002)
+    sphere = magenta(image)
     # 0.55 % of the frame when this was written; from the former view (pitch 30 degrees) 0.05 %
     assert sphere.mean() > 0.002, sphere.mean()
 
