@@ -27,3 +27,60 @@ def run_fixed(scene, name, dt, t_end, **options):
     integrator = ts.create_integrator(name, scene.system, **options)
     scene.reset()
     return ts.run(scene, integrator, dt=dt, t_end=t_end, energy_every=0)
+
+
+class OffscreenWindows:
+    """Fixtures for a test module that draws offscreen: one Taichi runtime for the module (CPU,
+    f64) and a fresh window of ``size`` per test, destroyed after it (0.06 s each).
+
+    One window shared by a module's tests made each test's frame depend on what earlier tests
+    drew on it, and so on xdist's order of tests. GGUI supports one window at a time (closing
+    one breaks the others), and a window must be destroyed while its runtime lives (one
+    collected after ti.init crashes). Use as ``runtime, window, own_windows =
+    OffscreenWindows(SIZE).fixtures()`` at module level.
+    """
+
+    def __init__(self, size):
+        self.size = size
+        self.current = None
+
+    def release(self) -> None:
+        if self.current is not None:
+            window, self.current = self.current, None
+            window.destroy()
+
+    def _skip_without_vulkan(self) -> None:
+        import pytest
+
+        from taichi_sim.render import vulkan
+
+        problem = vulkan.vulkan_problem()
+        if problem:
+            pytest.skip(f"no usable Vulkan: {problem}")
+
+    def fixtures(self):
+        import pytest
+
+        from taichi_sim.render import open_window
+
+        @pytest.fixture(scope="module")
+        def runtime():
+            ts.init(arch="cpu", precision="f64")
+            yield
+            self.release()
+
+        @pytest.fixture
+        def window(runtime):
+            self.release()
+            self._skip_without_vulkan()
+            self.current = open_window("taichi_sim tests", self.size)
+            yield self.current
+            self.release()
+
+        @pytest.fixture
+        def own_windows(runtime):
+            """For tests that open their own windows or call ti.init again."""
+            self.release()
+            self._skip_without_vulkan()
+
+        return runtime, window, own_windows

@@ -9,43 +9,20 @@ import pytest
 import taichi as ti
 
 import taichi_sim as ts
+from helpers import OffscreenWindows
 from taichi_sim.app.energy import EnergySample, EnergyTrace, curves_of, sample
 from taichi_sim.app.energy_view import EnergyView, panel_centres
 from taichi_sim.app.record import CHART_AREA, LEGEND, Clip, record
 from taichi_sim.app.runner import Runner
 from taichi_sim.app.session import Session
-from taichi_sim.render import Renderer, open_window, vulkan
+from taichi_sim.render import Renderer, vulkan
 from taichi_sim.render.chart import (CURVE_COLOURS, PLOT_BACKGROUND, Rect, chart_rects, common_ranges,
                                      curve_points, energy_charts, legend_bar, segments, strain_colours)
 from taichi_sim.scene import build_scene
 
 SIZE = (320, 200)
-_window_cache: dict = {}
-
-
-def _release_window():
-    window = _window_cache.pop("window", None)
-    if window is not None:
-        window.destroy()
-
-
-@pytest.fixture(scope="module")
-def runtime():
-    ts.init(arch="cpu", precision="f64")
-    yield
-    _release_window()
-
-
-@pytest.fixture
-def window(runtime):
-    """A fresh offscreen window for one test, destroyed after it."""
-    _release_window()
-    problem = vulkan.vulkan_problem()
-    if problem:
-        pytest.skip(f"no usable Vulkan: {problem}")
-    _window_cache["window"] = open_window("taichi_sim tests", SIZE)
-    yield _window_cache["window"]
-    _release_window()
+WINDOWS = OffscreenWindows(SIZE)
+runtime, window, _ = WINDOWS.fixtures()
 
 
 def _rgb(colour):
@@ -209,7 +186,7 @@ def test_a_drawn_frame_has_the_plot_in_its_rectangle_and_the_legend_in_its_colou
 
 
 def test_record_with_energy_and_strain_writes_charts_and_legend(runtime, tmp_path):
-    _release_window()
+    WINDOWS.release()
     if vulkan.vulkan_problem():
         pytest.skip("no usable Vulkan")
     size = (240, 160)
@@ -252,7 +229,7 @@ def test_record_side_by_side_plots_energy_unless_told_not_to(runtime, tmp_path):
 
     from taichi_sim.cli import main
 
-    _release_window()
+    WINDOWS.release()
     if vulkan.vulkan_problem():
         pytest.skip("no usable Vulkan")
     base = ["record", "spring", "--side-by-side", "euler,symplectic_euler", "--seconds", "0.4", "--fps", "5",

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 import taichi_sim as ts
+from helpers import OffscreenWindows
 from taichi_sim.app.record import Clip, frame_labels, record
 from taichi_sim.app.runner import Runner
 from taichi_sim.app.session import Session
@@ -25,48 +26,8 @@ from taichi_sim.render.renderer import BACKGROUND
 from taichi_sim.scene.visual import describe
 
 SIZE = (320, 200)
-_window_cache: dict = {}
-
-
-def _release_window():
-    window = _window_cache.pop("window", None)
-    if window is not None:
-        window.destroy()  # while its runtime lives: a window collected after ti.init crashes
-
-
-@pytest.fixture(scope="module")
-def runtime():
-    """One Taichi runtime for this module (CPU, f64)."""
-    ts.init(arch="cpu", precision="f64")
-    yield
-    _release_window()
-
-
-@pytest.fixture
-def window(runtime):
-    """A fresh offscreen window for one test, destroyed after it (0.06 s each).
-
-    One window shared by the module's tests made each test's frame depend on what earlier tests
-    drew on it, and so on xdist's order of tests: in two full CI runs a mesh that a test checks
-    (the flag's pole, the sphere) was missing from its frame; it never happened in isolation.
-    """
-    _release_window()
-    problem = vulkan.vulkan_problem()
-    if problem:
-        pytest.skip(f"no usable Vulkan: {problem}")
-    _window_cache["window"] = open_window("taichi_sim tests", SIZE)
-    yield _window_cache["window"]
-    _release_window()
-
-
-@pytest.fixture
-def own_windows(runtime):
-    """For tests that open their own windows or call ti.init again (GGUI supports one window at
-    a time; closing one breaks the others)."""
-    _release_window()
-    problem = vulkan.vulkan_problem()
-    if problem:
-        pytest.skip(f"no usable Vulkan: {problem}")
+WINDOWS = OffscreenWindows(SIZE)
+runtime, window, own_windows = WINDOWS.fixtures()
 
 
 def video_frames(path):
@@ -392,7 +353,7 @@ def test_showcase_takes_no_scene_and_demo_needs_a_display(monkeypatch, capsys, t
 
 
 def test_without_vulkan_record_says_what_to_install(runtime, monkeypatch, capsys, tmp_path):
-    _release_window()  # the command below calls ti.init
+    WINDOWS.release()  # the command below calls ti.init
     monkeypatch.setattr(vulkan, "ICD_DIRS", (str(tmp_path / "no-icds"),))
     monkeypatch.setattr(vulkan.platform, "system", lambda: "Linux")
     monkeypatch.delenv("VK_ICD_FILENAMES", raising=False)
