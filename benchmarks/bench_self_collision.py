@@ -57,7 +57,7 @@ def main() -> None:
         build = median_ms(hashes, args.rounds)
         collect = median_ms(lambda: stage._collect(y), args.rounds)
         pairs = stage.pair_count.to_numpy()
-        resolve = median_ms(lambda: stage._resolve(y, 1e-3), args.rounds)
+        resolve = median_ms(lambda: stage._resolve(y), args.rounds)
         saved = y.to_numpy()
 
         def whole():

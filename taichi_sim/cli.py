@@ -293,7 +293,7 @@ def cmd_check(args) -> int:
     frames = arrays.get("x_history", arrays["x"][None])
     times = arrays.get("t_history", np.atleast_1d(arrays.get("t", np.nan)))
     counts = []
-    for x in tqdm_frames(frames):
+    for x in _frame_bar(frames):
         try:
             counts.append(self_intersections(x, arrays["triangles"]).count)
         except ValueError as exc:
@@ -310,7 +310,7 @@ def cmd_check(args) -> int:
     return 1
 
 
-def tqdm_frames(frames):
+def _frame_bar(frames):
     from tqdm import tqdm
 
     return tqdm(frames, unit="frame", leave=False, disable=None, mininterval=0.5)

@@ -58,7 +58,6 @@ class SelfCollision:
         n = system.particle_count
         self.system, self.mesh = system, mesh
         self.iterations = iterations
-        self.thickness_value = float(thickness)
         tris = mesh.triangles_np.astype(np.int64)
         corners = np.asarray(x0, float)[tris]
         lengths = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2)
@@ -110,7 +109,7 @@ class SelfCollision:
         self.overflow_total += (self.triangle_grid.overflowed() + self.edge_grid.overflowed()
                                 + max(0, vt - self.vt_pairs.shape[0]) + max(0, ee - self.ee_pairs.shape[0]))
         for _ in range(self.iterations):
-            found = self._resolve(state, h)
+            found = self._resolve(state)
             self.contacts_total += found
             if found == 0:
                 break
@@ -183,7 +182,7 @@ class SelfCollision:
                                 self.ee_pairs[k] = ti.Vector([a, b])
 
     @ti.kernel
-    def _resolve(self, y: ti.template(), h: float) -> ti.i32:
+    def _resolve(self, y: ti.template()) -> ti.i32:
         """One Jacobi round over the collected pairs; returns the contacts found."""
         for i in self.dx:
             self.dx[i] = ti.Vector.zero(self.dx.dtype, 3)
@@ -192,10 +191,10 @@ class SelfCollision:
         self.contacts[None] = 0
         for k in range(ti.min(self.pair_count[0], self.vt_pairs.shape[0])):
             pair = self.vt_pairs[k]
-            self._vertex_triangle(y, pair[0], self.mesh.triangles[pair[1]], h)
+            self._vertex_triangle(y, pair[0], self.mesh.triangles[pair[1]])
         for k in range(ti.min(self.pair_count[1], self.ee_pairs.shape[0])):
             pair = self.ee_pairs[k]
-            self._edge_edge(y, self.edges[pair[0]], self.edges[pair[1]], h)
+            self._edge_edge(y, self.edges[pair[0]], self.edges[pair[1]])
         for i in y.x:
             if self.hits[i] > 0:
                 y.x[i] += self.dx[i] / self.hits[i]
@@ -203,7 +202,7 @@ class SelfCollision:
         return self.contacts[None]
 
     @ti.func
-    def _vertex_triangle(self, y, i, tri, h):
+    def _vertex_triangle(self, y, i, tri):
         thick = self.thickness[None]
         a0, b0, c0 = self.x_start[tri[0]], self.x_start[tri[1]], self.x_start[tri[2]]
         a1, b1, c1 = y.x[tri[0]], y.x[tri[1]], y.x[tri[2]]
@@ -229,7 +228,7 @@ class SelfCollision:
                                  ti.Vector([1.0, -w[0], -w[1], -w[2]]), side * n1, gap)
 
     @ti.func
-    def _edge_edge(self, y, ea, eb, h):
+    def _edge_edge(self, y, ea, eb):
         thick = self.thickness[None]
         p0, q0, r0, s0 = self.x_start[ea[0]], self.x_start[ea[1]], self.x_start[eb[0]], self.x_start[eb[1]]
         p1, q1, r1, s1 = y.x[ea[0]], y.x[ea[1]], y.x[eb[0]], y.x[eb[1]]

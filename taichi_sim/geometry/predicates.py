@@ -13,8 +13,8 @@ from fractions import Fraction
 import numpy as np
 
 # |float det - exact det| <= BOUND * permanent for the 3x3 (orient3d) and 2x2 (orient2d)
-# determinants of differences; Shewchuk's bounds are (7 + 56 eps) eps and (3 + 16 eps) eps.
-# Ours are ten times looser: the exact fallback is rare either way.
+# determinants, the differences' rounding included (Shewchuk's static filters: (7 + 56 eps) eps
+# and (3 + 16 eps) eps). Ours are ten times looser: the exact fallback is rare either way.
 _EPS = np.finfo(np.float64).eps / 2
 _BOUND3 = 80 * _EPS
 _BOUND2 = 40 * _EPS
@@ -36,8 +36,7 @@ def orient3d(a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray) -> np.n
                  + au[:, 1] * (av[:, 0] * aw[:, 2] + av[:, 2] * aw[:, 0])
                  + au[:, 2] * (av[:, 0] * aw[:, 1] + av[:, 1] * aw[:, 0]))
     sign = np.sign(det).astype(np.int8)
-    # The differences b - a etc. are rounded too: the exact path starts from the points.
-    unsure = ~(np.abs(det) > _BOUND3 * permanent + _diff_error(a, b, c, d))
+    unsure = ~(np.abs(det) > _BOUND3 * permanent)
     # Four points with one coordinate equal lie in an axis plane: exactly coplanar (a flat cloth).
     on_axis_plane = np.any((a == b) & (a == c) & (a == d), axis=1)
     sign[unsure & on_axis_plane] = 0
@@ -54,21 +53,12 @@ def orient2d(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
     det = u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]
     permanent = np.abs(u[:, 0] * v[:, 1]) + np.abs(u[:, 1] * v[:, 0])
     sign = np.sign(det).astype(np.int8)
-    unsure = ~(np.abs(det) > _BOUND2 * permanent + _diff_error(a, b, c))
+    unsure = ~(np.abs(det) > _BOUND2 * permanent)
     on_axis_line = np.any((a == b) & (a == c), axis=1)  # exactly collinear
     sign[unsure & on_axis_line] = 0
     for i in np.flatnonzero(unsure & ~on_axis_line):
         sign[i] = _orient2d_exact(a[i], b[i], c[i])
     return sign
-
-
-def _diff_error(a, *others) -> np.ndarray:
-    """A bound on what rounding the differences (p - a) adds to a determinant's error, relative
-    to the largest coordinate involved: the filter sends anything near it to the exact path."""
-    scale = np.max([np.abs(p).max(axis=1) for p in (a, *others)], axis=0)
-    spread = np.max([np.abs(p - a).max(axis=1) for p in others], axis=0)
-    dim = a.shape[1]
-    return 4 * dim * _EPS * scale * spread ** (dim - 1)
 
 
 def _exact(point) -> list[Fraction]:
