@@ -1,25 +1,23 @@
-"""Cloth against itself: a vertex-triangle contact stage after each accepted step.
+"""Cloth against itself: a contact stage after each accepted step (Bridson, Fedkiw and Anderson 2002).
 
-What it does, per step of length h (a filter on the step's result, so it works after any
-integrator, as in Bridson, Fedkiw and Anderson 2002):
+What it does, per step of length h, as a filter on the step's result, so it works after any
+integrator. Every vertex is taken to move on a straight line from its start to its end position.
 
-1. Every intact triangle's and every edge's swept box (its corners at the start and the end of
-   the step, grown by the thickness) goes into a spatial hash (:class:`~.hash_grid.PrimitiveHash`).
-2. Vertex-triangle: a vertex (not one of the triangle's corners) is in contact when it ends
-   closer to the triangle than ``thickness``, or when it crossed the triangle's plane during the
-   step within the triangle; it must stay on the side it started on. Edge-edge: two edges (no
-   shared vertex) are in contact when their closest points end closer than ``thickness``, or
-   when the tetrahedron they span changed orientation during the step with the closest points
-   inside both; they must stay on the side they started on.
-3. A contact moves the two sides apart along the contact normal until they are ``thickness``
-   apart, and removes their approaching relative normal velocity (inelastic), with Coulomb
-   friction on the tangential one; the corrections are shared by inverse mass and barycentric
-   weight, as impulses are, and averaged over each vertex's contacts (Jacobi). ``iterations``
-   rounds, fewer when one finds none.
-
-What it does not do (yet): exact continuous collision detection (a crossing by a primitive that
-rotates within the step can be missed), and a fail-safe such as rigid impact zones. So it
-reduces self-intersections, and ``taichi-sim check`` measures how far; it does not guarantee none.
+1. Broad phase: every intact triangle's and every edge's swept box (its corners at the start and
+   the end of the step, grown by half the thickness) goes into a spatial hash
+   (:class:`~.hash_grid.PrimitiveHash`); overlapping vertex-triangle and edge-edge pairs (no shared
+   vertex) are listed once per step.
+2. Contact rounds (``iterations``, Jacobi): a pair is in contact when it ends closer than
+   ``thickness``, or when it touches at some moment of the step (continuous detection, exact up to
+   round-off: the coplanarity cubic of :mod:`.ccd`). A contact moves the two sides apart along the
+   contact normal until they are ``thickness`` apart on the side they were on before, and removes
+   their approaching relative normal velocity (inelastic), with Coulomb friction on the tangential
+   one; corrections are shared by inverse mass and barycentric weight, as impulses are, and
+   averaged over each vertex's contacts.
+3. Fail-safe (:class:`~.impact_zones.ImpactZones`): while some pair still touches during the step,
+   the vertices of touching pairs are merged into zones that move rigidly, which no touch inside
+   a zone survives. So a cloth that starts a step free of self-intersections ends it free of them;
+   ``unresolved_total`` counts the touches left if the fail-safe ever runs out of rounds.
 """
 
 import math
@@ -28,7 +26,13 @@ import numpy as np
 import taichi as ti
 
 from .. import runtime
+from .ccd import edge_edge_hit, vertex_triangle_hit
+from .closest_points import closest_barycentric, segment_parameters
 from .hash_grid import PrimitiveHash
+from .impact_zones import ImpactZones
+
+DELTA_FRACTION = 1e-3  # a touch: closer than this fraction of the thickness at some moment of the step
+MAX_ZONE_ROUNDS = 32  # fail-safe rounds per step; touches left after them are counted, not hidden
 
 
 @ti.data_oriented
@@ -87,14 +91,24 @@ class SelfCollision:
         self.friction = ti.field(real, shape=())
         self.contacts = ti.field(ti.i32, shape=())
         self.thickness[None], self.friction[None] = float(thickness), float(friction)
+        # a touch is a moment closer than this: small beside the thickness the contacts keep,
+        # large beside the round-off of a root's time
+        self.delta = ti.field(real, shape=())
+        self.delta[None] = DELTA_FRACTION * float(thickness)
+        self.x_collected = ti.Vector.field(3, real, shape=n)  # the end positions the pairs came from
+        self.moved = ti.field(real, shape=())
+        self.collided = ti.Vector.field(4, ti.i32, shape=4 * n)  # the fail-safe's touching pairs
+        self.collided_count = ti.field(ti.i32, shape=())
+        self.zones = ImpactZones(system.mass.to_numpy(), system.free.to_numpy())
         self.t_end = None  # the time the last stage ended at, None before the first
-        self.contacts_total = 0
-        self.overflow_total = 0
+        self.restore()
 
     def restore(self) -> None:
         """Forget the last step (the scene went back to its start)."""
         self.t_end = None
         self.contacts_total = self.overflow_total = 0
+        self.zone_steps = 0  # steps that needed the fail-safe
+        self.unresolved_total = 0  # touches the fail-safe left (0 unless it ran out of rounds)
 
     def __call__(self, state, t: float, h: float) -> bool:
         # The step's start: kept from the last stage when this step follows it, else estimated
@@ -102,20 +116,46 @@ class SelfCollision:
         if self.t_end is None or abs((t - h) - self.t_end) > 1e-9 * max(1.0, abs(t)):
             self._estimate_start(state, h)
         self._mark_intact()
+        self._broad_phase(state)
+        for _ in range(self.iterations):
+            found = self._resolve(state)
+            self.contacts_total += found
+            if found == 0:
+                break
+        self._fail_safe(state, h)
+        self._keep_end(state)
+        self.t_end = t
+        return False  # the state changed, the system did not
+
+    def _broad_phase(self, state) -> None:
         self.triangle_grid.build(self.x_start, state.x, self.mesh.triangles, self.triangle_alive)
         self.edge_grid.build(self.x_start, state.x, self.edges, self.edge_alive)
         self._collect(state)
         vt, ee = self.pair_count.to_numpy()
         self.overflow_total += (self.triangle_grid.overflowed() + self.edge_grid.overflowed()
                                 + max(0, vt - self.vt_pairs.shape[0]) + max(0, ee - self.ee_pairs.shape[0]))
-        for _ in range(self.iterations):
-            found = self._resolve(state)
-            self.contacts_total += found
-            if found == 0:
-                break
-        self._keep_end(state)
-        self.t_end = t
-        return False  # the state changed, the system did not
+
+    def _fail_safe(self, state, h: float) -> None:
+        """Rigid impact zones (Provot 1997; Bridson et al. 2002, section 7.4): while some pair
+        still touches during the step, the vertices of touching pairs are merged into zones and
+        each zone moves rigidly over the step. A rigid (indeed any affine) motion keeps four
+        points of one zone from becoming coplanar, so touches inside a zone vanish; touches
+        between zones merge them, so the loop ends, at worst with one zone."""
+        self.zones.clear()
+        for round_ in range(MAX_ZONE_ROUNDS):
+            # the pairs stay valid while no vertex has moved by more than the boxes' spare margin
+            if self._moved_since_collect(state) > 0.5 * (self.thickness[None] - self.delta[None]):
+                self._broad_phase(state)
+            touching = self._detect(state)
+            if touching == 0:
+                return
+            if round_ == 0:
+                self.zone_steps += 1
+            ids = self.collided.to_numpy()[:min(touching, self.collided.shape[0])]
+            x1, v1 = self.zones.rigidify(ids, self.x_start.to_numpy(), state.x.to_numpy(), state.v.to_numpy(), h)
+            state.x.from_numpy(x1)
+            state.v.from_numpy(v1)
+        self.unresolved_total += self._detect(state)
 
     @ti.kernel
     def _estimate_start(self, y: ti.template(), h: float):
@@ -132,6 +172,40 @@ class SelfCollision:
         for i in y.x:
             self.x_start[i] = y.x[i]
 
+    @ti.kernel
+    def _moved_since_collect(self, y: ti.template()) -> ti.f64:
+        self.moved[None] = 0.0
+        for i in y.x:
+            ti.atomic_max(self.moved[None], (y.x[i] - self.x_collected[i]).norm())
+        return self.moved[None]
+
+    @ti.kernel
+    def _detect(self, y: ti.template()) -> ti.i32:
+        """Every collected pair that touches during the step (continuous detection only), into
+        ``collided`` as four vertex ids; returns how many touch."""
+        self.collided_count[None] = 0
+        delta = self.delta[None]
+        for k in range(ti.min(self.pair_count[0], self.vt_pairs.shape[0])):
+            i, tri = self.vt_pairs[k][0], self.mesh.triangles[self.vt_pairs[k][1]]
+            t_hit, _ = vertex_triangle_hit(self.x_start[i], y.x[i], self.x_start[tri[0]], y.x[tri[0]],
+                                           self.x_start[tri[1]], y.x[tri[1]], self.x_start[tri[2]], y.x[tri[2]],
+                                           delta, True)
+            if t_hit >= 0.0:
+                self._record_touch(ti.Vector([i, tri[0], tri[1], tri[2]]))
+        for k in range(ti.min(self.pair_count[1], self.ee_pairs.shape[0])):
+            ea, eb = self.edges[self.ee_pairs[k][0]], self.edges[self.ee_pairs[k][1]]
+            t_hit, _ = edge_edge_hit(self.x_start[ea[0]], y.x[ea[0]], self.x_start[ea[1]], y.x[ea[1]],
+                                     self.x_start[eb[0]], y.x[eb[0]], self.x_start[eb[1]], y.x[eb[1]], delta, True)
+            if t_hit >= 0.0:
+                self._record_touch(ti.Vector([ea[0], ea[1], eb[0], eb[1]]))
+        return self.collided_count[None]
+
+    @ti.func
+    def _record_touch(self, ids):
+        slot = ti.atomic_add(self.collided_count[None], 1)
+        if slot < self.collided.shape[0]:
+            self.collided[slot] = ids
+
     @ti.func
     def _inverse_mass(self, i):
         inv = ti.cast(0.0, self.dx.dtype)
@@ -145,6 +219,8 @@ class SelfCollision:
         boxes overlap (each pair once), into the pair lists the rounds go through."""
         self.pair_count[0], self.pair_count[1] = 0, 0
         thick = self.thickness[None]
+        for i in y.x:
+            self.x_collected[i] = y.x[i]
         for i in y.x:
             p0, p1 = self.x_start[i], y.x[i]
             lo, hi = ti.min(p0, p1) - 0.5 * thick, ti.max(p0, p1) + 0.5 * thick
@@ -213,17 +289,18 @@ class SelfCollision:
         if area1 > 1e-12 and area0 > 1e-12:
             n1 /= area1
             n0 /= area0
-            s0 = (p0 - a0).dot(n0)
+            t_hit, side = vertex_triangle_hit(p0, p1, a0, a1, b0, b1, c0, c1, self.delta[None], False)
+            if t_hit < 0.0:  # no touch during the step: the side is where it started
+                s0 = (p0 - a0).dot(n0)
+                side = 1.0
+                if s0 < 0.0 or (s0 == 0.0 and (p1 - a1).dot(n1) < 0.0):
+                    side = -1.0
             s1 = (p1 - a1).dot(n1)
-            side = 1.0
-            if s0 < 0.0 or (s0 == 0.0 and s1 < 0.0):
-                side = -1.0
-            w = _closest_barycentric(p1, a1, b1, c1)
+            w = closest_barycentric(p1, a1, b1, c1)
             q1 = w[0] * a1 + w[1] * b1 + w[2] * c1
             near = (p1 - q1).norm() < thick
-            crossed = s0 * s1 < 0.0 and (_inside(p1 - s1 * n1, a1, b1, c1) or _inside(p0 - s0 * n0, a0, b0, c0))
             gap = thick - side * s1
-            if (near or crossed) and gap > 0.0:
+            if (near or t_hit >= 0.0) and gap > 0.0:
                 self._push_apart(y, ti.Vector([i, tri[0], tri[1], tri[2]]),
                                  ti.Vector([1.0, -w[0], -w[1], -w[2]]), side * n1, gap)
 
@@ -232,16 +309,22 @@ class SelfCollision:
         thick = self.thickness[None]
         p0, q0, r0, s0 = self.x_start[ea[0]], self.x_start[ea[1]], self.x_start[eb[0]], self.x_start[eb[1]]
         p1, q1, r1, s1 = y.x[ea[0]], y.x[ea[1]], y.x[eb[0]], y.x[eb[1]]
-        u1, u0 = _segment_parameters(p1, q1, r1, s1), _segment_parameters(p0, q0, r0, s0)
+        u1, u0 = segment_parameters(p1, q1, r1, s1), segment_parameters(p0, q0, r0, s0)
         d1 = (p1 + u1[0] * (q1 - p1)) - (r1 + u1[1] * (s1 - r1))  # from edge b's closest point to a's
         d0 = (p0 + u0[0] * (q0 - p0)) - (r0 + u0[1] * (s0 - r0))
-        vol0 = (q0 - p0).cross(s0 - r0).dot(r0 - p0)
-        vol1 = (q1 - p1).cross(s1 - r1).dot(r1 - p1)
-        interior = u1[0] > 0.0 and u1[0] < 1.0 and u1[1] > 0.0 and u1[1] < 1.0
-        crossed = vol0 * vol1 < 0.0 and interior
+        t_hit, side = edge_edge_hit(p0, p1, q0, q1, r0, r1, s0, s1, self.delta[None], False)
         dist0 = d0.norm()
-        if dist0 > 1e-12 and (crossed or d1.norm() < thick):
-            n = d0 / dist0  # the side a started on, seen from b
+        n = d0 / ti.max(dist0, 1e-30)  # the side a started on, seen from b
+        valid = dist0 > 1e-12
+        if t_hit >= 0.0:
+            # they met: the side before the touch is the tetrahedron's sign, along the edges'
+            # common normal (b was on its side ``side``, so a is on ``-side``)
+            cross = (q1 - p1).cross(s1 - r1)
+            length = cross.norm()
+            if length > 1e-6 * (q1 - p1).norm() * (s1 - r1).norm():
+                n = -side * cross / length
+                valid = True
+        if valid and (t_hit >= 0.0 or d1.norm() < thick):
             gap = thick - d1.dot(n)
             if gap > 0.0:
                 self._push_apart(y, ti.Vector([ea[0], ea[1], eb[0], eb[1]]),
@@ -276,82 +359,3 @@ class SelfCollision:
             ti.atomic_add(self.dx[j], weight * inv * dx)
             ti.atomic_add(self.dv[j], weight * inv * dv)
             ti.atomic_add(self.hits[j], 1)
-
-
-@ti.func
-def _inside(p, a, b, c):
-    """Whether p's projection onto the plane of (a, b, c) falls inside the triangle (with a
-    relative tolerance of 1e-6, so a vertex crossing exactly at an edge counts)."""
-    n = (b - a).cross(c - a)
-    nn = n.norm_sqr()
-    u = (b - p).cross(c - p).dot(n) / nn
-    v = (c - p).cross(a - p).dot(n) / nn
-    w = 1.0 - u - v
-    return u >= -1e-6 and v >= -1e-6 and w >= -1e-6
-
-
-@ti.func
-def _closest_barycentric(p, a, b, c):
-    """Barycentric weights of the point of triangle (a, b, c) nearest p (Ericson, Real-Time
-    Collision Detection, 5.1.5)."""
-    ab, ac, ap = b - a, c - a, p - a
-    d1, d2 = ab.dot(ap), ac.dot(ap)
-    w = ti.Vector([1.0, 0.0, 0.0])
-    bp = p - b
-    d3, d4 = ab.dot(bp), ac.dot(bp)
-    cp = p - c
-    d5, d6 = ab.dot(cp), ac.dot(cp)
-    vc = d1 * d4 - d3 * d2
-    vb = d5 * d2 - d1 * d6
-    va = d3 * d6 - d5 * d4
-    if d1 <= 0.0 and d2 <= 0.0:
-        w = ti.Vector([1.0, 0.0, 0.0])
-    elif d3 >= 0.0 and d4 <= d3:
-        w = ti.Vector([0.0, 1.0, 0.0])
-    elif vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
-        t = d1 / (d1 - d3)
-        w = ti.Vector([1.0 - t, t, 0.0])
-    elif d6 >= 0.0 and d5 <= d6:
-        w = ti.Vector([0.0, 0.0, 1.0])
-    elif vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
-        t = d2 / (d2 - d6)
-        w = ti.Vector([1.0 - t, 0.0, t])
-    elif va <= 0.0 and (d4 - d3) >= 0.0 and (d5 - d6) >= 0.0:
-        t = (d4 - d3) / ((d4 - d3) + (d5 - d6))
-        w = ti.Vector([0.0, 1.0 - t, t])
-    else:
-        denom = 1.0 / (va + vb + vc)
-        v = vb * denom
-        u = vc * denom
-        w = ti.Vector([1.0 - v - u, v, u])
-    return w
-
-
-@ti.func
-def _segment_parameters(p, q, r, s):
-    """Parameters (a, b) in [0, 1] of the closest points p + a (q - p) and r + b (s - r) of two
-    segments (Ericson, Real-Time Collision Detection, 5.1.9)."""
-    d1, d2, rr = q - p, s - r, p - r
-    a_, e, f = d1.dot(d1), d2.dot(d2), d2.dot(rr)
-    sa, tb = 0.0, 0.0
-    if a_ <= 1e-20 and e <= 1e-20:
-        sa, tb = 0.0, 0.0
-    elif a_ <= 1e-20:
-        sa, tb = 0.0, ti.min(ti.max(f / e, 0.0), 1.0)
-    else:
-        c = d1.dot(rr)
-        if e <= 1e-20:
-            sa, tb = ti.min(ti.max(-c / a_, 0.0), 1.0), 0.0
-        else:
-            b_ = d1.dot(d2)
-            denom = a_ * e - b_ * b_
-            if denom > 1e-20 * a_ * e:
-                sa = ti.min(ti.max((b_ * f - c * e) / denom, 0.0), 1.0)
-            tb = (b_ * sa + f) / e
-            if tb < 0.0:
-                tb = 0.0
-                sa = ti.min(ti.max(-c / a_, 0.0), 1.0)
-            elif tb > 1.0:
-                tb = 1.0
-                sa = ti.min(ti.max((b_ - c) / a_, 0.0), 1.0)
-    return ti.Vector([sa, tb])

@@ -326,15 +326,6 @@ class SceneBuilder:
             system.set_constraints(constraints)
             features["constraints"] = constraints.row_count
         spheres = plane = emitter = None
-        if self._self_collision is not None:
-            if mesh is None:
-                raise ValueError("self_collision acts on triangles: add_triangles first")
-            from ..collide import SelfCollision
-
-            thickness, friction, iterations = self._self_collision
-            post_step.append(SelfCollision(system, mesh, x0, thickness=thickness, friction=friction,
-                                           iterations=iterations))
-            features["self_collision"] = True
         if self._spheres:
             paths, radii, frictions = zip(*self._spheres)
             spheres = SphereColliders(list(paths), list(radii), list(frictions), system.free)
@@ -346,6 +337,16 @@ class SceneBuilder:
             post_step.append(plane)
             features["plane"] = True
             arrays["plane_point"], arrays["plane_normal"] = plane.point_np, plane.normal_np
+        # last of the position changes, so that nothing moves the cloth after its guarantee
+        if self._self_collision is not None:
+            if mesh is None:
+                raise ValueError("self_collision acts on triangles: add_triangles first")
+            from ..collide import SelfCollision
+
+            thickness, friction, iterations = self._self_collision
+            post_step.append(SelfCollision(system, mesh, x0, thickness=thickness, friction=friction,
+                                           iterations=iterations))
+            features["self_collision"] = True
         if springs is not None and springs.tearable:
             post_step.append(Tearing(springs))
         if self._emitter is not None:

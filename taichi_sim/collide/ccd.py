@@ -1,0 +1,159 @@
+"""Continuous collision detection: when, within a step, a vertex meets a triangle or an edge an edge.
+
+Every vertex moves on a straight line from its start to its end position during the step
+(t in [0, 1]). Four points can only touch when they are coplanar, and the volume they span,
+f(t) = (b(t) x c(t)) . p(t) with b, c, p measured from the fourth point, is a cubic in t (Provot
+1997; Bridson, Fedkiw and Anderson 2002). Its roots in [0, 1] are found on the (at most three)
+pieces where it is monotone, by bisection, which cannot miss a sign change the way Newton's method
+can; the critical points themselves are kept as candidates, so a grazing touch (a double root,
+no sign change) is tested too. At each candidate time the primitives' true distance decides: a
+collision is a candidate time at which they are closer than ``delta``. Round-off can shift a root
+but not remove a sign change, and the distance test with ``delta`` (a small fraction of the
+cloth thickness) absorbs the shift, so a crossing is reported rather than missed.
+"""
+import taichi as ti
+
+from .closest_points import closest_barycentric, segment_parameters
+
+BISECTIONS = 40  # the root's time to 2^-40 of the step: far below any distance that matters
+NO_TIME = -1.0  # a candidate or collision time that does not exist
+
+
+@ti.func
+def coplanarity_cubic(b0, db, c0, dc, p0, dp):
+    """Coefficients (k0, k1, k2, k3) of f(t) = (b(t) x c(t)) . p(t) = k0 + k1 t + k2 t^2 + k3 t^3,
+    where b(t) = b0 + t db, and so on: six times the signed volume of the tetrahedron."""
+    x0 = b0.cross(c0)
+    x1 = db.cross(c0) + b0.cross(dc)
+    x2 = db.cross(dc)
+    return ti.Vector([x0.dot(p0), x1.dot(p0) + x0.dot(dp), x2.dot(p0) + x1.dot(dp), x2.dot(dp)])
+
+
+@ti.func
+def cubic_at(k, t):
+    return ((k[3] * t + k[2]) * t + k[1]) * t + k[0]
+
+
+@ti.func
+def _critical_points(k):
+    """The roots of f'(t) = 3 k3 t^2 + 2 k2 t + k1, sorted; 2.0 (outside [0, 1]) where none."""
+    a, b, c = 3.0 * k[3], 2.0 * k[2], k[1]
+    r1, r2 = 2.0, 2.0
+    if a != 0.0:
+        disc = b * b - 4.0 * a * c
+        if disc >= 0.0:
+            root = ti.sqrt(disc)
+            q = -0.5 * (b + root) if b >= 0.0 else -0.5 * (b - root)
+            if q != 0.0:
+                r1, r2 = q / a, c / q  # the stable pair of quadratic roots
+            else:
+                r1, r2 = 0.0, 0.0
+    elif b != 0.0:
+        r1 = -c / b
+    if r2 < r1:
+        r1, r2 = r2, r1
+    return r1, r2
+
+
+@ti.func
+def _bisect(k, lo, hi):
+    f_lo = cubic_at(k, lo)
+    for _ in range(BISECTIONS):
+        mid = 0.5 * (lo + hi)
+        f_mid = cubic_at(k, mid)
+        if (f_mid < 0.0) == (f_lo < 0.0) and f_mid != 0.0:
+            lo, f_lo = mid, f_mid
+        else:
+            hi = mid
+    return 0.5 * (lo + hi)
+
+
+@ti.func
+def candidate_times(k, crossings_only: ti.template()):
+    """Times in [0, 1] at which f may vanish or come nearest to it: its roots (one per monotone
+    piece with a sign change) and its interior critical points; NO_TIME fills unused entries.
+
+    With ``crossings_only``, only the times at which f changes sign or reaches zero, not the
+    critical points and not a zero it starts from: the moments the primitives could pass through
+    each other, rather than all the moments they come near."""
+    r1, r2 = _critical_points(k)
+    in1, in2 = r1 > 0.0 and r1 < 1.0, r2 > 0.0 and r2 < 1.0
+    times = ti.Vector([NO_TIME, NO_TIME, NO_TIME, NO_TIME, NO_TIME])
+    knots = ti.Vector([0.0, 1.0, 1.0, 1.0])  # the monotone pieces: [knots[j], knots[j + 1]]
+    if in1 and in2:
+        knots[1], knots[2] = r1, r2
+    elif in1:
+        knots[1] = r1
+    elif in2:
+        knots[1] = r2
+    if ti.static(not crossings_only):
+        if in1:
+            times[3] = r1
+        if in2:
+            times[4] = r2
+    for j in ti.static(range(3)):
+        lo, hi = knots[j], knots[j + 1]
+        if j == 0 or hi > lo:
+            f_lo, f_hi = cubic_at(k, lo), cubic_at(k, hi)
+            if f_lo == 0.0:
+                if ti.static(not crossings_only) or j > 0:
+                    times[j] = lo
+            elif f_hi == 0.0:
+                times[j] = hi
+            elif (f_lo < 0.0) != (f_hi < 0.0):
+                times[j] = _bisect(k, lo, hi)
+    return times
+
+
+@ti.func
+def _side_before(k, t_hit):
+    """Which side (+1 or -1) of the plane the tetrahedron's volume says the primitives were on
+    before they met at ``t_hit``: its sign halfway there (+1 when the motion stayed coplanar)."""
+    f = cubic_at(k, 0.5 * t_hit)
+    if f == 0.0:
+        f = k[0]
+    return -1.0 if f < 0.0 else 1.0
+
+
+@ti.func
+def vertex_triangle_hit(p0, p1, a0, a1, b0, b1, c0, c1, delta, crossings_only: ti.template()):
+    """The earliest time in [0, 1] at which vertex p comes within ``delta`` (m) of triangle (a, b, c),
+    all moving linearly from their ``0`` to their ``1`` positions, or NO_TIME; and the side
+    (+1: the direction of (b - a) x (c - a)) p was on before. ``crossings_only``: see
+    :func:`candidate_times`."""
+    ea0, eb0, ep0 = b0 - a0, c0 - a0, p0 - a0
+    k = coplanarity_cubic(ea0, (b1 - a1) - ea0, eb0, (c1 - a1) - eb0, ep0, (p1 - a1) - ep0)
+    times = candidate_times(k, crossings_only)
+    t_hit = NO_TIME
+    for j in ti.static(range(5)):
+        t = times[j]
+        if t >= 0.0 and (t_hit < 0.0 or t < t_hit):
+            p, a, b, c = p0 + t * (p1 - p0), a0 + t * (a1 - a0), b0 + t * (b1 - b0), c0 + t * (c1 - c0)
+            w = closest_barycentric(p, a, b, c)
+            if (p - (w[0] * a + w[1] * b + w[2] * c)).norm() < delta:
+                t_hit = t
+    side = 1.0
+    if t_hit >= 0.0:
+        side = _side_before(k, t_hit)
+    return t_hit, side
+
+
+@ti.func
+def edge_edge_hit(p0, p1, q0, q1, r0, r1, s0, s1, delta, crossings_only: ti.template()):
+    """The earliest time in [0, 1] at which segments (p, q) and (r, s), moving linearly, come
+    within ``delta`` (m), or NO_TIME; and the side (+1: r - p along (q - p) x (s - r)) before."""
+    ea0, eb0, ep0 = q0 - p0, s0 - r0, r0 - p0
+    k = coplanarity_cubic(ea0, (q1 - p1) - ea0, eb0, (s1 - r1) - eb0, ep0, (r1 - p1) - ep0)
+    times = candidate_times(k, crossings_only)
+    t_hit = NO_TIME
+    for j in ti.static(range(5)):
+        t = times[j]
+        if t >= 0.0 and (t_hit < 0.0 or t < t_hit):
+            p, q, r, s = p0 + t * (p1 - p0), q0 + t * (q1 - q0), r0 + t * (r1 - r0), s0 + t * (s1 - s0)
+            u = segment_parameters(p, q, r, s)
+            if ((p + u[0] * (q - p)) - (r + u[1] * (s - r))).norm() < delta:
+                t_hit = t
+    side = 1.0
+    if t_hit >= 0.0:
+        side = _side_before(k, t_hit)
+    return t_hit, side

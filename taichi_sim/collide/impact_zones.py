@@ -1,0 +1,99 @@
+"""Rigid impact zones: the fail-safe of the self-contact stage (on the host, in numpy).
+
+It runs only in steps where contacts were left touching after the contact rounds, and only on
+the vertices involved (usually a few dozen), so numpy on the host costs less than kernels would.
+"""
+import numpy as np
+
+# Pinned vertices cannot move with a zone: in the zone's rigid fit they weigh this many times
+# the zone's free mass, so a zone holding a still pin stays (almost exactly) still.
+PINNED_WEIGHT = 1e9
+
+
+class ImpactZones:
+    """Groups of vertices that move as one rigid body over a step (union-find over touches).
+
+    Args:
+        mass: (n,) particle masses (kg).
+        free: (n,) nonzero for particles that move; pinned ones keep their own motion.
+    """
+
+    def __init__(self, mass: np.ndarray, free: np.ndarray):
+        self.mass = np.asarray(mass, float)
+        self.free = np.asarray(free) != 0
+        self.parent: dict[int, int] = {}
+
+    def clear(self) -> None:
+        """Forget the zones (a new step)."""
+        self.parent.clear()
+
+    def _root(self, i: int) -> int:
+        parent = self.parent
+        parent.setdefault(i, i)
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    def merge(self, touches: np.ndarray) -> None:
+        """Join the zones of the four vertices of each touching pair ((m, 4) vertex ids)."""
+        for ids in np.asarray(touches, np.int64).reshape(-1, 4):
+            r = self._root(int(ids[0]))
+            for j in ids[1:]:
+                s = self._root(int(j))
+                if s != r:
+                    self.parent[s] = r
+
+    def zones(self) -> list[np.ndarray]:
+        """The vertex ids of each zone."""
+        groups: dict[int, list[int]] = {}
+        for i in list(self.parent):
+            groups.setdefault(self._root(i), []).append(i)
+        return [np.array(sorted(g), np.int64) for g in groups.values()]
+
+    def rigidify(self, touches: np.ndarray, x0: np.ndarray, x1: np.ndarray, v1: np.ndarray, h: float):
+        """Merge ``touches`` into the zones, then move every zone rigidly from its start ``x0``.
+
+        Each zone's motion keeps the linear and angular momentum of its vertices' average
+        velocities (x1 - x0) / h (so it never adds kinetic energy); the end positions are the
+        exact rigid transform x_cm + h v_cm + R(h w) r, the velocities v_cm + w x (R r).
+
+        Args:
+            touches: (m, 4) vertex ids of touching pairs.
+            x0, x1, v1: (n, 3) start positions, end positions (m) and end velocities (m/s).
+            h: the step (s).
+        Returns:
+            (x1, v1) as new (n, 3) arrays, changed on zone vertices only.
+        """
+        self.merge(touches)
+        x1, v1 = np.array(x1, float), np.array(v1, float)
+        x0 = np.asarray(x0, float)
+        for ids in self.zones():
+            free = self.free[ids]
+            m = self.mass[ids].copy()
+            if not free.all():
+                m[~free] = PINNED_WEIGHT * max(float(m[free].sum()), 1.0)
+            total = m.sum()
+            u = (x1[ids] - x0[ids]) / h
+            c0 = (m[:, None] * x0[ids]).sum(0) / total
+            v_cm = (m[:, None] * u).sum(0) / total
+            r = x0[ids] - c0
+            momentum = (m[:, None] * np.cross(r, u - v_cm)).sum(0)
+            inertia = (m[:, None, None] * ((r * r).sum(1)[:, None, None] * np.eye(3)
+                                          - r[:, :, None] * r[:, None, :])).sum(0)
+            omega = np.linalg.pinv(inertia, rcond=1e-12) @ momentum  # a line of vertices: no spin about it
+            r_end = r @ _rotation(h * omega).T
+            moving = ids[free]
+            x1[moving] = (c0 + h * v_cm + r_end)[free]
+            v1[moving] = (v_cm + np.cross(omega, r_end))[free]
+        return x1, v1
+
+
+def _rotation(phi: np.ndarray) -> np.ndarray:
+    """The rotation matrix by angle |phi| about phi (Rodrigues)."""
+    angle = float(np.linalg.norm(phi))
+    if angle == 0.0:
+        return np.eye(3)
+    k = phi / angle
+    cross = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + np.sin(angle) * cross + (1 - np.cos(angle)) * cross @ cross
