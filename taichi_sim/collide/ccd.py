@@ -116,25 +116,50 @@ def _side_before(k, t_hit):
 
 
 @ti.func
+def _motion_spread(d0, d1, d2, d3):
+    """How far any point of one primitive can move relative to any point of the other during the
+    step, given the four corners' displacements: their spread about a common translation."""
+    mean = 0.25 * (d0 + d1 + d2 + d3)
+    return 2.0 * ti.max(ti.max((d0 - mean).norm(), (d1 - mean).norm()),
+                        ti.max((d2 - mean).norm(), (d3 - mean).norm()))
+
+
+@ti.func
+def _point_triangle_distance(p, a, b, c):
+    w = closest_barycentric(p, a, b, c)
+    return (p - (w[0] * a + w[1] * b + w[2] * c)).norm()
+
+
+@ti.func
+def _segment_distance(p, q, r, s):
+    u = segment_parameters(p, q, r, s)
+    return ((p + u[0] * (q - p)) - (r + u[1] * (s - r))).norm()
+
+
+@ti.func
 def vertex_triangle_hit(p0, p1, a0, a1, b0, b1, c0, c1, delta, crossings_only: ti.template()):
     """The earliest time in [0, 1] at which vertex p comes within ``delta`` (m) of triangle (a, b, c),
     all moving linearly from their ``0`` to their ``1`` positions, or NO_TIME; and the side
     (+1: the direction of (b - a) x (c - a)) p was on before. ``crossings_only``: see
     :func:`candidate_times`."""
-    ea0, eb0, ep0 = b0 - a0, c0 - a0, p0 - a0
-    k = coplanarity_cubic(ea0, (b1 - a1) - ea0, eb0, (c1 - a1) - eb0, ep0, (p1 - a1) - ep0)
-    times = candidate_times(k, crossings_only)
     t_hit = NO_TIME
-    for j in ti.static(range(5)):
-        t = times[j]
-        if t >= 0.0 and (t_hit < 0.0 or t < t_hit):
-            p, a, b, c = p0 + t * (p1 - p0), a0 + t * (a1 - a0), b0 + t * (b1 - b0), c0 + t * (c1 - c0)
-            w = closest_barycentric(p, a, b, c)
-            if (p - (w[0] * a + w[1] * b + w[2] * c)).norm() < delta:
-                t_hit = t
     side = 1.0
-    if t_hit >= 0.0:
-        side = _side_before(k, t_hit)
+    # the distance can shrink no faster than the motion's spread: far apart at both ends
+    # relative to it, the pair cannot touch in between (the common case, without the cubic)
+    spread = _motion_spread(p1 - p0, a1 - a0, b1 - b0, c1 - c0)
+    if (_point_triangle_distance(p0, a0, b0, c0) + _point_triangle_distance(p1, a1, b1, c1) - spread
+            <= 2.0 * delta):
+        ea0, eb0, ep0 = b0 - a0, c0 - a0, p0 - a0
+        k = coplanarity_cubic(ea0, (b1 - a1) - ea0, eb0, (c1 - a1) - eb0, ep0, (p1 - a1) - ep0)
+        times = candidate_times(k, crossings_only)
+        for j in ti.static(range(5)):
+            t = times[j]
+            if t >= 0.0 and (t_hit < 0.0 or t < t_hit):
+                if _point_triangle_distance(p0 + t * (p1 - p0), a0 + t * (a1 - a0), b0 + t * (b1 - b0),
+                                            c0 + t * (c1 - c0)) < delta:
+                    t_hit = t
+        if t_hit >= 0.0:
+            side = _side_before(k, t_hit)
     return t_hit, side
 
 
@@ -142,18 +167,19 @@ def vertex_triangle_hit(p0, p1, a0, a1, b0, b1, c0, c1, delta, crossings_only: t
 def edge_edge_hit(p0, p1, q0, q1, r0, r1, s0, s1, delta, crossings_only: ti.template()):
     """The earliest time in [0, 1] at which segments (p, q) and (r, s), moving linearly, come
     within ``delta`` (m), or NO_TIME; and the side (+1: r - p along (q - p) x (s - r)) before."""
-    ea0, eb0, ep0 = q0 - p0, s0 - r0, r0 - p0
-    k = coplanarity_cubic(ea0, (q1 - p1) - ea0, eb0, (s1 - r1) - eb0, ep0, (r1 - p1) - ep0)
-    times = candidate_times(k, crossings_only)
     t_hit = NO_TIME
-    for j in ti.static(range(5)):
-        t = times[j]
-        if t >= 0.0 and (t_hit < 0.0 or t < t_hit):
-            p, q, r, s = p0 + t * (p1 - p0), q0 + t * (q1 - q0), r0 + t * (r1 - r0), s0 + t * (s1 - s0)
-            u = segment_parameters(p, q, r, s)
-            if ((p + u[0] * (q - p)) - (r + u[1] * (s - r))).norm() < delta:
-                t_hit = t
     side = 1.0
-    if t_hit >= 0.0:
-        side = _side_before(k, t_hit)
+    spread = _motion_spread(p1 - p0, q1 - q0, r1 - r0, s1 - s0)
+    if _segment_distance(p0, q0, r0, s0) + _segment_distance(p1, q1, r1, s1) - spread <= 2.0 * delta:
+        ea0, eb0, ep0 = q0 - p0, s0 - r0, r0 - p0
+        k = coplanarity_cubic(ea0, (q1 - p1) - ea0, eb0, (s1 - r1) - eb0, ep0, (r1 - p1) - ep0)
+        times = candidate_times(k, crossings_only)
+        for j in ti.static(range(5)):
+            t = times[j]
+            if t >= 0.0 and (t_hit < 0.0 or t < t_hit):
+                if _segment_distance(p0 + t * (p1 - p0), q0 + t * (q1 - q0), r0 + t * (r1 - r0),
+                                     s0 + t * (s1 - s0)) < delta:
+                    t_hit = t
+        if t_hit >= 0.0:
+            side = _side_before(k, t_hit)
     return t_hit, side

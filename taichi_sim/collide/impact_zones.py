@@ -54,9 +54,11 @@ class ImpactZones:
     def rigidify(self, touches: np.ndarray, x0: np.ndarray, x1: np.ndarray, v1: np.ndarray, h: float):
         """Merge ``touches`` into the zones, then move every zone rigidly from its start ``x0``.
 
-        Each zone's motion keeps the linear and angular momentum of its vertices' average
-        velocities (x1 - x0) / h (so it never adds kinetic energy); the end positions are the
-        exact rigid transform x_cm + h v_cm + R(h w) r, the velocities v_cm + w x (R r).
+        Each zone's motion keeps the linear and angular momentum of its vertices' displacements
+        over the step, (x1 - x0) / h: the end positions are the exact rigid transform
+        x_cm + h v_cm + R(h w) r. The end velocities are replaced by their own rigid part at the
+        end positions (the mass-weighted projection onto rigid motions: momentum kept, kinetic
+        energy never raised).
 
         Args:
             touches: (m, 4) vertex ids of touching pairs.
@@ -73,20 +75,31 @@ class ImpactZones:
             m = self.mass[ids].copy()
             if not free.all():
                 m[~free] = PINNED_WEIGHT * max(float(m[free].sum()), 1.0)
-            total = m.sum()
-            u = (x1[ids] - x0[ids]) / h
-            c0 = (m[:, None] * x0[ids]).sum(0) / total
-            v_cm = (m[:, None] * u).sum(0) / total
+            c0 = _centre(m, x0[ids])
             r = x0[ids] - c0
-            momentum = (m[:, None] * np.cross(r, u - v_cm)).sum(0)
-            inertia = (m[:, None, None] * ((r * r).sum(1)[:, None, None] * np.eye(3)
-                                          - r[:, :, None] * r[:, None, :])).sum(0)
-            omega = np.linalg.pinv(inertia, rcond=1e-12) @ momentum  # a line of vertices: no spin about it
+            v_cm, omega = _rigid_part(m, r, (x1[ids] - x0[ids]) / h)
             r_end = r @ _rotation(h * omega).T
+            # the end velocities get their own rigid part (at the end positions): the displacement
+            # also holds position fixes (a plane's projection) that must not become velocity
+            w_cm, spin = _rigid_part(m, r_end, v1[ids])
             moving = ids[free]
             x1[moving] = (c0 + h * v_cm + r_end)[free]
-            v1[moving] = (v_cm + np.cross(omega, r_end))[free]
+            v1[moving] = (w_cm + np.cross(spin, r_end))[free]
         return x1, v1
+
+
+def _centre(m: np.ndarray, x: np.ndarray) -> np.ndarray:
+    return (m[:, None] * x).sum(0) / m.sum()
+
+
+def _rigid_part(m: np.ndarray, r: np.ndarray, u: np.ndarray):
+    """(v_cm, w): the rigid motion v_cm + w x r nearest velocities ``u`` at offsets ``r`` from the
+    centre of mass, in the kinetic-energy norm (same momentum and angular momentum)."""
+    v_cm = _centre(m, u)
+    momentum = (m[:, None] * np.cross(r, u - v_cm)).sum(0)
+    inertia = (m[:, None, None] * ((r * r).sum(1)[:, None, None] * np.eye(3)
+                                  - r[:, :, None] * r[:, None, :])).sum(0)
+    return v_cm, np.linalg.pinv(inertia, rcond=1e-12) @ momentum  # a line of vertices: no spin about it
 
 
 def _rotation(phi: np.ndarray) -> np.ndarray:

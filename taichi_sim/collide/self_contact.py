@@ -153,8 +153,8 @@ class SelfCollision:
                 self.zone_steps += 1
             ids = self.collided.to_numpy()[:min(touching, self.collided.shape[0])]
             x1, v1 = self.zones.rigidify(ids, self.x_start.to_numpy(), state.x.to_numpy(), state.v.to_numpy(), h)
-            state.x.from_numpy(x1)
-            state.v.from_numpy(v1)
+            state.x.from_numpy(x1.astype(runtime.np_real()))
+            state.v.from_numpy(v1.astype(runtime.np_real()))
         self.unresolved_total += self._detect(state)
 
     @ti.kernel

@@ -1,0 +1,166 @@
+"""Continuous collision detection (collide/ccd.py) and the rigid impact zones (collide/impact_zones.py)
+on motions whose answer is known by construction."""
+import numpy as np
+import pytest
+import taichi as ti
+
+from taichi_sim.collide.ccd import edge_edge_hit, vertex_triangle_hit
+from taichi_sim.collide.impact_zones import ImpactZones
+
+DELTA = 1e-6
+CASES = 400
+
+
+def hits(kind, start, end, crossings_only=True):
+    """(times, sides) of ``kind`` ('vt' or 'ee') for (m, 4, 3) start and end positions: vertex,
+    then triangle (vt); edge a, then edge b (ee)."""
+    m = len(start)
+    x0 = ti.Vector.field(3, ti.f64, shape=(m, 4))
+    x1 = ti.Vector.field(3, ti.f64, shape=(m, 4))
+    out = ti.Vector.field(2, ti.f64, shape=m)
+    x0.from_numpy(np.asarray(start, float))
+    x1.from_numpy(np.asarray(end, float))
+
+    @ti.kernel
+    def run(only: ti.template()):
+        for c in range(m):
+            if ti.static(kind == "vt"):
+                t, side = vertex_triangle_hit(x0[c, 0], x1[c, 0], x0[c, 1], x1[c, 1], x0[c, 2], x1[c, 2],
+                                              x0[c, 3], x1[c, 3], DELTA, only)
+                out[c] = ti.Vector([t, side])
+            else:
+                t, side = edge_edge_hit(x0[c, 0], x1[c, 0], x0[c, 1], x1[c, 1], x0[c, 2], x1[c, 2],
+                                        x0[c, 3], x1[c, 3], DELTA, only)
+                out[c] = ti.Vector([t, side])
+
+    run(crossings_only)
+    result = out.to_numpy()
+    return result[:, 0], result[:, 1]
+
+
+def volume(kind, x):
+    """Six times the signed volume the cubic tracks, for (m, 4, 3) positions."""
+    if kind == "vt":
+        p, a, b, c = x[:, 0], x[:, 1], x[:, 2], x[:, 3]
+        return np.einsum("ij,ij->i", np.cross(b - a, c - a), p - a)
+    p, q, r, s = x[:, 0], x[:, 1], x[:, 2], x[:, 3]
+    return np.einsum("ij,ij->i", np.cross(q - p, s - r), r - p)
+
+
+def touching_motions(kind, rng, m):
+    """Random linear motions that touch at a known time t*: a vertex inside the triangle, or the
+    two edges crossing at interior points. Returns start, end (m, 4, 3) and t* (m,)."""
+    t_star = rng.uniform(0.05, 0.95, m)
+    at = rng.normal(size=(m, 4, 3))
+    if kind == "vt":
+        w = rng.dirichlet([2, 2, 2], m)  # interior barycentric weights
+        at[:, 0] = np.einsum("ij,ijk->ik", w, at[:, 1:])
+    else:
+        u = rng.uniform(0.1, 0.9, (m, 2))
+        meet = at[:, 0] + u[:, :1] * (at[:, 1] - at[:, 0])
+        at[:, 2:] += (meet - (at[:, 2] + u[:, 1:] * (at[:, 3] - at[:, 2])))[:, None, :]
+    # rotating-like motions: each corner its own velocity, large beside the primitives' size
+    velocity = rng.normal(scale=2.0, size=(m, 4, 3))
+    return at - t_star[:, None, None] * velocity, at + (1 - t_star)[:, None, None] * velocity, t_star
+
+
+def separated_motions(kind, rng, m):
+    """Random linear motions that never come within 0.1: the first primitive stays above y = 0.1,
+    the second below y = 0 (each corner's straight path stays in its half-space)."""
+    start, end = rng.normal(size=(m, 4, 3)), rng.normal(size=(m, 4, 3))
+    first = slice(0, 1) if kind == "vt" else slice(0, 2)
+    second = slice(1, 4) if kind == "vt" else slice(2, 4)
+    for x in (start, end):
+        x[:, first, 1] = 0.1 + np.abs(x[:, first, 1])
+        x[:, second, 1] = -np.abs(x[:, second, 1])
+    return start, end
+
+
+@pytest.mark.parametrize("kind", ["vt", "ee"])
+def test_every_touch_is_found_no_later_than_it_happens(f64, kind, rng):
+    start, end, t_star = touching_motions(kind, rng, CASES)
+    t_hit, _ = hits(kind, start, end)
+    assert (t_hit >= 0).all()
+    assert (t_hit <= t_star + 1e-9).all()
+    # the motions include touches that the signs at the step's ends alone cannot see (the volume
+    # changes sign twice, or not at all), the ones a start-and-end test misses
+    same_sign = np.sign(volume(kind, start)) == np.sign(volume(kind, end))
+    assert same_sign.sum() > 0.1 * CASES
+
+
+@pytest.mark.parametrize("kind", ["vt", "ee"])
+def test_apart_all_step_is_never_a_touch(f64, kind, rng):
+    start, end = separated_motions(kind, rng, CASES)
+    for crossings_only in (True, False):
+        t_hit, _ = hits(kind, start, end, crossings_only)
+        assert (t_hit < 0).all()
+
+
+def test_the_side_is_the_one_before_the_touch(f64):
+    # a vertex falling through a still triangle whose normal is +y: from above, then from below
+    tri = [[0.0, 0.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]]
+    start = np.array([[[0.2, 1.0, 0.2], *tri], [[0.2, -1.0, 0.2], *tri]])
+    end = np.array([[[0.2, -1.0, 0.2], *tri], [[0.2, 1.0, 0.2], *tri]])
+    t_hit, side = hits("vt", start, end)
+    assert t_hit == pytest.approx([0.5, 0.5], abs=1e-9) and list(side) == [1.0, -1.0]
+    # beside the triangle: no touch; resting on it from the start is no crossing, but is a touch
+    beside = start + [[[2.0, 0, 0], [0, 0, 0], [0, 0, 0], [0, 0, 0]]]
+    assert (hits("vt", beside, end + [[[2.0, 0, 0], [0, 0, 0], [0, 0, 0], [0, 0, 0]]])[0] < 0).all()
+    resting = np.array([[[0.2, 0.0, 0.2], *tri]])
+    assert hits("vt", resting, resting + [[[0, 1.0, 0], [0, 0, 0], [0, 0, 0], [0, 0, 0]]])[0][0] < 0
+    assert hits("vt", resting, resting + [[[0, 1.0, 0], [0, 0, 0], [0, 0, 0], [0, 0, 0]]], False)[0][0] == 0.0
+
+
+def rigid_zone_case(rng, n=12):
+    mass = rng.uniform(0.5, 2.0, n)
+    x0 = rng.normal(size=(n, 3))
+    x1 = x0 + rng.normal(scale=0.3, size=(n, 3))
+    v1 = rng.normal(size=(n, 3))  # end velocities need not be the displacement over the step
+    return mass, x0, x1, v1
+
+
+def test_a_zone_moves_rigidly_and_keeps_momentum_without_adding_energy(rng):
+    mass, x0, x1, v1 = rigid_zone_case(rng)
+    zones = ImpactZones(mass, np.ones(12, int))
+    touches = np.array([[0, 1, 2, 3], [3, 4, 5, 6], [8, 9, 10, 11]])  # two zones: 0..6 and 8..11
+    x_new, v_new = zones.rigidify(touches, x0, x1, v1, 0.1)
+    assert x_new[7] == pytest.approx(x1[7]) and v_new[7] == pytest.approx(v1[7])  # in no zone
+    for zone in (np.arange(7), np.arange(8, 12)):
+        m = mass[zone, None]
+        u_old, u_new = (x1[zone] - x0[zone]) / 0.1, (x_new[zone] - x0[zone]) / 0.1
+        assert (m * v_new[zone]).sum(0) == pytest.approx((m * v1[zone]).sum(0))
+        assert (m * u_new).sum(0) == pytest.approx((m * u_old).sum(0))
+        c_new = (m * x_new[zone]).sum(0) / m.sum()
+        # the velocities' rigid part at the new positions: their angular momentum is kept
+        angular = (m * np.cross(x_new[zone] - c_new, v_new[zone])).sum(0)
+        assert angular == pytest.approx((m * np.cross(x_new[zone] - c_new, v1[zone])).sum(0), rel=1e-9)
+        assert (m * v_new[zone] ** 2).sum() <= (m * v1[zone] ** 2).sum()
+        assert (m * u_new ** 2).sum() <= (m * u_old ** 2).sum() * (1 + 1e-12)
+        # rigid: every distance inside the zone is kept
+        d0 = np.linalg.norm(x0[zone, None] - x0[None, zone], axis=2)
+        d1 = np.linalg.norm(x_new[zone, None] - x_new[None, zone], axis=2)
+        assert d1 == pytest.approx(d0, abs=1e-12)
+
+
+def test_no_four_points_of_a_zone_become_coplanar_during_its_step(rng):
+    mass, x0, x1, v1 = rigid_zone_case(rng)
+    x_new, _ = ImpactZones(mass, np.ones(12, int)).rigidify(np.array([[0, 1, 2, 3], [2, 3, 4, 5]]), x0, x1, v1, 0.1)
+    quads = np.array([[0, 1, 2, 3], [1, 3, 4, 5], [0, 2, 4, 5]])
+    for t in np.linspace(0, 1, 101):
+        x = x0 + t * (x_new - x0)
+        assert (np.sign(volume("vt", x[quads])) == np.sign(volume("vt", x0[quads]))).all()
+
+
+def test_a_zone_turns_about_its_still_pin_and_three_pins_hold_it_still(rng):
+    mass, x0, x1, v1 = rigid_zone_case(rng)
+    x1[:3] = x0[:3]  # particles 0, 1, 2 do not move
+    free = np.ones(12, int)
+    free[2] = 0
+    x_new, _ = ImpactZones(mass, free).rigidify(np.array([[2, 3, 4, 5]]), x0, x1, v1, 0.1)
+    assert (x_new[2] == x0[2]).all()
+    reach0, reach1 = np.linalg.norm(x0[3:6] - x0[2], axis=1), np.linalg.norm(x_new[3:6] - x0[2], axis=1)
+    assert reach1 == pytest.approx(reach0, rel=1e-6)  # a ball joint at the pin
+    assert np.abs(x_new[3:6] - x0[3:6]).max() > 1e-3
+    free[:3] = 0
+    x_new, _ = ImpactZones(mass, free).rigidify(np.array([[0, 1, 2, 3], [2, 3, 4, 5]]), x0, x1, v1, 0.1)
+    assert x_new[:6] == pytest.approx(x0[:6], abs=1e-6)
