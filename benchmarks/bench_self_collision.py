@@ -1,18 +1,24 @@
 """Benchmark: what the cloth's self-contact stage costs, per phase, against the step it follows.
 
-Each size's `cloth-fold` is run with symplectic Euler (dt = 1e-3 s) and the stage on up to
-``--t`` seconds, so the cloth lies crumpled on the ground with many contacts; then, on that
-state, each phase is timed alone ``--rounds`` times (after one warm-up call) and reported as a
-median: building the triangle and edge hashes (broad phase), collecting candidate pairs, one
-round of contact resolution, and the whole stage (what `after_step` pays, with its rounds); the
-step it follows (symplectic Euler) is timed the same way.
+Each size's `cloth-fold` is run for ``--steps`` steps of ``--dt`` with ``--integrator`` and the
+stage, after ``--warmup`` steps (compiling, the first fall). Every call of a phase is timed (with
+a device sync on each side, so phases are not blurred into each other) and reported as its total
+per step over the measured steps:
+
+- broad: the triangle and edge hashes and the candidate pair lists (including the rebuilds the
+  fail-safe asks for when its zones have moved vertices beyond the boxes' margin);
+- rounds: the contact rounds (proximity and continuous detection, push apart, friction);
+- fail-safe: continuous detection of touches left after the rounds, and the rigid impact zones
+  (without its rebuilds, counted in broad);
+- step: the integrator's step alone, timed the same way.
 
 Run from the repository root (outside pytest):
 
-    .venv/bin/python benchmarks/bench_self_collision.py [--sizes 32,64] [--t 0.5] [--rounds 11]
+    .venv/bin/python benchmarks/bench_self_collision.py [--sizes 32,64] [--integrator implicit_euler]
+        [--dt 0.016666666666666666] [--warmup 30] [--steps 60]
 """
 import argparse
-import statistics
+import collections
 import time
 
 import taichi as ti
@@ -21,54 +27,83 @@ import taichi_sim as ts
 from taichi_sim.collide import SelfCollision
 
 
-def median_ms(call, rounds: int) -> float:
-    call()
-    ti.sync()
-    times = []
-    for _ in range(rounds):
-        start = time.perf_counter()
-        call()
-        ti.sync()
-        times.append(time.perf_counter() - start)
-    return 1e3 * statistics.median(times)
+class PhaseTimer:
+    """Wraps methods so that each call's wall time (synced) adds to a named phase."""
+
+    def __init__(self):
+        self.seconds = collections.defaultdict(float)
+        self.calls = collections.Counter()
+        self.inside = []
+
+    def wrap(self, obj, method: str, phase: str) -> None:
+        call = getattr(obj, method)
+
+        def timed(*args, **kwargs):
+            ti.sync()
+            start = time.perf_counter()
+            self.inside.append(phase)
+            try:
+                return call(*args, **kwargs)
+            finally:
+                self.inside.pop()
+                ti.sync()
+                elapsed = time.perf_counter() - start
+                self.seconds[phase] += elapsed
+                self.calls[phase] += 1
+                if self.inside:  # a phase called inside another: not counted twice
+                    self.seconds[self.inside[-1]] -= elapsed
+
+        setattr(obj, method, timed)
+
+    def reset(self) -> None:
+        self.seconds.clear()
+        self.calls.clear()
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sizes", default="32,64", help="grid sides, comma-separated")
-    parser.add_argument("--t", type=float, default=0.5, help="seconds of folding before timing")
-    parser.add_argument("--rounds", type=int, default=11)
+    parser.add_argument("--integrator", default="implicit_euler")
+    parser.add_argument("--dt", type=float, default=1 / 60)
+    parser.add_argument("--warmup", type=int, default=30, help="steps before timing")
+    parser.add_argument("--steps", type=int, default=60, help="steps timed")
+    parser.add_argument("--profile", action="store_true", help="also print Taichi's per-kernel times")
     args = parser.parse_args()
-    ts.init(arch="cpu", precision="f32")
-    print("size  particles  pairs(v-t, e-e)  hashes  collect  round  stage(rounds)  step   stage/step")
+    ts.init(arch="cpu", precision="f32", kernel_profiler=args.profile)
+    print(f"cloth-fold, {args.integrator}, dt = {args.dt:.4g} s, f32; ms per step over {args.steps} steps "
+          f"after {args.warmup}")
+    print("size  pairs(v-t, e-e)  broad  rounds  fail-safe  stage   step  zone steps (rounds)  stage/step")
     for n in (int(s) for s in args.sizes.split(",")):
         scene = ts.build_scene("cloth-fold", {"nx": n, "ny": n})
         (stage,) = [e for e in scene.post_step if isinstance(e, SelfCollision)]
-        integrator = ts.create_integrator("symplectic_euler", scene.system)
-        ts.run(scene, integrator, dt=1e-3, t_end=args.t)
-        y = scene.state
+        integrator = ts.create_integrator(args.integrator, scene.system)
+        timer = PhaseTimer()
+        timer.wrap(stage, "_broad_phase", "broad")
+        timer.wrap(stage, "_resolve", "rounds")
+        timer.wrap(stage, "_fail_safe", "fail-safe")
+        timer.wrap(integrator, "step", "step")
+        step, taken, zones_before = integrator.step, [0], [(0, 0)]
 
-        def hashes():
-            stage._mark_intact()
-            stage.triangle_grid.build(stage.x_start, y.x, scene.mesh.triangles, stage.triangle_alive)
-            stage.edge_grid.build(stage.x_start, y.x, stage.edges, stage.edge_alive)
+        def counted(*a, **k):  # the timing starts at the first step after the warm-up
+            if taken[0] == args.warmup:
+                timer.reset()
+                if args.profile:
+                    ti.profiler.clear_kernel_profiler_info()
+                zones_before[0] = (stage.zone_steps, stage.zone_rounds)
+            taken[0] += 1
+            return step(*a, **k)
 
-        hashes()
-        build = median_ms(hashes, args.rounds)
-        collect = median_ms(lambda: stage._collect(y), args.rounds)
-        pairs = stage.pair_count.to_numpy()
-        resolve = median_ms(lambda: stage._resolve(y), args.rounds)
-        saved = y.to_numpy()
-
-        def whole():
-            y.from_numpy(*saved)
-            stage.t_end = None  # the start estimated from x - h v: one more small kernel
-            stage(y, args.t, 1e-3)
-
-        whole_ms = median_ms(whole, args.rounds)
-        step = median_ms(lambda: integrator.step(y, args.t, 1e-3), args.rounds)
-        print(f"{n:4d}  {n * n:9d}  {pairs[0]:7d} {pairs[1]:7d}  {build:6.2f}  {collect:7.2f}  {resolve:5.2f}  "
-              f"{whole_ms:8.2f} ({stage.iterations})  {step:5.2f}  {whole_ms / step:8.0f}x")
+        integrator.step = counted
+        ts.run(scene, integrator, dt=args.dt, steps=args.warmup + args.steps)
+        ms = {k: 1e3 * v / args.steps for k, v in timer.seconds.items()}
+        stage_ms = ms.get("broad", 0) + ms.get("rounds", 0) + ms.get("fail-safe", 0)
+        vt, ee = stage.pair_count.to_numpy()
+        print(f"{n:4d}  {vt:7d} {ee:7d}  {ms.get('broad', 0):5.1f}  {ms.get('rounds', 0):6.1f}  "
+              f"{ms.get('fail-safe', 0):9.1f}  {stage_ms:5.1f}  {ms['step']:5.1f}  "
+              f"{stage.zone_steps - zones_before[0][0]:4d}/{args.steps:<4d} ({stage.zone_rounds - zones_before[0][1]:4d})"
+              f"  {stage_ms / ms['step']:8.1f}x")
+        if args.profile:
+            ti.profiler.print_kernel_profiler_info()
 
 
 if __name__ == "__main__":

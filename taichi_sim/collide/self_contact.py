@@ -96,10 +96,17 @@ class SelfCollision:
         self.delta = ti.field(real, shape=())
         self.delta[None] = DELTA_FRACTION * float(thickness)
         self.x_collected = ti.Vector.field(3, real, shape=n)  # the end positions the pairs came from
-        self.moved = ti.field(real, shape=())
+        self.moved_count = ti.field(ti.i32, shape=())
         self.collided = ti.Vector.field(4, ti.i32, shape=4 * n)  # the fail-safe's touching pairs
         self.collided_count = ti.field(ti.i32, shape=())
         self.zones = ImpactZones(system.mass.to_numpy(), system.free.to_numpy())
+        # the fail-safe's later rounds re-collect only around the vertices its zones moved
+        self.changed = ti.field(ti.i32, shape=n)
+        self.vertex_grid = PrimitiveHash(n, 1, cell, 0.5 * thickness)
+        self.vertex_ids = ti.Vector.field(1, ti.i32, shape=n)
+        self.vertex_ids.from_numpy(np.arange(n, dtype=np.int32)[:, None])
+        self.vertex_alive = ti.field(ti.i32, shape=n)
+        self.vertex_alive.fill(1)
         self.t_end = None  # the time the last stage ended at, None before the first
         self.restore()
 
@@ -108,6 +115,7 @@ class SelfCollision:
         self.t_end = None
         self.contacts_total = self.overflow_total = 0
         self.zone_steps = 0  # steps that needed the fail-safe
+        self.zone_rounds = 0  # its rounds (detect, merge, move rigidly), over all steps
         self.unresolved_total = 0  # touches the fail-safe left (0 unless it ran out of rounds)
 
     def __call__(self, state, t: float, h: float) -> bool:
@@ -117,44 +125,71 @@ class SelfCollision:
             self._estimate_start(state, h)
         self._mark_intact()
         self._broad_phase(state)
+        found = 1
         for _ in range(self.iterations):
             found = self._resolve(state)
             self.contacts_total += found
             if found == 0:
                 break
-        self._fail_safe(state, h)
+        self._fail_safe(state, h, rounds_clean=found == 0)
         self._keep_end(state)
         self.t_end = t
         return False  # the state changed, the system did not
 
-    def _broad_phase(self, state) -> None:
+    def _broad_phase(self, state, only_changed: bool = False, append: bool = False) -> None:
+        """All candidate pairs at the current positions into the pair lists; or, with
+        ``only_changed``, the pairs holding a vertex in ``changed``, in the lists' place or
+        (``append``) after them."""
         self.triangle_grid.build(self.x_start, state.x, self.mesh.triangles, self.triangle_alive)
         self.edge_grid.build(self.x_start, state.x, self.edges, self.edge_alive)
-        self._collect(state)
+        overflow = self.triangle_grid.overflowed() + self.edge_grid.overflowed()
+        if only_changed:
+            self.vertex_grid.build(self.x_start, state.x, self.vertex_ids, self.vertex_alive)
+            overflow += self.vertex_grid.overflowed()
+            self._collect_changed(state, append)
+        else:
+            self._collect(state)
         vt, ee = self.pair_count.to_numpy()
-        self.overflow_total += (self.triangle_grid.overflowed() + self.edge_grid.overflowed()
-                                + max(0, vt - self.vt_pairs.shape[0]) + max(0, ee - self.ee_pairs.shape[0]))
+        self.overflow_total += overflow + max(0, vt - self.vt_pairs.shape[0]) + max(0, ee - self.ee_pairs.shape[0])
 
-    def _fail_safe(self, state, h: float) -> None:
+    def _fail_safe(self, state, h: float, rounds_clean: bool) -> None:
         """Rigid impact zones (Provot 1997; Bridson et al. 2002, section 7.4): while some pair
         still touches during the step, the vertices of touching pairs are merged into zones and
         each zone moves rigidly over the step. A rigid (indeed any affine) motion keeps four
         points of one zone from becoming coplanar, so touches inside a zone vanish; touches
-        between zones merge them, so the loop ends, at worst with one zone."""
+        between zones merge them, so the loop ends, at worst with one zone.
+
+        ``rounds_clean``: the last contact round found no contact (none closer than the thickness
+        or touching), so none touches unless the pair lists have gone stale."""
         self.zones.clear()
+        spare = 0.5 * (self.thickness[None] - self.delta[None])
         for round_ in range(MAX_ZONE_ROUNDS):
-            # the pairs stay valid while no vertex has moved by more than the boxes' spare margin
-            if self._moved_since_collect(state) > 0.5 * (self.thickness[None] - self.delta[None]):
-                self._broad_phase(state)
-            touching = self._detect(state)
+            if round_ == 0:
+                # the pairs stay valid while no vertex has moved by more than the boxes' spare
+                # margin since they were collected
+                stale = self._mark_moved_since_collect(state, spare) > 0
+                if rounds_clean and not stale:
+                    return
+                if stale:  # the vertices that moved further: their pairs are added to the lists
+                    self._broad_phase(state, only_changed=True, append=True)
+                touching = self._detect(state)
+            else:
+                # only the zones' vertices moved: only pairs holding one can touch anew, and the
+                # lists are refilled with just those (the rounds are over: nothing else reads them)
+                self._broad_phase(state, only_changed=True)
+                touching = self._detect(state)
             if touching == 0:
                 return
             if round_ == 0:
                 self.zone_steps += 1
+            self.zone_rounds += 1
             ids = self.collided.to_numpy()[:min(touching, self.collided.shape[0])]
-            x1, v1 = self.zones.rigidify(ids, self.x_start.to_numpy(), state.x.to_numpy(), state.v.to_numpy(), h)
-            state.x.from_numpy(x1.astype(runtime.np_real()))
+            x_before = state.x.to_numpy()
+            x1, v1 = self.zones.rigidify(ids, self.x_start.to_numpy(), x_before, state.v.to_numpy(), h)
+            x1 = x1.astype(runtime.np_real())
+            state.x.from_numpy(x1)
             state.v.from_numpy(v1.astype(runtime.np_real()))
+            self.changed.from_numpy((x1 != x_before).any(axis=1).astype(np.int32))
         self.unresolved_total += self._detect(state)
 
     @ti.kernel
@@ -173,15 +208,20 @@ class SelfCollision:
             self.x_start[i] = y.x[i]
 
     @ti.kernel
-    def _moved_since_collect(self, y: ti.template()) -> ti.f64:
-        self.moved[None] = 0.0
+    def _mark_moved_since_collect(self, y: ti.template(), spare: float) -> ti.i32:
+        """Mark as ``changed`` the vertices that have moved further than ``spare`` (m) since the
+        pair lists were collected; returns how many."""
+        self.moved_count[None] = 0
         for i in y.x:
-            ti.atomic_max(self.moved[None], (y.x[i] - self.x_collected[i]).norm())
-        return self.moved[None]
+            far = (y.x[i] - self.x_collected[i]).norm() > spare
+            self.changed[i] = 1 if far else 0
+            if far:
+                ti.atomic_add(self.moved_count[None], 1)
+        return self.moved_count[None]
 
     @ti.kernel
     def _detect(self, y: ti.template()) -> ti.i32:
-        """Every collected pair that touches during the step (continuous detection only), into
+        """Every listed pair that touches during the step (continuous detection only), into
         ``collided`` as four vertex ids; returns how many touch."""
         self.collided_count[None] = 0
         delta = self.delta[None]
@@ -218,44 +258,93 @@ class SelfCollision:
         """The broad phase, once per step: every vertex-triangle and edge-edge pair whose swept
         boxes overlap (each pair once), into the pair lists the rounds go through."""
         self.pair_count[0], self.pair_count[1] = 0, 0
-        thick = self.thickness[None]
         for i in y.x:
             self.x_collected[i] = y.x[i]
         for i in y.x:
-            p0, p1 = self.x_start[i], y.x[i]
-            lo, hi = ti.min(p0, p1) - 0.5 * thick, ti.max(p0, p1) + 0.5 * thick
-            c_lo, c_hi, clipped = self.triangle_grid.box_cells(lo, hi)
-            if clipped:
-                ti.atomic_add(self.triangle_grid.overflow[None], 1)
-            for ci, cj, ck in ti.ndrange((c_lo[0], c_hi[0] + 1), (c_lo[1], c_hi[1] + 1), (c_lo[2], c_hi[2] + 1)):
-                cell = ti.Vector([ci, cj, ck])
-                first_entry, end_entry = self.triangle_grid.entries(self.triangle_grid.bucket(cell))
-                for e in range(first_entry, end_entry):
-                    t = self.triangle_grid.items[e]
-                    tri = self.mesh.triangles[t]
-                    if (tri[0] != i and tri[1] != i and tri[2] != i and all(lo <= self.triangle_grid.hi[t])
-                            and all(self.triangle_grid.lo[t] <= hi)
-                            and self.triangle_grid.first_shared_cell(cell, c_lo, c_hi, t)):
-                        k = ti.atomic_add(self.pair_count[0], 1)
-                        if k < self.vt_pairs.shape[0]:
-                            self.vt_pairs[k] = ti.Vector([i, t])
+            self._vertex_pairs(y, i)
         for a in range(self.edge_count):
             if self.edge_alive[a]:
-                ea = self.edges[a]
-                lo, hi = self.edge_grid.lo[a], self.edge_grid.hi[a]
-                c_lo, c_hi = self.edge_grid.cell_lo[a], self.edge_grid.cell_hi[a]
+                self._edge_pairs(a, False)
+
+    @ti.kernel
+    def _collect_changed(self, y: ti.template(), append: ti.template()):
+        """The pairs holding a vertex in ``changed``, each once, in place of the lists or after
+        them (``append``: a pair already listed may then be listed twice, harmless to the
+        fail-safe, which only asks which pairs touch): a changed vertex against every triangle, a
+        triangle with a changed corner against every unchanged vertex, an edge with a changed
+        end against every edge."""
+        if ti.static(not append):
+            self.pair_count[0], self.pair_count[1] = 0, 0
+        for i in y.x:
+            if self.changed[i]:
+                self._vertex_pairs(y, i)
+        for t in range(self.mesh.triangle_count):
+            tri = self.mesh.triangles[t]
+            if self.triangle_alive[t] and (self.changed[tri[0]] or self.changed[tri[1]] or self.changed[tri[2]]):
+                lo, hi = self.triangle_grid.lo[t], self.triangle_grid.hi[t]
+                c_lo, c_hi = self.triangle_grid.cell_lo[t], self.triangle_grid.cell_hi[t]
                 for ci, cj, ck in ti.ndrange((c_lo[0], c_hi[0] + 1), (c_lo[1], c_hi[1] + 1), (c_lo[2], c_hi[2] + 1)):
                     cell = ti.Vector([ci, cj, ck])
-                    first_entry, end_entry = self.edge_grid.entries(self.edge_grid.bucket(cell))
+                    first_entry, end_entry = self.vertex_grid.entries(self.vertex_grid.bucket(cell))
                     for e in range(first_entry, end_entry):
-                        b = self.edge_grid.items[e]
-                        eb = self.edges[b]
-                        if (b > a and ea[0] != eb[0] and ea[0] != eb[1] and ea[1] != eb[0] and ea[1] != eb[1]
-                                and all(lo <= self.edge_grid.hi[b]) and all(self.edge_grid.lo[b] <= hi)
-                                and self.edge_grid.first_shared_cell(cell, c_lo, c_hi, b)):
-                            k = ti.atomic_add(self.pair_count[1], 1)
-                            if k < self.ee_pairs.shape[0]:
-                                self.ee_pairs[k] = ti.Vector([a, b])
+                        i = self.vertex_grid.items[e]
+                        if (not self.changed[i] and tri[0] != i and tri[1] != i and tri[2] != i
+                                and all(lo <= self.vertex_grid.hi[i]) and all(self.vertex_grid.lo[i] <= hi)
+                                and self.vertex_grid.first_shared_cell(cell, c_lo, c_hi, i)):
+                            self._add_vt(i, t)
+        for a in range(self.edge_count):
+            ea = self.edges[a]
+            if self.edge_alive[a] and (self.changed[ea[0]] or self.changed[ea[1]]):
+                self._edge_pairs(a, True)
+
+    @ti.func
+    def _add_vt(self, i, t):
+        k = ti.atomic_add(self.pair_count[0], 1)
+        if k < self.vt_pairs.shape[0]:
+            self.vt_pairs[k] = ti.Vector([i, t])
+
+    @ti.func
+    def _vertex_pairs(self, y, i):
+        """Vertex i against every triangle whose box its swept box overlaps."""
+        thick = self.thickness[None]
+        p0, p1 = self.x_start[i], y.x[i]
+        lo, hi = ti.min(p0, p1) - 0.5 * thick, ti.max(p0, p1) + 0.5 * thick
+        c_lo, c_hi, clipped = self.triangle_grid.box_cells(lo, hi)
+        if clipped:
+            ti.atomic_add(self.triangle_grid.overflow[None], 1)
+        for ci, cj, ck in ti.ndrange((c_lo[0], c_hi[0] + 1), (c_lo[1], c_hi[1] + 1), (c_lo[2], c_hi[2] + 1)):
+            cell = ti.Vector([ci, cj, ck])
+            first_entry, end_entry = self.triangle_grid.entries(self.triangle_grid.bucket(cell))
+            for e in range(first_entry, end_entry):
+                t = self.triangle_grid.items[e]
+                tri = self.mesh.triangles[t]
+                if (tri[0] != i and tri[1] != i and tri[2] != i and all(lo <= self.triangle_grid.hi[t])
+                        and all(self.triangle_grid.lo[t] <= hi)
+                        and self.triangle_grid.first_shared_cell(cell, c_lo, c_hi, t)):
+                    self._add_vt(i, t)
+
+    @ti.func
+    def _edge_pairs(self, a, changed_only: ti.template()):
+        """Edge a against every edge whose box its box overlaps: those after it (each pair once),
+        or, with ``changed_only``, also those before it that have no changed end."""
+        ea = self.edges[a]
+        lo, hi = self.edge_grid.lo[a], self.edge_grid.hi[a]
+        c_lo, c_hi = self.edge_grid.cell_lo[a], self.edge_grid.cell_hi[a]
+        for ci, cj, ck in ti.ndrange((c_lo[0], c_hi[0] + 1), (c_lo[1], c_hi[1] + 1), (c_lo[2], c_hi[2] + 1)):
+            cell = ti.Vector([ci, cj, ck])
+            first_entry, end_entry = self.edge_grid.entries(self.edge_grid.bucket(cell))
+            for e in range(first_entry, end_entry):
+                b = self.edge_grid.items[e]
+                eb = self.edges[b]
+                after = b > a
+                if ti.static(changed_only):
+                    after = after or not (self.changed[eb[0]] or self.changed[eb[1]])
+                if (after and ea[0] != eb[0] and ea[0] != eb[1] and ea[1] != eb[0] and ea[1] != eb[1]
+                        and all(lo <= self.edge_grid.hi[b]) and all(self.edge_grid.lo[b] <= hi)
+                        and self.edge_grid.first_shared_cell(cell, c_lo, c_hi, b)):
+                    k = ti.atomic_add(self.pair_count[1], 1)
+                    if k < self.ee_pairs.shape[0]:
+                        self.ee_pairs[k] = ti.Vector([a, b])
 
     @ti.kernel
     def _resolve(self, y: ti.template()) -> ti.i32:
