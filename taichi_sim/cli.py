@@ -390,11 +390,17 @@ def cmd_simulate(args) -> int:
     path = io.save_npz(args.out, arrays)
     if result.message:
         print(f"taichi-sim: {result.message}", file=sys.stderr)
+    for event in scene.post_step:
+        if getattr(event, "warning", None) and event.warning():
+            print(f"taichi-sim: warning: {event.warning()}", file=sys.stderr)
     if not args.quiet:
         rejected = f" ({result.rejected_steps} rejected)" if result.rejected_steps else ""
         print(f"{scene.name}: {result.steps} steps{rejected} of {integrator_name} to t = {result.t:.6g} s, "
               f"{result.f_evals} f-evals, {result.wall_time:.3f} s on {runtime.backend()}, "
               f"status {result.status.value} -> {path}")
+        for event in scene.post_step:
+            if hasattr(event, "summary"):
+                print(f"{scene.name}: {event.summary()}")
         if result.constraint_violation is not None and len(result.constraint_violation):
             print(f"{scene.name}: largest |C| over the constraints {float(result.constraint_violation.max()):.3g} m "
                   f"over the run, {result.constraint_violation[-1]:.3g} m at the end")

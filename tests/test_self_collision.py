@@ -88,3 +88,19 @@ def test_a_32_cloth_folds_300_frames_at_one_step_a_frame_without_intersecting(f3
     assert stage.zone_steps > 0 and stage.unresolved_total == 0 and stage.overflow_total == 0
     # inelastic contacts, friction and rigid zones only take kinetic energy away (f32 round-off aside)
     assert len(kinetic_gain) == 300 and max(kinetic_gain) <= 1e-4 * result.energy[0]
+
+
+def test_the_cli_says_what_the_stage_did_and_warns_when_it_could_not_keep_its_promise(f64, tmp_path, capsys):
+    from taichi_sim.cli import main
+
+    out = tmp_path / "fold.npz"
+    assert main(["simulate", "cloth-fold", "--set", "nx=6", "--set", "ny=6", "--integrator", "implicit_euler",
+                 "--dt", "0.0166666666666667", "--steps", "40", "--precision", "f64", "--out", str(out)]) == 0
+    captured = capsys.readouterr()
+    assert "cloth-fold: self-contact:" in captured.out and "impact zones in" in captured.out
+    assert "warning" not in captured.err
+    scene = ts.build_scene("cloth-fold", {"nx": 4, "ny": 4})
+    stage = stage_of(scene)
+    assert stage.warning() == ""
+    stage.unresolved_total = 2
+    assert "2 touch(es) left unresolved" in stage.warning() and "taichi-sim check" in stage.warning()

@@ -118,6 +118,19 @@ class SelfCollision:
         self.zone_rounds = 0  # its rounds (detect, merge, move rigidly), over all steps
         self.unresolved_total = 0  # touches the fail-safe left (0 unless it ran out of rounds)
 
+    def summary(self) -> str:
+        """One line on the run so far: contacts and the fail-safe's use."""
+        return (f"self-contact: {self.contacts_total} contacts, impact zones in {self.zone_steps} step(s) "
+                f"({self.zone_rounds} rounds)")
+
+    def warning(self) -> str:
+        """What could have left an intersection ('' when nothing): touches the fail-safe left
+        unresolved, candidate pairs dropped for lack of room in the lists or the hash."""
+        if not (self.unresolved_total or self.overflow_total):
+            return ""
+        return (f"self-contact: {self.unresolved_total} touch(es) left unresolved, {self.overflow_total} candidate "
+                f"pair(s) dropped: the cloth may intersect itself (taichi-sim check FILE.npz tells)")
+
     def __call__(self, state, t: float, h: float) -> bool:
         # The step's start: kept from the last stage when this step follows it, else estimated
         # as x - h v (exact for symplectic Euler) after a reset, a jump or the first step.
