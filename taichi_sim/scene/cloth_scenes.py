@@ -79,12 +79,13 @@ CLOTH_PARAMS: tuple[Param, ...] = (
     Param("tear_noise", 0.0, "", "relative amplitude of a seeded smooth noise map on thresholds (0..1)",
           minimum=0.0),
     # the cloth against itself
-    Param("self_collision", False, "", "keep the cloth from passing through itself (vertex-triangle "
-          "contacts after each step)"),
+    Param("self_collision", False, "", "keep the cloth from passing through itself (contacts, "
+          "continuous detection and rigid impact zones after each step)"),
     Param("thickness", 0.01, "m", "distance a vertex keeps from the cloth's other triangles",
           minimum=0.0, exclusive=True),
     Param("self_friction", 0.2, "", "Coulomb friction coefficient between layers of the cloth", minimum=0.0),
-    Param("collision_iterations", 4, "", "rounds of contact resolution per step", minimum=1),
+    Param("collision_iterations", 4, "", "rounds of contact resolution per step before the impact "
+          "zones", minimum=1),
     # grab
     Param("grab", False, "", "allow pulling a particle with the mouse (a stiff spring)"),
     Param("grab_stiffness", 200.0, "N/m", "stiffness of the grab spring", minimum=0.0),
