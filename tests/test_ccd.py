@@ -164,3 +164,12 @@ def test_a_zone_turns_about_its_still_pin_and_three_pins_hold_it_still(rng):
     free[:3] = 0
     x_new, _ = ImpactZones(mass, free).rigidify(np.array([[0, 1, 2, 3], [2, 3, 4, 5]]), x0, x1, v1, 0.1)
     assert x_new[:6] == pytest.approx(x0[:6], abs=1e-6)
+
+
+def test_the_last_resort_moves_the_whole_cloth_as_one_rigid_zone(rng):
+    mass, x0, x1, v1 = rigid_zone_case(rng)
+    zones = ImpactZones(mass, np.ones(12, int))
+    zones.merge_all()
+    x_new, _ = zones.rigidify(np.zeros((0, 4), np.int64), x0, x1, v1, 0.1)
+    d0 = np.linalg.norm(x0[:, None] - x0[None], axis=2)
+    assert np.linalg.norm(x_new[:, None] - x_new[None], axis=2) == pytest.approx(d0, abs=1e-12)

@@ -104,3 +104,15 @@ def test_the_cli_says_what_the_stage_did_and_warns_when_it_could_not_keep_its_pr
     assert stage.warning() == ""
     stage.unresolved_total = 2
     assert "2 touch(es) left unresolved" in stage.warning() and "taichi-sim check" in stage.warning()
+
+
+def test_out_of_zone_rounds_the_whole_cloth_moves_rigidly_and_nothing_intersects(f64, monkeypatch):
+    from taichi_sim.collide import self_contact
+
+    monkeypatch.setattr(self_contact, "MAX_ZONE_ROUNDS", 1)  # every step needing zones runs out
+    scene = ts.build_scene("cloth-fold", {"nx": 12, "ny": 12})
+    result = ts.run(scene, "implicit_euler", dt=1 / 60, steps=40, save_every=1)
+    stage = stage_of(scene)
+    assert stage.zone_fallbacks > 0 and stage.unresolved_total == 0
+    assert "whole cloth rigid" in stage.summary()
+    assert max(self_intersections(x, scene.mesh.triangles_np).count for x in result.x_history) == 0

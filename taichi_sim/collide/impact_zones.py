@@ -44,6 +44,11 @@ class ImpactZones:
                 if s != r:
                     self.parent[s] = r
 
+    def merge_all(self) -> None:
+        """One zone of every vertex: the last resort, which no touch survives (the whole cloth
+        moves rigidly over the step)."""
+        self.parent = {i: 0 for i in range(len(self.mass))}
+
     def zones(self) -> list[np.ndarray]:
         """The vertex ids of each zone."""
         groups: dict[int, list[int]] = {}
@@ -61,7 +66,7 @@ class ImpactZones:
         energy never raised).
 
         Args:
-            touches: (m, 4) vertex ids of touching pairs.
+            touches: (m, 4) vertex ids of touching pairs (may be empty).
             x0, x1, v1: (n, 3) start positions, end positions (m) and end velocities (m/s).
             h: the step (s).
         Returns:

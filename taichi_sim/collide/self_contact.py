@@ -32,7 +32,7 @@ from .hash_grid import PrimitiveHash
 from .impact_zones import ImpactZones
 
 DELTA_FRACTION = 1e-3  # a touch: closer than this fraction of the thickness at some moment of the step
-MAX_ZONE_ROUNDS = 32  # fail-safe rounds per step; touches left after them are counted, not hidden
+MAX_ZONE_ROUNDS = 32  # fail-safe rounds per step before the whole cloth moves as one zone
 
 
 @ti.data_oriented
@@ -116,12 +116,16 @@ class SelfCollision:
         self.contacts_total = self.overflow_total = 0
         self.zone_steps = 0  # steps that needed the fail-safe
         self.zone_rounds = 0  # its rounds (detect, merge, move rigidly), over all steps
+        self.zone_fallbacks = 0  # steps in which it ran out of rounds and moved the whole cloth rigidly
         self.unresolved_total = 0  # touches the fail-safe left (0 unless it ran out of rounds)
 
     def summary(self) -> str:
         """One line on the run so far: contacts and the fail-safe's use."""
-        return (f"self-contact: {self.contacts_total} contacts, impact zones in {self.zone_steps} step(s) "
+        line = (f"self-contact: {self.contacts_total} contacts, impact zones in {self.zone_steps} step(s) "
                 f"({self.zone_rounds} rounds)")
+        if self.zone_fallbacks:
+            line += f", the whole cloth rigid in {self.zone_fallbacks} step(s) (out of rounds)"
+        return line
 
     def warning(self) -> str:
         """What could have left an intersection ('' when nothing): touches the fail-safe left
@@ -170,7 +174,8 @@ class SelfCollision:
         still touches during the step, the vertices of touching pairs are merged into zones and
         each zone moves rigidly over the step. A rigid (indeed any affine) motion keeps four
         points of one zone from becoming coplanar, so touches inside a zone vanish; touches
-        between zones merge them, so the loop ends, at worst with one zone.
+        between zones merge them. After MAX_ZONE_ROUNDS rounds the whole cloth moves as one
+        zone for the step (counted in ``zone_fallbacks``).
 
         ``rounds_clean``: the last contact round found no contact (none closer than the thickness
         or touching), so none touches unless the pair lists have gone stale."""
@@ -197,13 +202,24 @@ class SelfCollision:
                 self.zone_steps += 1
             self.zone_rounds += 1
             ids = self.collided.to_numpy()[:min(touching, self.collided.shape[0])]
-            x_before = state.x.to_numpy()
-            x1, v1 = self.zones.rigidify(ids, self.x_start.to_numpy(), x_before, state.v.to_numpy(), h)
-            x1 = x1.astype(runtime.np_real())
-            state.x.from_numpy(x1)
-            state.v.from_numpy(v1.astype(runtime.np_real()))
-            self.changed.from_numpy((x1 != x_before).any(axis=1).astype(np.int32))
+            self._move_zones_rigidly(state, ids, h)
+        # Out of rounds: the whole cloth moves rigidly for this step (it kills the step's relative
+        # motion, but no touch survives it); what still touches is counted, never hidden.
+        self.zone_fallbacks += 1
+        self.zones.merge_all()
+        self._move_zones_rigidly(state, np.zeros((0, 4), np.int64), h)
+        self._broad_phase(state)
         self.unresolved_total += self._detect(state)
+
+    def _move_zones_rigidly(self, state, touches: np.ndarray, h: float) -> None:
+        """Merge ``touches`` into the zones, move every zone rigidly over the step, and mark the
+        vertices that moved as ``changed``."""
+        x_before = state.x.to_numpy()
+        x1, v1 = self.zones.rigidify(touches, self.x_start.to_numpy(), x_before, state.v.to_numpy(), h)
+        x1 = x1.astype(runtime.np_real())
+        state.x.from_numpy(x1)
+        state.v.from_numpy(v1.astype(runtime.np_real()))
+        self.changed.from_numpy((x1 != x_before).any(axis=1).astype(np.int32))
 
     @ti.kernel
     def _estimate_start(self, y: ti.template(), h: float):
