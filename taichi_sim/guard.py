@@ -135,7 +135,9 @@ def injectable_energy(scene, facts: SceneFacts, elapsed: float) -> dict[str, tup
       1/2 m speed^2 + m |g| max(nozzle height, 0) (nothing it launches gains energy later);
     * a moving sphere (kinematic: it pushes whatever is in its way): what it gives the cloth
       moving at twice its speed, 1/2 M (2V)^2, plus the stretch of every spring by its travel V t,
-      1/2 sum(k) (V t)^2 (a loose bound; scenes with tearing break their springs first).
+      1/2 sum(k) (V t)^2 (a loose bound; scenes with tearing break their springs first);
+    * kinematic pins (scripted, e.g. a twist): the same bound with their fastest speed V, the
+      travel capped by the farthest they ever get from their start.
 
     A grab target moved by the user is not a source here: the launcher re-bases its guard
     whenever the target moves, and a target that stays put is a conservative spring whose
@@ -164,6 +166,12 @@ def injectable_energy(scene, facts: SceneFacts, elapsed: float) -> dict[str, tup
             travel = speed * elapsed
             out["moving sphere"] = (0.5 * mass * (2 * speed) ** 2
                                     + 0.5 * facts.spring_stiffness_sum * travel**2, 2 * speed)
+    kinematic = getattr(scene, "kinematic", None)
+    if kinematic is not None:
+        speed = kinematic.fastest_speed()
+        travel = min(speed * elapsed, kinematic.farthest_travel())
+        out["kinematic pins"] = (0.5 * mass * (2 * speed) ** 2
+                                 + 0.5 * facts.spring_stiffness_sum * travel**2, 2 * speed)
     return out
 
 

@@ -52,6 +52,9 @@ SHOWCASE: tuple[Showcase, ...] = (
     Showcase("cloth-fold", "a cloth dropped edge-first piles up in folds without passing through "
              "itself (self-collision)",
              _clip("cloth-fold", ["symplectic_euler"], params={"nx": 24, "ny": 24})),
+    Showcase("cloth-twist", "a cloth held at two sides that turn in opposite directions wrings "
+             "into folds against itself (self-collision)",
+             _clip("cloth-twist", ["symplectic_euler"], params={"nx": 24, "ny": 24})),
     Showcase("cloth-wind", "a flag on a pole in gusty wind: the two sides in two colours",
              _clip("cloth-wind", ["symplectic_euler"], params={"nx": 24, "ny": 24})),
     Showcase("sprinkler", "a sprinkler: drops that darken and fade with age bounce on the ground",

@@ -53,6 +53,7 @@ class SceneBuilder:
         self._plane: tuple | None = None
         self._tear_strain = None
         self._self_collision = None
+        self._kinematic = None
         self._emitter: tuple | None = None
         self._grab: tuple | None = None
         self._grid: tuple[int, int, int] | None = None
@@ -231,6 +232,24 @@ class SceneBuilder:
         (see :class:`~taichi_sim.collide.SelfCollision`; needs triangles)."""
         self._self_collision = (float(thickness), float(friction), int(iterations))
 
+    def add_kinematic(self, ids, path) -> None:
+        """Move pinned particles ``ids`` along a script between steps (see
+        :class:`~taichi_sim.scene.kinematic.KinematicPins`): ``path.at(t)`` gives their
+        positions (m) and velocities (m/s) at time t (s), ``path.at(0)`` where they are now."""
+        ids = np.asarray(ids, np.int64).reshape(-1)
+        if len(ids) == 0:
+            raise ValueError("kinematic pins need at least one particle")
+        if ids.min() < 0 or ids.max() >= self._count:
+            raise ValueError("kinematic pins must be ids of particles already added")
+        if not np.concatenate(self._pinned)[ids].all():
+            raise ValueError("kinematic pins must be pinned particles (integrators would move them)")
+        start, _ = path.at(0.0)
+        if not np.allclose(start, self.positions()[ids], rtol=0.0, atol=1e-9):
+            raise ValueError("a kinematic path must start where its particles are")
+        if self._kinematic is not None:
+            raise ValueError("a scene has at most one set of kinematic pins")
+        self._kinematic = (ids, path)
+
     def set_tearing(self, tear_strain) -> None:
         """Springs break past this strain: a scalar or one value per spring (in the order added)."""
         self._tear_strain = tear_strain
@@ -265,13 +284,21 @@ class SceneBuilder:
                                     "gravity": False, "drag": False, "springs": 0, "grid_stencil": False,
                                     "dashpots": False, "wind": False, "turbulence": False, "spheres": 0,
                                     "plane": False, "tearing": False, "emitter": 0, "grab": False, "triangles": 0,
-                                    "self_collision": False, "constraints": 0}
+                                    "self_collision": False, "constraints": 0,
+                                    "kinematic": 0}
         arrays: dict[str, np.ndarray] = {
             "mass": mass, "pinned": pinned,
             "gravity": np.zeros(3) if self._gravity is None else self._gravity,
             "drag": np.float64(self._drag or 0.0),
         }
         post_step: list = []
+        kinematic = None
+        if self._kinematic is not None:  # first: colliders and self-contact see the pins' motion
+            from .kinematic import KinematicPins
+
+            kinematic = KinematicPins(*self._kinematic)
+            post_step.append(kinematic)
+            features["kinematic"] = kinematic.count
         if self._gravity is not None and np.any(self._gravity != 0):
             system.add_term(Gravity(self._gravity, system.mass, system.free))
             features["gravity"] = True
@@ -360,7 +387,7 @@ class SceneBuilder:
                       features=features, static_arrays=arrays, default_dt=default_dt,
                       default_integrator=default_integrator, seed=seed, post_step=post_step,
                       springs=springs, mesh=mesh, spheres=spheres, plane=plane, emitter=emitter,
-                      constraints=constraints)
+                      constraints=constraints, kinematic=kinematic)
         if self._grab is not None:
             grabber = Grabber(scene, grab_term)
             scene.grabber = grabber

@@ -5,10 +5,12 @@ from typing import Any
 
 import numpy as np
 
+from ..errors import ConfigError
 from ..memory import Size
 from . import cloth as topo
 from .builder import SceneBuilder
 from .events import SpherePath
+from .kinematic import TwistPath
 from .params import Param
 from .preset import ScenePreset, common_params, with_defaults
 from .scene import Scene
@@ -86,6 +88,15 @@ CLOTH_PARAMS: tuple[Param, ...] = (
     Param("self_friction", 0.2, "", "Coulomb friction coefficient between layers of the cloth", minimum=0.0),
     Param("collision_iterations", 4, "", "rounds of contact resolution per step before the impact "
           "zones", minimum=1),
+    # twist: the held sides i = 0 and i = nx-1 turned about the line between them
+    Param("twist", False, "", "turn the two held sides (pin=sides) in opposite directions about the "
+          "line between them, wringing the cloth"),
+    Param("twist_rate", 0.5, "turns/s", "how fast each held side turns (the other turns the other "
+          "way)", minimum=0.0, exclusive=True),
+    Param("twist_duration", 3.0, "s", "how long the sides turn; then they hold still", minimum=0.0,
+          exclusive=True),
+    Param("twist_approach", 0.3, "", "fraction of the width by which the sides close in while they "
+          "turn (slack for the folds; 0 to < 1)", minimum=0.0),
     # grab
     Param("grab", False, "", "allow pulling a particle with the mouse (a stiff spring)"),
     Param("grab_stiffness", 200.0, "N/m", "stiffness of the grab spring", minimum=0.0),
@@ -148,6 +159,24 @@ def sphere_path(p: dict[str, Any]) -> SpherePath:
     return SpherePath(center)
 
 
+def add_twist(b: SceneBuilder, p: dict[str, Any], x: np.ndarray) -> None:
+    """Drive the pinned sides i = 0 and i = nx-1 (pin=sides) about the grid's i axis through the
+    cloth's middle: side 0 turns right-handed about +x, the other side the other way, and both
+    slide toward the middle by ``twist_approach`` / 2 of the width over ``twist_duration``."""
+    if p["pin"] != "sides":
+        raise ConfigError(f"parameter twist: turns the sides held by pin=sides, got pin={p['pin']!r}")
+    if not p["twist_approach"] < 1.0:
+        raise ConfigError(f"parameter twist_approach: must be < 1 (the sides would cross), "
+                          f"got {p['twist_approach']}")
+    nx, ny = p["nx"], p["ny"]
+    ids = topo.grid_index(nx, ny)[[0, -1], :].ravel()
+    sign = np.repeat([1.0, -1.0], ny)
+    slide = sign * 0.5 * p["twist_approach"] * p["size"]
+    origin = x[ids].mean(axis=0)
+    b.add_kinematic(ids, TwistPath(x[ids], sign, slide, tuple(origin), (1.0, 0.0, 0.0),
+                                   p["twist_rate"], p["twist_duration"]))
+
+
 def build_cloth(preset: ScenePreset, p: dict[str, Any], seed: int) -> Scene:
     nx, ny, size = p["nx"], p["ny"], p["size"]
     if p["orientation"] == "horizontal":
@@ -176,6 +205,8 @@ def build_cloth(preset: ScenePreset, p: dict[str, Any], seed: int) -> Scene:
     if p["plane"]:
         b.set_plane((0.0, p["plane_height"], 0.0), (0.0, 1.0, 0.0), min(p["restitution"], 1.0),
                     p["plane_friction"])
+    if p["twist"]:
+        add_twist(b, p, x)
     if p["self_collision"]:
         b.enable_self_collision(p["thickness"], p["self_friction"], int(p["collision_iterations"]))
     if p["grab"]:
@@ -216,6 +247,11 @@ CLOTH_SCENES = (
                 "itself (self-collision on)",
                 with_defaults(CLOTH_PARAMS, orientation="vertical", pin="none", height=1.1, plane=True,
                               plane_friction=0.6, restitution=0.0, self_collision=True, jitter=0.002,
+                              flex_stiffness=20.0),
+                build_cloth, default_dt=1e-3, default_integrator="symplectic_euler", **_CLOTH_SIZE),
+    ScenePreset("cloth-twist", "a cloth held at two sides that turn in opposite directions, wringing "
+                "it into folds against itself (self-collision on)",
+                with_defaults(CLOTH_PARAMS, pin="sides", twist=True, self_collision=True, jitter=0.002,
                               flex_stiffness=20.0),
                 build_cloth, default_dt=1e-3, default_integrator="symplectic_euler", **_CLOTH_SIZE),
     # Nearly inextensible cloth at one step per 60 Hz frame: symplectic Euler would need about

@@ -27,8 +27,8 @@ class Scene:
         seed: the random seed the scene was built with.
         post_step: events applied after every accepted step, in order (colliders, tearing,
             emitter).
-        springs, mesh, spheres, plane, emitter, grabber, constraints: the optional parts, or
-            None.
+        springs, mesh, spheres, plane, emitter, grabber, constraints, kinematic: the optional
+            parts, or None (``kinematic``: the scripted pins, also in ``post_step``).
     """
 
     name: str
@@ -50,6 +50,7 @@ class Scene:
     emitter: Any = None
     grabber: Any = None
     constraints: Any = None
+    kinematic: Any = None
 
     @property
     def particle_count(self) -> int:
