@@ -59,6 +59,7 @@ class SceneBuilder:
         self._grid: tuple[int, int, int] | None = None
         self._constraints: list[tuple] = []  # (kind, a, b, point, normal, length)
         self._feedback = (0.0, 0.0)
+        self._rest_x: list[np.ndarray] = []
         self._count = 0
 
     @property
@@ -83,6 +84,7 @@ class SceneBuilder:
         v = np.zeros((k, 3)) if v is None else np.asarray(v, dtype=float).reshape(k, 3).copy()
         v[pinned] = 0.0
         self._x.append(x)
+        self._rest_x.append(x)  # displace() leaves these: the shape the springs rest in
         self._v.append(v)
         self._mass.append(mass)
         self._pinned.append(pinned)
@@ -369,8 +371,13 @@ class SceneBuilder:
             if mesh is None:
                 raise ValueError("self_collision acts on triangles: add_triangles first")
             from ..collide import SelfCollision
+            from ..collide.mesh_check import check_contact_mesh
 
             thickness, friction, iterations = self._self_collision
+            # The thickness is checked against the rest shape (before displace(): a seeded jitter
+            # is a disturbance the contacts may smooth out, not a shape the cloth returns to);
+            # the start is checked for coincident points and flat triangles all the same.
+            check_contact_mesh(x0, mesh.triangles_np, thickness, rest=np.concatenate(self._rest_x))
             post_step.append(SelfCollision(system, mesh, x0, thickness=thickness, friction=friction,
                                            iterations=iterations))
             features["self_collision"] = True

@@ -1,0 +1,205 @@
+"""What the self-contact stage needs of its input mesh, checked once before anything is allocated.
+
+The stage keeps every vertex ``thickness`` away from the triangles it is not a corner of, and
+every edge that far from the edges it shares no vertex with. So a mesh that, as built, already
+has such a pair closer than the thickness would be pushed apart at rest: the cloth would inflate
+or buckle before anything touched it. Coincident vertices are the limit of that (distance 0),
+and a triangle of zero area has no normal for a contact to push along. :func:`check_contact_mesh`
+refuses all of these with a :class:`~taichi_sim.errors.ConfigError` (a ValueError) that names the
+parameter and the limit; it does not clamp the thickness, since a silently thinner cloth would
+let layers come closer than the user asked for, which is a different simulation.
+
+The distances are exact closest distances between primitives (numpy, float64), found through a
+uniform grid of boxes grown by the thickness, so only pairs that could be closer than it are
+measured: the check costs about as much as one broad phase.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import ConfigError
+
+
+def check_contact_mesh(x0: np.ndarray, triangles: np.ndarray, thickness: float, *,
+                       rest: np.ndarray | None = None) -> float:
+    """Check that the self-contact stage can run on this mesh as built.
+
+    Args:
+        x0: (N, 3) positions (m) the cloth starts from.
+        triangles: (F, 3) vertex ids (a row with a negative id, a torn triangle, is left out).
+        thickness: the distance (m) the stage keeps between non-adjacent primitives.
+        rest: (N, 3) positions (m) of the shape the cloth rests in (default ``x0``; a builder
+            passes the grid before its seeded jitter).
+    Returns:
+        The smallest distance (m) in ``rest`` between a vertex and a triangle it is not a
+        corner of, or between two edges sharing no vertex, over the pairs whose boxes, grown by
+        ``thickness``, overlap (so exact whenever it is below ``thickness``, which is refused);
+        inf when no pair comes that near. On return it is always above ``thickness``.
+    Raises:
+        ConfigError (a ValueError): naming ``thickness`` when it is not a finite number > 0 or is
+        at least that smallest distance (with the limit); naming ``triangles`` for a triangle
+        with a repeated vertex or of zero area; naming ``x`` for non-finite positions or for
+        non-adjacent parts that touch at the start (coincident points).
+    """
+    if isinstance(thickness, bool) or not isinstance(thickness, (int, float, np.floating)) \
+            or not np.isfinite(thickness) or thickness <= 0:
+        raise ConfigError(f"thickness must be a finite number > 0 (m), got {thickness!r}")
+    thickness = float(thickness)
+    x = _positions(x0)
+    rest = x if rest is None else _positions(rest)
+    if rest.shape != x.shape:
+        raise ConfigError(f"x: rest positions {rest.shape} and start positions {x.shape} differ in shape")
+    tris = np.asarray(triangles, np.int64).reshape(-1, 3)
+    tris = tris[np.all(tris >= 0, axis=1)]
+    if len(tris) == 0:
+        return np.inf
+    if tris.max() >= len(x):
+        raise ConfigError(f"triangles refers to vertex {tris.max()} but there are {len(x)} particles")
+    repeated = np.flatnonzero((tris[:, 0] == tris[:, 1]) | (tris[:, 1] == tris[:, 2]) | (tris[:, 0] == tris[:, 2]))
+    if len(repeated):
+        k = int(repeated[0])
+        raise ConfigError(f"triangles: triangle {k} {tris[k].tolist()} repeats a vertex "
+                          f"({len(repeated)} such triangle(s)); self_collision needs proper triangles")
+    edges = _edges(tris)
+    for shape in (x, rest) if rest is not x else (x,):
+        _refuse_flat(shape, tris)
+    # coincident points at the start: no direction to push them apart along
+    scale = float(np.median(np.linalg.norm(x[edges[:, 0]] - x[edges[:, 1]], axis=1)))
+    tiny = 1e-9 * scale
+    if min(_vertex_triangle(x, tris, tiny), _edge_edge(x, edges, tiny)) <= tiny:
+        raise ConfigError("x: non-adjacent parts of the cloth touch as built (coincident particles?); "
+                          "self_collision needs a start free of contact")
+    smallest = min(_vertex_triangle(rest, tris, thickness), _edge_edge(rest, edges, thickness))
+    if smallest <= thickness:
+        raise ConfigError(f"thickness {thickness:g} m must be below {smallest:.6g} m, the smallest distance "
+                          f"between non-adjacent parts of the cloth at rest (contacts closer than the thickness "
+                          f"would push the resting cloth apart); use a smaller thickness or a coarser grid")
+    return smallest
+
+
+def _positions(x) -> np.ndarray:
+    x = np.asarray(x, np.float64)
+    if x.ndim != 2 or x.shape[1] != 3:
+        raise ConfigError(f"x must be an (N, 3) array of positions, got shape {x.shape}")
+    if not np.all(np.isfinite(x)):
+        raise ConfigError(f"x: {int((~np.isfinite(x)).any(axis=1).sum())} particle(s) have non-finite positions")
+    return x
+
+
+def _refuse_flat(x: np.ndarray, tris: np.ndarray) -> None:
+    corners = x[tris]
+    doubled_area = np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1)
+    longest = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).max(axis=1)
+    # zero area up to round-off: the height over the longest side is below 1e-9 of that side
+    flat = np.flatnonzero(doubled_area <= 1e-9 * longest**2)
+    if len(flat):
+        k = int(flat[0])
+        raise ConfigError(f"triangles: triangle {k} {tris[k].tolist()} has zero area as built (its corners "
+                          f"coincide or are collinear; {len(flat)} such triangle(s)); self_collision needs "
+                          f"triangles with a normal")
+
+
+def _edges(tris: np.ndarray) -> np.ndarray:
+    both = np.concatenate([tris[:, [0, 1]], tris[:, [1, 2]], tris[:, [2, 0]]])
+    return np.unique(np.sort(both, axis=1), axis=0)
+
+
+def _box_pairs(lo_a, hi_a, lo_b, hi_b, cell: float) -> np.ndarray:
+    """(P, 2) ids (a, b) whose closed boxes overlap; every box spans at most 2 cells per axis."""
+    origin = np.minimum(lo_a.min(axis=0), lo_b.min(axis=0))
+
+    def cells(lo, hi):
+        c_lo = np.floor((lo - origin) / cell).astype(np.int64)
+        span = np.minimum(np.floor((hi - origin) / cell).astype(np.int64) - c_lo + 1, 2)
+        out_id, out_cell = [], []
+        for dx in range(2):
+            for dy in range(2):
+                for dz in range(2):
+                    use = (dx < span[:, 0]) & (dy < span[:, 1]) & (dz < span[:, 2])
+                    out_id.append(np.flatnonzero(use))
+                    out_cell.append(c_lo[use] + np.array([dx, dy, dz]))
+        return np.concatenate(out_id), np.concatenate(out_cell)
+
+    id_a, cell_a = cells(lo_a, hi_a)
+    id_b, cell_b = cells(lo_b, hi_b)
+    key_lo = np.minimum(cell_a.min(axis=0), cell_b.min(axis=0))
+    dims = np.maximum(cell_a.max(axis=0), cell_b.max(axis=0)) - key_lo + 1
+    key_a = np.ravel_multi_index((cell_a - key_lo).T, dims)
+    key_b = np.ravel_multi_index((cell_b - key_lo).T, dims)
+    order = np.argsort(key_b, kind="stable")
+    key_b, id_b = key_b[order], id_b[order]
+    start, stop = np.searchsorted(key_b, key_a, "left"), np.searchsorted(key_b, key_a, "right")
+    counts = stop - start
+    a = np.repeat(id_a, counts)
+    b = id_b[np.repeat(start, counts) + np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)]
+    keep = np.all((lo_a[a] <= hi_b[b]) & (lo_b[b] <= hi_a[a]), axis=1)
+    key = np.unique(a[keep] * len(lo_b) + b[keep])  # a pair met in several shared cells, once
+    return np.stack([key // len(lo_b), key % len(lo_b)], axis=1)
+
+
+def _vertex_triangle(x: np.ndarray, tris: np.ndarray, reach: float) -> float:
+    corners = x[tris]
+    lo, hi = corners.min(axis=1) - reach, corners.max(axis=1) + reach
+    cell = max(float((hi - lo).max()), 1e-12)
+    pairs = _box_pairs(x, x, lo, hi, cell)
+    pairs = pairs[~(tris[pairs[:, 1]] == pairs[:, [0]]).any(axis=1)]
+    if len(pairs) == 0:
+        return np.inf
+    c = corners[pairs[:, 1]]
+    return float(_point_triangle_distance(x[pairs[:, 0]], c[:, 0], c[:, 1], c[:, 2]).min())
+
+
+def _edge_edge(x: np.ndarray, edges: np.ndarray, reach: float) -> float:
+    ends = x[edges]
+    lo, hi = ends.min(axis=1) - 0.5 * reach, ends.max(axis=1) + 0.5 * reach
+    cell = max(float((hi - lo).max()), 1e-12)
+    pairs = _box_pairs(lo, hi, lo, hi, cell)
+    pairs = pairs[pairs[:, 0] < pairs[:, 1]]
+    e, f = edges[pairs[:, 0]], edges[pairs[:, 1]]
+    pairs = pairs[(e[:, :, None] != f[:, None, :]).all(axis=(1, 2))]
+    if len(pairs) == 0:
+        return np.inf
+    a, b = ends[pairs[:, 0]], ends[pairs[:, 1]]
+    return float(_segment_distance(a[:, 0], a[:, 1], b[:, 0], b[:, 1]).min())
+
+
+def _point_triangle_distance(p, a, b, c) -> np.ndarray:
+    """(P,) distances from points p to triangles abc (none degenerate), all (P, 3)."""
+    n = np.cross(b - a, c - a)
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    height = np.einsum("ij,ij->i", p - a, n)
+    q = p - height[:, None] * n  # the projection onto the triangle's plane
+    inside = np.ones(len(p), bool)
+    for u, v in ((a, b), (b, c), (c, a)):
+        inside &= np.einsum("ij,ij->i", np.cross(v - u, q - u), n) >= 0
+    edge = np.minimum.reduce([_segment_point(p, a, b), _segment_point(p, b, c), _segment_point(p, c, a)])
+    return np.where(inside, np.abs(height), edge)
+
+
+def _segment_point(p, a, b) -> np.ndarray:
+    d = b - a
+    t = np.clip(np.einsum("ij,ij->i", p - a, d) / np.maximum(np.einsum("ij,ij->i", d, d), 1e-300), 0.0, 1.0)
+    return np.linalg.norm(p - (a + t[:, None] * d), axis=1)
+
+
+def _segment_distance(p1, q1, p2, q2) -> np.ndarray:
+    """(P,) closest distances between segments p1q1 and p2q2 (Ericson, Real-Time Collision
+    Detection, 5.1.9), parallel segments included."""
+    d1, d2, r = q1 - p1, q2 - p2, p1 - p2
+    a = np.einsum("ij,ij->i", d1, d1)
+    e = np.einsum("ij,ij->i", d2, d2)
+    f = np.einsum("ij,ij->i", d2, r)
+    c = np.einsum("ij,ij->i", d1, r)
+    b = np.einsum("ij,ij->i", d1, d2)
+    denom = a * e - b * b
+    s = np.where(denom > 1e-14 * a * e, np.clip((b * f - c * e) / np.where(denom > 0, denom, 1.0), 0.0, 1.0), 0.0)
+    t = (b * s + f) / e
+    s = np.where(t < 0, np.clip(-c / a, 0.0, 1.0), np.where(t > 1, np.clip((b - c) / a, 0.0, 1.0), s))
+    t = np.clip(t, 0.0, 1.0)
+    # the three candidate end-point distances cover the cases the clamping above resolves
+    best = np.linalg.norm((p1 + s[:, None] * d1) - (p2 + t[:, None] * d2), axis=1)
+    for pt, sa, sb in ((p1, p2, q2), (q1, p2, q2)):
+        best = np.minimum(best, _segment_point(pt, sa, sb))
+    for pt, sa, sb in ((p2, p1, q1), (q2, p1, q1)):
+        best = np.minimum(best, _segment_point(pt, sa, sb))
+    return best
