@@ -8,7 +8,7 @@ import numpy as np
 from ..memory import Size
 from . import cloth as topo
 from .builder import SceneBuilder
-from .events import SpherePath
+from .colliders import SpherePath
 from .params import Param
 from .preset import ScenePreset, common_params, with_defaults
 from .scene import Scene
