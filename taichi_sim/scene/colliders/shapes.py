@@ -127,19 +127,21 @@ class _TranslatingShapes:
                                 p = a + s * direction
                                 dist = self.distance(k, p)
                                 if dist <= self.touch[k]:
-                                    hit = True
+                                    # touching counts only when heading in: a convex shape is
+                                    # never re-entered by a segment that leaves its surface
+                                    hit = hit or direction.dot(self.normal(k, p)) < 0.0
                                     break
                                 s += dist
                                 if s >= length:
                                     break
-                            if hit:  # where the march stopped: outside, at most a step short
+                            if hit:  # where the march stopped: outside, or touching
                                 q = a + ti.min(s, length) * direction
                     if hit:
                         # from where it met the surface, the step's motion along it is kept (a
                         # resting particle slides) and the motion into it dropped
                         m = self.normal(k, q)
                         rest = b - q
-                        q += rest - rest.dot(m) * m
+                        q += rest - ti.min(rest.dot(m), 0.0) * m
                         n = self.normal(k, q)
                         dist = self.distance(k, q)
                         if dist < 0.0:
@@ -177,7 +179,8 @@ class CapsuleColliders(_TranslatingShapes):
     @ti.func
     def normal(self, k, q):
         d = q - self.closest_on_axis(k, q)
-        n = ti.Vector([0.0, 1.0, 0.0], dt=q.dtype)
+        n = 0.0 * q
+        n[1] = 1.0  # on the axis itself (a particle started inside): out along y
         if d.norm() > 0.0:
             n = d.normalized()
         return n
@@ -206,7 +209,7 @@ class BoxColliders(_TranslatingShapes):
     @ti.func
     def normal(self, k, q):
         over = ti.abs(q) - self.half[k]
-        n = ti.Vector.zero(q.dtype, 3)
+        n = 0.0 * q
         if over.max() > 0.0:  # outside: towards q from its closest point
             n = ti.math.sign(q) * ti.max(over, 0.0)
             n = n.normalized()
