@@ -183,3 +183,28 @@ def test_cli_refuses_degenerate_colliders_with_exit_2(tmp_path, capsys, setting,
     assert main(["simulate", "cloth-spin", "--set", setting, "--steps", "1", "--out", str(out)]) == 2
     assert name in capsys.readouterr().err
     assert not out.exists()
+
+
+# --- drawing --------------------------------------------------------------------------------
+
+def test_capsules_and_boxes_are_drawn_as_closed_outward_meshes(f64):
+    from taichi_sim.render.drawer import _box, _capsule
+    from taichi_sim.scene.visual import describe
+
+    scene = ts.build_scene("cloth", {"nx": 4, "ny": 4, "capsule": True, "box": True, "box_x": 0.5})
+    solids = describe(scene).solids
+    assert solids.kinds == ("capsule", "box")
+    assert np.allclose(solids.centers(), [[0.0, 0.4, 0.0], [0.5, 0.2, 0.0]])
+    assert ts.build_scene("cloth", {"nx": 4, "ny": 4}).capsules is None  # absent: nothing built
+    for (verts, normals, tris), half_axis in ((_capsule(np.array([0.3, 0.0, 0.0]), 0.1), 0.3),
+                                              (_box(np.array([0.2, 0.1, 0.3])), 0.0)):
+        a, b, c = verts[tris[:, 0]], verts[tris[:, 1]], verts[tris[:, 2]]
+        face = np.cross(b - a, c - a)
+        big = np.linalg.norm(face, axis=1) > 1e-12  # a sphere's poles have degenerate slivers
+        centroid = (a + b + c) / 3
+        axis_point = np.zeros_like(centroid)
+        axis_point[:, 0] = np.clip(centroid[:, 0], -half_axis, half_axis)
+        # wound counter-clockwise seen from outside (away from the shape's core), with vertex
+        # normals on the same side
+        assert np.all(np.einsum("ij,ij->i", face[big], (centroid - axis_point)[big]) > 0)
+        assert np.all(np.einsum("ij,ij->i", normals[tris[big, 0]], face[big]) > 0)
