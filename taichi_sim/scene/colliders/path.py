@@ -3,6 +3,9 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+import taichi as ti
+
+from ... import runtime
 
 
 @dataclass(frozen=True)
@@ -44,3 +47,38 @@ class SpherePath:
     def fastest_speed(self) -> float:
         """The largest speed (m/s) of the centre: |velocity| + 2 pi f amplitude."""
         return float(np.linalg.norm(self.velocity)) + 2 * math.pi * abs(self.frequency * self.amplitude)
+
+
+@ti.data_oriented
+class PathFields:
+    """K paths as fields, so kernels place colliders at any t themselves (uploading centres
+    every step would cost a field copy per step, more than the collision test)."""
+
+    def __init__(self, count: int):
+        real = runtime.real()
+        self.center0 = ti.Vector.field(3, real, shape=count)
+        self.linear = ti.Vector.field(3, real, shape=count)
+        self.axis = ti.Vector.field(3, real, shape=count)
+        self.amplitude = ti.field(real, shape=count)
+        self.angular_frequency = ti.field(real, shape=count)
+        self.omega = ti.Vector.field(3, real, shape=count)
+
+    def upload(self, paths) -> None:
+        npr = runtime.np_real()
+        self.center0.from_numpy(np.asarray([p.center0 for p in paths], npr))
+        self.linear.from_numpy(np.asarray([p.velocity for p in paths], npr))
+        self.axis.from_numpy(np.asarray([p.axis for p in paths], npr))
+        self.amplitude.from_numpy(np.asarray([p.amplitude for p in paths], npr))
+        self.angular_frequency.from_numpy(np.asarray([2 * math.pi * p.frequency for p in paths], npr))
+        self.omega.from_numpy(np.asarray([p.angular_velocity() for p in paths], npr))
+
+    @ti.func
+    def center(self, k, t):
+        """Collider k's centre (m) at time t (s), as :meth:`SpherePath.at`."""
+        return self.center0[k] + self.linear[k] * t \
+            + self.amplitude[k] * ti.sin(self.angular_frequency[k] * t) * self.axis[k]
+
+    @ti.func
+    def velocity(self, k, t):
+        w = self.angular_frequency[k]
+        return self.linear[k] + self.amplitude[k] * w * ti.cos(w * t) * self.axis[k]

@@ -7,7 +7,7 @@ import taichi as ti
 
 from ... import runtime
 from .contact import inelastic_friction
-from .path import SpherePath
+from .path import PathFields, SpherePath
 from .step_start import StepStart
 
 # Marching rounds per particle and shape: a segment that grazes the surface needs many short
@@ -75,9 +75,8 @@ class _TranslatingShapes:
         self.shapes = tuple(shapes)
         self.paths = [s.path for s in shapes]
         self.free = free
-        self.center = ti.Vector.field(3, real, shape=K)
-        self.center_start = ti.Vector.field(3, real, shape=K)
-        self.velocity = ti.Vector.field(3, real, shape=K)
+        self.path = PathFields(K)
+        self.path.upload(self.paths)
         self.friction = ti.field(real, shape=K)
         self.touch = ti.field(real, shape=K)
         self.friction.from_numpy(np.asarray([s.friction for s in shapes], runtime.np_real()))
@@ -92,30 +91,28 @@ class _TranslatingShapes:
     def move_to(self, t: float) -> None:
         """Place every shape where its path puts it at time t (s)."""
         self.t = t
-        centers, velocities = zip(*(p.at(t) for p in self.paths))
-        self.center.from_numpy(np.asarray(centers, runtime.np_real()))
-        self.velocity.from_numpy(np.asarray(velocities, runtime.np_real()))
 
     def centers(self) -> np.ndarray:
-        return self.center.to_numpy().astype(np.float64)
+        """(K, 3) float64: the centres (m) now."""
+        return np.asarray([p.at(self.t)[0] for p in self.paths], np.float64).reshape(-1, 3)
 
     def fastest_speed(self) -> float:
         return max(p.fastest_speed() for p in self.paths)
 
     def __call__(self, state, t: float, h: float) -> None:
         self.start.begin(state, t, h)
-        self.center_start.from_numpy(np.asarray([p.at(t - h)[0] for p in self.paths], runtime.np_real()))
         self.move_to(t)
-        self._collide(state, self.start.x)
+        self._collide(state, self.start.x, t, h)
         self.start.end(state, t)
 
     @ti.kernel
-    def _collide(self, y: ti.template(), x_start: ti.template()):
+    def _collide(self, y: ti.template(), x_start: ti.template(), t: float, h: float):
         for i in y.x:
             if self.free[i]:
                 for k in range(self.count):
-                    a = x_start[i] - self.center_start[k]
-                    b = y.x[i] - self.center[k]
+                    center = self.path.center(k, t)
+                    a = x_start[i] - self.path.center(k, t - h)
+                    b = y.x[i] - center
                     hit = self.distance(k, b) < 0.0
                     q = b
                     if self.distance(k, a) >= 0.0:
@@ -146,8 +143,8 @@ class _TranslatingShapes:
                         dist = self.distance(k, q)
                         if dist < 0.0:
                             q -= dist * n
-                        y.x[i] = self.center[k] + q
-                        y.v[i] = inelastic_friction(y.v[i], self.velocity[k], n, self.friction[k])
+                        y.x[i] = center + q
+                        y.v[i] = inelastic_friction(y.v[i], self.path.velocity(k, t), n, self.friction[k])
 
 
 @ti.data_oriented

@@ -6,7 +6,7 @@ import taichi as ti
 
 from ... import runtime
 from .contact import inelastic_friction
-from .path import SpherePath
+from .path import PathFields, SpherePath
 from .step_start import StepStart
 
 
@@ -42,21 +42,15 @@ class SphereColliders:
         self.paths = list(paths)
         self.free = free
         self.continuous = bool(continuous)
-        self.center = ti.Vector.field(3, real, shape=K)
-        self.center_start = ti.Vector.field(3, real, shape=K)
-        self.velocity = ti.Vector.field(3, real, shape=K)
-        self.omega = ti.Vector.field(3, real, shape=K)
+        self.path = PathFields(K)
         self.radius = ti.field(real, shape=K)
         self.friction = ti.field(real, shape=K)
         self.radius.from_numpy(np.asarray(radii, runtime.np_real()))
         self.friction.from_numpy(np.asarray(frictions, runtime.np_real()))
         self.start = StepStart(free.shape[0])
         self.paths0 = tuple(self.paths)
-        self._set_spin()
+        self.path.upload(self.paths)
         self.move_to(0.0)
-
-    def _set_spin(self) -> None:
-        self.omega.from_numpy(np.asarray([p.angular_velocity() for p in self.paths], runtime.np_real()))
 
     def set_speed(self, speed: float) -> None:
         """Move every sphere that travels in a straight line (drop, sweep) at ``speed`` (m/s)
@@ -69,23 +63,22 @@ class SphereColliders:
             center, _ = path.at(self.t)
             v_new = v / norm * float(speed)
             self.paths[k] = replace(path, velocity=tuple(v_new), center0=tuple(center - v_new * self.t))
+        self.path.upload(self.paths)
 
     def restore(self) -> None:
         """The paths as built (live speed changes undone), at t = 0."""
         self.paths = list(self.paths0)
-        self._set_spin()
+        self.path.upload(self.paths)
         self.start.restore()
         self.move_to(0.0)
 
     def move_to(self, t: float) -> None:
         """Place every sphere where its path puts it at time t (s)."""
         self.t = t
-        centers, velocities = zip(*(p.at(t) for p in self.paths))
-        self.center.from_numpy(np.asarray(centers, runtime.np_real()))
-        self.velocity.from_numpy(np.asarray(velocities, runtime.np_real()))
 
     def centers(self) -> np.ndarray:
-        return self.center.to_numpy().astype(np.float64)
+        """(K, 3) float64: the centres (m) now."""
+        return np.asarray([p.at(self.t)[0] for p in self.paths], np.float64).reshape(-1, 3)
 
     def fastest_speed(self) -> float:
         """The largest speed (m/s) any sphere's surface reaches: its centre's plus |omega| r."""
@@ -95,18 +88,17 @@ class SphereColliders:
     def __call__(self, state, t: float, h: float) -> None:
         if self.continuous:
             self.start.begin(state, t, h)
-            self.center_start.from_numpy(np.asarray([p.at(t - h)[0] for p in self.paths], runtime.np_real()))
         self.move_to(t)
-        self._collide(state, self.start.x, self.continuous)
+        self._collide(state, self.start.x, t, h, self.continuous)
         if self.continuous:
             self.start.end(state, t)
 
     @ti.kernel
-    def _collide(self, y: ti.template(), x_start: ti.template(), continuous: ti.template()):
+    def _collide(self, y: ti.template(), x_start: ti.template(), t: float, h: float, continuous: ti.template()):
         for i in y.x:
             if self.free[i]:
                 for k in range(self.count):
-                    c1 = self.center[k]
+                    c1 = self.path.center(k, t)
                     r = self.radius[k]
                     b = y.x[i] - c1
                     hit = b.norm_sqr() < r * r
@@ -114,7 +106,7 @@ class SphereColliders:
                     if b.norm() > 0.0:
                         n = b.normalized()
                     if ti.static(continuous):
-                        a = x_start[i] - self.center_start[k]
+                        a = x_start[i] - self.path.center(k, t - h)
                         if a.norm_sqr() >= r * r:  # started outside: the first root of |a + s d| = r
                             d = b - a
                             qa, qb, qc = d.dot(d), 2.0 * a.dot(d), a.dot(a) - r * r
@@ -134,5 +126,5 @@ class SphereColliders:
                                 n = a.normalized()
                     if hit:
                         y.x[i] = c1 + r * n
-                        v_surface = self.velocity[k] + self.omega[k].cross(r * n)
+                        v_surface = self.path.velocity(k, t) + self.path.omega[k].cross(r * n)
                         y.v[i] = inelastic_friction(y.v[i], v_surface, n, self.friction[k])
