@@ -160,12 +160,12 @@ def injectable_energy(scene, facts: SceneFacts, elapsed: float) -> dict[str, tup
         height = max(float(spec.position[1]), 0.0)
         out["emitter"] = (spec.capacity * m * (0.5 * spec.speed**2 + gravity_magnitude(scene) * height),
                           spec.speed)
-    if scene.spheres is not None:
-        speed = scene.spheres.fastest_speed()
+    for label, colliders in (("moving sphere", scene.spheres), ("moving capsule", getattr(scene, "capsules", None)),
+                             ("moving box", getattr(scene, "boxes", None))):
+        speed = 0.0 if colliders is None else colliders.fastest_speed()
         if speed > 0:
             travel = speed * elapsed
-            out["moving sphere"] = (0.5 * mass * (2 * speed) ** 2
-                                    + 0.5 * facts.spring_stiffness_sum * travel**2, 2 * speed)
+            out[label] = (0.5 * mass * (2 * speed) ** 2 + 0.5 * facts.spring_stiffness_sum * travel**2, 2 * speed)
     kinematic = getattr(scene, "kinematic", None)
     if kinematic is not None:
         speed = kinematic.fastest_speed()

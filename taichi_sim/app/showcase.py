@@ -47,6 +47,8 @@ SHOWCASE: tuple[Showcase, ...] = (
              _clip("pendulum", ["euler", "rk4", "symplectic_euler"], dt=8e-3, size=(640, 300))),
     Showcase("cloth-sphere", "a cloth drops onto a sphere above the ground",
              _clip("cloth-sphere", ["symplectic_euler"], params={"nx": 24, "ny": 24})),
+    Showcase("cloth-spin", "a cloth dropped onto a spinning sphere: friction drags it round until "
+             "it slides off", _clip("cloth-spin", ["symplectic_euler"], params={"nx": 24, "ny": 24})),
     Showcase("cloth-tear", "a sphere drops through a cloth held at two sides and tears it",
              _clip("cloth-tear", ["symplectic_euler"])),
     Showcase("cloth-fold", "a cloth dropped edge-first piles up in folds without passing through "

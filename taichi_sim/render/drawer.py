@@ -113,6 +113,46 @@ def _unit_sphere(rings: int = 16, segments: int = 32) -> tuple[np.ndarray, np.nd
     return verts, tris
 
 
+def _capsule(half_axis: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A capsule about the origin: a cylinder along +-``half_axis`` (m) and a sphere of
+    ``radius`` (m) at each end; vertices, normals, triangles as :func:`_rod`."""
+    segments = 16
+    cyl_v, cyl_n, cyl_t = _rod(-half_axis, half_axis, radius, segments)
+    # the side only: its end caps would lie inside the end spheres
+    cyl_v, cyl_n, cyl_t = cyl_v[:2 * segments], cyl_n[:2 * segments], cyl_t[:2 * segments]
+    unit, sphere_t = _unit_sphere(8, 16)
+    verts, normals, tris = [cyl_v], [cyl_n], [cyl_t]
+    count = len(cyl_v)
+    for end in (-half_axis, half_axis):
+        verts.append(end + radius * unit)
+        normals.append(unit)
+        tris.append(sphere_t + count)
+        count += len(unit)
+    return np.concatenate(verts), np.concatenate(normals), np.concatenate(tris)
+
+
+def _box(half: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """An axis-aligned box of half extents ``half`` (m) about the origin, four vertices per face
+    (flat normals); vertices, normals, triangles as :func:`_rod`."""
+    verts, normals, tris = [], [], []
+    for axis in range(3):
+        u, w = (axis + 1) % 3, (axis + 2) % 3
+        for sign in (1.0, -1.0):
+            n = np.zeros(3)
+            n[axis] = sign
+            corners = []
+            for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1)):
+                c = np.zeros(3)
+                c[axis], c[u], c[w] = sign * half[axis], a * half[u], b * half[w]
+                corners.append(c)
+            base = len(verts) * 4
+            order = [[0, 1, 2], [0, 2, 3]] if sign > 0 else [[0, 2, 1], [0, 3, 2]]
+            verts.append(np.asarray(corners))
+            normals.append(np.tile(n, (4, 1)))
+            tris.append(np.asarray(order) + base)
+    return np.concatenate(verts), np.concatenate(normals), np.concatenate(tris)
+
+
 def _rod(bottom: np.ndarray, top: np.ndarray, radius: float,
          segments: int = 16) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A closed cylinder from ``bottom`` to ``top`` (m) of ``radius`` (m): vertices (m, 3),
@@ -251,6 +291,21 @@ class SceneDrawer:
             self.sphere_normals.from_numpy(np.tile(unit, (k, 1)).astype(np.float32))
             self.sphere_indices = ti.field(ti.i32, k * tris.size)
             self.sphere_indices.from_numpy((tris[None] + m * np.arange(k)[:, None, None]).ravel().astype(np.int32))
+        self.solid_vertices = None
+        if v.solids is not None:
+            # one mesh for every capsule and box; each frame moves each solid's vertices by its centre
+            parts = [_capsule(size[:3], 0.98 * size[3]) if kind == "capsule" else _box(0.98 * size[:3])
+                     for kind, size in zip(v.solids.kinds, v.solids.sizes)]
+            counts = [len(p[0]) for p in parts]
+            firsts = np.cumsum([0] + counts[:-1])
+            self.solid_shape = np.concatenate([p[0] for p in parts])
+            self.solid_owner = np.repeat(np.arange(len(parts)), counts)
+            self.solid_vertices = ti.Vector.field(3, ti.f32, len(self.solid_shape))
+            self.solid_normals = ti.Vector.field(3, ti.f32, len(self.solid_shape))
+            self.solid_normals.from_numpy(np.concatenate([p[1] for p in parts]).astype(np.float32))
+            tris = np.concatenate([p[2] + f for p, f in zip(parts, firsts)])
+            self.solid_indices = ti.field(ti.i32, tris.size)
+            self.solid_indices.from_numpy(tris.ravel().astype(np.int32))
         self.pole = None
         if v.pole is not None:
             verts, normals, tris = _rod(v.pole.bottom + self.offset, v.pole.top + self.offset, v.pole.radius)
@@ -354,6 +409,9 @@ class SceneDrawer:
         if self.sphere_vertices is not None:
             centers = np.asarray(self.visual.spheres.centers(), np.float64).reshape(-1, 1, 3) + self.offset
             self.sphere_vertices.from_numpy((centers + self.sphere_shape).reshape(-1, 3).astype(np.float32))
+        if self.solid_vertices is not None:
+            centers = np.asarray(self.visual.solids.centers(), np.float64).reshape(-1, 3) + self.offset
+            self.solid_vertices.from_numpy((centers[self.solid_owner] + self.solid_shape).astype(np.float32))
         if self.effect is not None and options.particles:
             self.effect.update(eye)
 
@@ -367,6 +425,9 @@ class SceneDrawer:
             scene.lines(self.guide_vertices, width=1.0, color=GUIDE)
         if self.sphere_vertices is not None:
             scene.mesh(self.sphere_vertices, indices=self.sphere_indices, normals=self.sphere_normals,
+                       color=SPHERE)
+        if self.solid_vertices is not None:
+            scene.mesh(self.solid_vertices, indices=self.solid_indices, normals=self.solid_normals,
                        color=SPHERE)
         if self.pole is not None and options.mesh:  # the flag's, shown with it (see _init_extras)
             scene.mesh(self.pole[0], indices=self.pole[3], normals=self.pole[1], per_vertex_color=self.pole[2],

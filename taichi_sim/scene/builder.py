@@ -12,7 +12,8 @@ from ..forces.springs.grid import GridSprings, grid_layout
 from ..mesh import TriangleMesh
 from ..systems.constraints import PLANE, POINT, ROD, Constraints, check_gains
 from ..systems.particles import ParticleSystem
-from .events import Emitter, EmitterSpec, PlaneCollider, SphereColliders, SpherePath, Tearing
+from .colliders import Box, BoxColliders, Capsule, CapsuleColliders, PlaneCollider, SphereColliders, SpherePath
+from .events import Emitter, EmitterSpec, Tearing
 from .grab import Grabber
 from .scene import Scene
 
@@ -51,6 +52,9 @@ class SceneBuilder:
         self._turbulence: dict | None = None
         self._spheres: list[tuple] = []
         self._plane: tuple | None = None
+        self._capsules: list[Capsule] = []
+        self._boxes: list[Box] = []
+        self._continuous_spheres = True
         self._tear_strain = None
         self._self_collision = None
         self._kinematic = None
@@ -217,16 +221,36 @@ class SceneBuilder:
         if amplitude > 0:
             self._turbulence = {"amplitude": float(amplitude), "scale": float(scale), "frequency": float(frequency)}
 
-    def add_sphere(self, path: SpherePath, radius: float, friction: float = 0.0) -> None:
-        """A sphere collider of ``radius`` (m) moving along ``path``."""
-        if radius <= 0:
+    def add_sphere(self, path: SpherePath, radius: float, friction: float = 0.0, *,
+                   continuous: bool = True) -> None:
+        """A sphere collider of ``radius`` (m) moving (and maybe spinning) along ``path``, with
+        Coulomb ``friction``. ``continuous=False`` tests only step ends (every sphere of the
+        scene; kept to compare: a sphere moving more than its radius per step then tunnels)."""
+        if not radius > 0:
             raise ValueError("sphere_radius must be > 0")
+        if not friction >= 0:
+            raise ValueError("sphere_friction must be >= 0")
         self._spheres.append((path, float(radius), float(friction)))
+        self._continuous_spheres = bool(continuous)
+
+    def add_capsule(self, path: SpherePath, radius: float, half_axis, friction: float = 0.0) -> None:
+        """A capsule collider: the points within ``radius`` (m) of the segment from centre -
+        ``half_axis`` to centre + ``half_axis`` (m), the centre translating along ``path``."""
+        self._capsules.append(Capsule(path, float(radius), tuple(float(c) for c in half_axis), float(friction)))
+
+    def add_box(self, path: SpherePath, half_extents, friction: float = 0.0) -> None:
+        """An axis-aligned box collider of ``half_extents`` (m, 3 values > 0) centred on ``path``."""
+        self._boxes.append(Box(path, tuple(float(c) for c in half_extents), float(friction)))
 
     def set_plane(self, point, normal, restitution: float, friction: float = 0.0) -> None:
-        """A ground plane through ``point`` with upward ``normal``; restitution in [0, 1]."""
+        """A ground plane through ``point`` with upward ``normal`` (nonzero); restitution in [0, 1]."""
         if not 0.0 <= restitution <= 1.0:
             raise ValueError("restitution must be in [0, 1]")
+        if not friction >= 0:
+            raise ValueError("plane_friction must be >= 0")
+        n = np.asarray(normal, float)
+        if n.shape != (3,) or not np.linalg.norm(n) > 0:
+            raise ValueError("plane_normal must be a nonzero 3-vector")
         self._plane = (point, normal, float(restitution), float(friction))
 
     def enable_self_collision(self, thickness: float, friction: float = 0.0, iterations: int = 4) -> None:
@@ -285,8 +309,8 @@ class SceneBuilder:
         features: dict[str, Any] = {"particles": self._count, "pinned": int(pinned.sum()),
                                     "gravity": False, "drag": False, "springs": 0, "grid_stencil": False,
                                     "dashpots": False, "wind": False, "turbulence": False, "spheres": 0,
-                                    "plane": False, "tearing": False, "emitter": 0, "grab": False, "triangles": 0,
-                                    "self_collision": False, "constraints": 0,
+                                    "capsules": 0, "boxes": 0, "plane": False, "tearing": False, "emitter": 0,
+                                    "grab": False, "triangles": 0, "self_collision": False, "constraints": 0,
                                     "kinematic": 0}
         arrays: dict[str, np.ndarray] = {
             "mass": mass, "pinned": pinned,
@@ -357,10 +381,25 @@ class SceneBuilder:
         spheres = plane = emitter = None
         if self._spheres:
             paths, radii, frictions = zip(*self._spheres)
-            spheres = SphereColliders(list(paths), list(radii), list(frictions), system.free)
+            spheres = SphereColliders(list(paths), list(radii), list(frictions), system.free,
+                                      continuous=self._continuous_spheres)
             post_step.append(spheres)
             features["spheres"] = spheres.count
             arrays["sphere_radius"] = np.asarray(radii, float)
+            if any(p.spin for p in paths):
+                arrays["sphere_omega"] = np.stack([p.angular_velocity() for p in paths])
+        capsules = boxes = None
+        if self._capsules:
+            capsules = CapsuleColliders(self._capsules, system.free)
+            post_step.append(capsules)
+            features["capsules"] = capsules.count
+            arrays["capsule_radius"] = np.asarray([c.radius for c in self._capsules], float)
+            arrays["capsule_half_axis"] = np.asarray([c.half_axis for c in self._capsules], float)
+        if self._boxes:
+            boxes = BoxColliders(self._boxes, system.free)
+            post_step.append(boxes)
+            features["boxes"] = boxes.count
+            arrays["box_half_extents"] = np.asarray([b.half_extents for b in self._boxes], float)
         if self._plane is not None:
             plane = PlaneCollider(*self._plane, free=system.free)
             post_step.append(plane)
@@ -393,8 +432,8 @@ class SceneBuilder:
         scene = Scene(name=name, system=system, state=state, x0=x0, v0=v0, params=params,
                       features=features, static_arrays=arrays, default_dt=default_dt,
                       default_integrator=default_integrator, seed=seed, post_step=post_step,
-                      springs=springs, mesh=mesh, spheres=spheres, plane=plane, emitter=emitter,
-                      constraints=constraints, kinematic=kinematic)
+                      springs=springs, mesh=mesh, spheres=spheres, capsules=capsules, boxes=boxes, plane=plane,
+                      emitter=emitter, constraints=constraints, kinematic=kinematic)
         if self._grab is not None:
             grabber = Grabber(scene, grab_term)
             scene.grabber = grabber

@@ -1,5 +1,5 @@
 """The cloth family: a grid of structural, shear and flex springs, and the extras a cloth scene
-may switch on (wind, spheres, a ground plane, tearing, grab)."""
+may switch on (wind, a sphere, a capsule, a box, a ground plane, tearing, grab)."""
 import math
 from typing import Any
 
@@ -9,7 +9,7 @@ from ..errors import ConfigError
 from ..memory import Size
 from . import cloth as topo
 from .builder import SceneBuilder
-from .events import SpherePath
+from .colliders import SpherePath
 from .kinematic import TwistPath
 from .params import Param
 from .preset import ScenePreset, common_params, with_defaults
@@ -58,6 +58,25 @@ CLOTH_PARAMS: tuple[Param, ...] = (
     Param("sphere_amplitude", 0.2, "m", "amplitude of an oscillating sphere", minimum=0.0),
     Param("sphere_frequency", 0.5, "Hz", "frequency of an oscillating sphere", minimum=0.0),
     Param("sphere_friction", 0.0, "", "Coulomb friction coefficient on the sphere", minimum=0.0),
+    Param("sphere_spin", 0.0, "rad/s", "the sphere's spin about the vertical axis through its centre "
+          "(friction drags what lies on it)"),
+    # capsule (axis along x) and axis-aligned box
+    Param("capsule", False, "", "a capsule (axis along x) the cloth collides with"),
+    Param("capsule_radius", 0.1, "m", "capsule radius", minimum=0.0, exclusive=True),
+    Param("capsule_length", 0.6, "m", "length of the capsule's axis (end-cap centre to centre)",
+          minimum=0.0, exclusive=True),
+    Param("capsule_x", 0.0, "m", "capsule centre x"),
+    Param("capsule_y", 0.4, "m", "capsule centre y"),
+    Param("capsule_z", 0.0, "m", "capsule centre z"),
+    Param("capsule_friction", 0.3, "", "Coulomb friction coefficient on the capsule", minimum=0.0),
+    Param("box", False, "", "an axis-aligned box the cloth collides with"),
+    Param("box_half_x", 0.2, "m", "box half extent along x", minimum=0.0, exclusive=True),
+    Param("box_half_y", 0.2, "m", "box half extent along y", minimum=0.0, exclusive=True),
+    Param("box_half_z", 0.2, "m", "box half extent along z", minimum=0.0, exclusive=True),
+    Param("box_x", 0.0, "m", "box centre x"),
+    Param("box_y", 0.2, "m", "box centre y"),
+    Param("box_z", 0.0, "m", "box centre z"),
+    Param("box_friction", 0.3, "", "Coulomb friction coefficient on the box", minimum=0.0),
     # ground plane
     Param("plane", False, "", "a ground plane the cloth collides with"),
     Param("plane_height", 0.0, "m", "height (y) of the ground plane"),
@@ -148,15 +167,15 @@ def tear_thresholds(p: dict[str, Any], ends: np.ndarray, kind: np.ndarray, seed:
 
 def sphere_path(p: dict[str, Any]) -> SpherePath:
     center = (p["sphere_x"], p["sphere_y"], p["sphere_z"])
-    motion = p["sphere_motion"]
+    motion, spin = p["sphere_motion"], float(p.get("sphere_spin", 0.0))
     if motion == "drop":
-        return SpherePath(center, velocity=(0.0, -p["sphere_speed"], 0.0))
+        return SpherePath(center, velocity=(0.0, -p["sphere_speed"], 0.0), spin=spin)
     if motion == "sweep":
-        return SpherePath(center, velocity=(p["sphere_speed"], 0.0, 0.0))
+        return SpherePath(center, velocity=(p["sphere_speed"], 0.0, 0.0), spin=spin)
     if motion == "oscillate":
         return SpherePath(center, amplitude=p["sphere_amplitude"], frequency=p["sphere_frequency"],
-                          axis=(0.0, 1.0, 0.0))
-    return SpherePath(center)
+                          axis=(0.0, 1.0, 0.0), spin=spin)
+    return SpherePath(center, spin=spin)
 
 
 def add_twist(b: SceneBuilder, p: dict[str, Any], x: np.ndarray) -> None:
@@ -202,6 +221,12 @@ def build_cloth(preset: ScenePreset, p: dict[str, Any], seed: int) -> Scene:
                    gust_frequency=p["wind_gust_frequency"], drag_coefficient=p["wind_drag"], seed=seed)
     if p["sphere"]:
         b.add_sphere(sphere_path(p), p["sphere_radius"], p["sphere_friction"])
+    if p["capsule"]:
+        b.add_capsule(SpherePath((p["capsule_x"], p["capsule_y"], p["capsule_z"])), p["capsule_radius"],
+                      (p["capsule_length"] / 2, 0.0, 0.0), p["capsule_friction"])
+    if p["box"]:
+        b.add_box(SpherePath((p["box_x"], p["box_y"], p["box_z"])),
+                  (p["box_half_x"], p["box_half_y"], p["box_half_z"]), p["box_friction"])
     if p["plane"]:
         b.set_plane((0.0, p["plane_height"], 0.0), (0.0, 1.0, 0.0), min(p["restitution"], 1.0),
                     p["plane_friction"])
@@ -231,6 +256,11 @@ CLOTH_SCENES = (
                 default_dt=1e-3, default_integrator="symplectic_euler", **_CLOTH_SIZE),
     ScenePreset("cloth-sphere", "a cloth falling onto a sphere above the ground",
                 with_defaults(CLOTH_PARAMS, pin="none", sphere=True, plane=True, sphere_friction=0.3),
+                build_cloth, default_dt=1e-3, default_integrator="symplectic_euler", **_CLOTH_SIZE),
+    ScenePreset("cloth-spin", "a cloth dropped onto a sphere spinning about the vertical axis: "
+                "friction drags it round until it slides off",
+                with_defaults(CLOTH_PARAMS, pin="none", sphere=True, plane=True, sphere_friction=1.0,
+                              sphere_spin=10.0, sphere_x=0.15, plane_friction=0.3, restitution=0.0),
                 build_cloth, default_dt=1e-3, default_integrator="symplectic_euler", **_CLOTH_SIZE),
     ScenePreset("cloth-tear", "a cloth held at two sides, torn by a sphere dropping through it",
                 with_defaults(CLOTH_PARAMS, pin="sides", sphere=True, sphere_y=1.5, sphere_radius=0.2,

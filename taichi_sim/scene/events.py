@@ -1,171 +1,18 @@
 """Post-step events: applied between accepted steps, never inside f (DESIGN.md section 3).
 
+The object colliders live in :mod:`taichi_sim.scene.colliders`; tearing and emission here.
+
 Collision projection, tearing and emission are not smooth; inside f they would break RK order
 and adaptive error estimates. Each event is called as ``event(state, t, h)`` after a step and
 returns True when it changed the system itself (tearing does), not only the state.
 """
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 import taichi as ti
 
 from .. import runtime
-
-
-@dataclass(frozen=True)
-class SpherePath:
-    """Where a sphere is at time t: ``center0 + velocity t + amplitude sin(2 pi frequency t) axis``."""
-
-    center0: tuple
-    velocity: tuple = (0.0, 0.0, 0.0)
-    amplitude: float = 0.0
-    frequency: float = 0.0
-    axis: tuple = (1.0, 0.0, 0.0)
-
-    def at(self, t: float) -> tuple[np.ndarray, np.ndarray]:
-        """(center (m), velocity (m/s)) at time t (s)."""
-        w = 2 * math.pi * self.frequency
-        axis = np.asarray(self.axis, float)
-        center = np.asarray(self.center0, float) + np.asarray(self.velocity, float) * t \
-            + self.amplitude * math.sin(w * t) * axis
-        velocity = np.asarray(self.velocity, float) + self.amplitude * w * math.cos(w * t) * axis
-        return center, velocity
-
-
-@ti.data_oriented
-class SphereColliders:
-    """Spheres that particles cannot enter.
-
-    After each accepted step, a free particle inside a sphere is projected to its surface and
-    loses its inward normal velocity relative to the sphere (frictionless, as in the classic
-    assignment); with friction mu > 0 its tangential relative velocity also shrinks by
-    mu * |lost normal velocity| (Coulomb), never reversing. Spheres move along scripted paths.
-
-    Args:
-        paths: one :class:`SpherePath` per sphere; radii (m) and frictions alike.
-        free: the system's (n,) i32 field, 1 for particles that move.
-    """
-
-    def __init__(self, paths: list[SpherePath], radii: list[float], frictions: list[float], free):
-        real = runtime.real()
-        self.count = K = len(paths)
-        self.paths = list(paths)
-        self.free = free
-        self.center = ti.Vector.field(3, real, shape=K)
-        self.velocity = ti.Vector.field(3, real, shape=K)
-        self.radius = ti.field(real, shape=K)
-        self.friction = ti.field(real, shape=K)
-        self.radius.from_numpy(np.asarray(radii, runtime.np_real()))
-        self.friction.from_numpy(np.asarray(frictions, runtime.np_real()))
-        self.paths0 = tuple(self.paths)
-        self.move_to(0.0)
-
-    def set_speed(self, speed: float) -> None:
-        """Move every sphere that travels in a straight line (drop, sweep) at ``speed`` (m/s)
-        from now on, continuing from where it is (a live change must not teleport it)."""
-        for k, path in enumerate(self.paths):
-            v = np.asarray(path.velocity, float)
-            norm = float(np.linalg.norm(v))
-            if norm == 0.0:
-                continue
-            center, _ = path.at(self.t)
-            v_new = v / norm * float(speed)
-            self.paths[k] = replace(path, velocity=tuple(v_new), center0=tuple(center - v_new * self.t))
-
-    def restore(self) -> None:
-        """The paths as built (live speed changes undone), at t = 0."""
-        self.paths = list(self.paths0)
-        self.move_to(0.0)
-
-    def move_to(self, t: float) -> None:
-        """Place every sphere where its path puts it at time t (s)."""
-        self.t = t
-        centers, velocities = zip(*(p.at(t) for p in self.paths))
-        self.center.from_numpy(np.asarray(centers, runtime.np_real()))
-        self.velocity.from_numpy(np.asarray(velocities, runtime.np_real()))
-
-    def centers(self) -> np.ndarray:
-        return self.center.to_numpy().astype(np.float64)
-
-    def fastest_speed(self) -> float:
-        """The largest speed (m/s) any sphere's path reaches: |velocity| + 2 pi f amplitude."""
-        return max(float(np.linalg.norm(p.velocity)) + 2 * math.pi * abs(p.frequency * p.amplitude)
-                   for p in self.paths)
-
-    def __call__(self, state, t: float, h: float) -> None:
-        self.move_to(t)
-        self._project(state)
-
-    @ti.kernel
-    def _project(self, y: ti.template()):
-        for i in y.x:
-            if self.free[i]:
-                for k in range(self.count):
-                    c = self.center[k]
-                    r = self.radius[k]
-                    d = y.x[i] - c
-                    dist = d.norm()
-                    if dist < r:
-                        n = ti.Vector([0.0, 1.0, 0.0], dt=y.x.dtype)
-                        if dist > 0.0:
-                            n = d / dist
-                        y.x[i] = c + r * n
-                        rel = y.v[i] - self.velocity[k]
-                        vn = rel.dot(n)
-                        if vn < 0.0:
-                            tangential = rel - vn * n
-                            speed_t = tangential.norm()
-                            scale = 1.0
-                            if speed_t > 0.0:
-                                scale = ti.max(0.0, 1.0 + self.friction[k] * vn / speed_t)
-                            y.v[i] = self.velocity[k] + scale * tangential
-
-
-@ti.data_oriented
-class PlaneCollider:
-    """A ground plane: a free particle below it is projected onto it, and its normal velocity
-    is reflected and scaled by ``restitution`` (0: it stops, 1: elastic bounce); ``friction``
-    mu scales the tangential velocity down by mu * (1 + e) |v_n| (Coulomb), never reversing it.
-
-    Args:
-        point: a point on the plane (m); normal: its upward normal (normalised here).
-    """
-
-    def __init__(self, point, normal, restitution: float, friction: float, free):
-        real = runtime.real()
-        normal = np.asarray(normal, float)
-        self.point_np = np.asarray(point, float)
-        self.normal_np = normal / np.linalg.norm(normal)
-        self.free = free
-        self.point = ti.Vector.field(3, real, shape=())
-        self.normal = ti.Vector.field(3, real, shape=())
-        self.restitution = ti.field(real, shape=())
-        self.friction = ti.field(real, shape=())
-        self.point[None] = self.point_np.tolist()
-        self.normal[None] = self.normal_np.tolist()
-        self.restitution[None] = float(restitution)
-        self.friction[None] = float(friction)
-
-    def __call__(self, state, t: float, h: float) -> None:
-        self._project(state)
-
-    @ti.kernel
-    def _project(self, y: ti.template()):
-        n = self.normal[None]
-        for i in y.x:
-            if self.free[i]:
-                depth = (y.x[i] - self.point[None]).dot(n)
-                if depth < 0.0:
-                    y.x[i] -= depth * n
-                    vn = y.v[i].dot(n)
-                    if vn < 0.0:
-                        tangential = y.v[i] - vn * n
-                        speed_t = tangential.norm()
-                        scale = 1.0
-                        if speed_t > 0.0:
-                            scale = ti.max(0.0, 1.0 + self.friction[None] * (1.0 + self.restitution[None]) * vn / speed_t)
-                        y.v[i] = scale * tangential - self.restitution[None] * vn * n
 
 
 class Tearing:

@@ -27,8 +27,8 @@ class Scene:
         seed: the random seed the scene was built with.
         post_step: events applied after every accepted step, in order (colliders, tearing,
             emitter).
-        springs, mesh, spheres, plane, emitter, grabber, constraints, kinematic: the optional
-            parts, or None (``kinematic``: the scripted pins, also in ``post_step``).
+        springs, mesh, spheres, capsules, boxes, plane, emitter, grabber, constraints, kinematic:
+            the optional parts, or None (``kinematic``: the scripted pins, also in ``post_step``).
     """
 
     name: str
@@ -46,6 +46,8 @@ class Scene:
     springs: Any = None
     mesh: Any = None
     spheres: Any = None
+    capsules: Any = None
+    boxes: Any = None
     plane: Any = None
     emitter: Any = None
     grabber: Any = None
@@ -69,8 +71,9 @@ class Scene:
         """Back to the initial state (the model's optional parts keep their changes: torn
         springs stay torn; rebuild the scene for a fresh one)."""
         self.state.from_numpy(self.x0, self.v0)
-        if self.spheres is not None:
-            self.spheres.move_to(0.0)
+        for colliders in (self.spheres, self.capsules, self.boxes):
+            if colliders is not None:
+                colliders.move_to(0.0)
 
     def restore(self) -> None:
         """Back to the scene as built: the initial state, torn springs mended, no particle
@@ -104,6 +107,10 @@ class Scene:
             out.update(self.springs.arrays())
         if self.spheres is not None:
             out["sphere_center"] = self.spheres.centers()
+        if self.capsules is not None:
+            out["capsule_center"] = self.capsules.centers()
+        if self.boxes is not None:
+            out["box_center"] = self.boxes.centers()
         if self.emitter is not None:
             out.update(self.emitter.arrays())
         if self.constraints is not None:

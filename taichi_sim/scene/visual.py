@@ -61,6 +61,17 @@ class Spheres:
 
 
 @dataclass(frozen=True)
+class Solids:
+    """Capsules and boxes to draw: ``centers()`` returns each one's (K, 3) centre now (m);
+    ``kinds`` (K,) "capsule" or "box"; ``sizes`` (K, 4): a capsule's half axis (3 values, m) and
+    radius (m), a box's half extents (m) and 0."""
+
+    centers: Callable[[], np.ndarray]
+    kinds: tuple[str, ...]
+    sizes: np.ndarray
+
+
+@dataclass(frozen=True)
 class Plane:
     """An infinite plane through ``point`` (m) with unit ``normal``; both (3,) float64."""
 
@@ -116,6 +127,7 @@ class SceneVisual:
         line_springs: (L,) int64 ids of the springs drawn as lines and used for the strain
             colour map: a cloth's structural springs, every spring otherwise.
         spheres, plane, emitter: the optional extras (see the module docstring).
+        solids: capsule and box colliders, or None.
         pole: the rod a cloth pinned with ``pin=pole`` hangs on, or None.
         grabber: the scene's mouse-grab API, or None.
         trail: draw a fading trail behind each particle (the circle ODE).
@@ -147,6 +159,7 @@ class SceneVisual:
     particle_radius: float
     bounds: tuple[np.ndarray, np.ndarray]
     view: tuple[float, float]
+    solids: Solids | None = None
 
     @property
     def center(self) -> np.ndarray:
@@ -189,6 +202,7 @@ def describe(scene: Scene) -> SceneVisual:
     if getattr(scene, "spheres", None) is not None:
         spheres = Spheres(centers=scene.spheres.centers,
                           radii=np.asarray(scene.spheres.radius.to_numpy(), np.float64).reshape(-1))
+    solids = _solids(scene)
     plane = None
     if getattr(scene, "plane", None) is not None:
         normal = np.asarray(scene.plane.normal_np, np.float64).reshape(3)
@@ -215,6 +229,9 @@ def describe(scene: Scene) -> SceneVisual:
     pole = _pole(x0[pinned], plane) if scene.params.get("pin") == "pole" and len(triangles) else None
     live = np.ones(n, bool)
     extra = list(guides) + ([np.stack([pole.bottom, pole.top])] if pole is not None else [])
+    if solids is not None:  # each solid's bounding box, to frame it
+        reach = np.abs(solids.sizes[:, :3]) + solids.sizes[:, 3:]
+        extra += [solids.centers() - reach, solids.centers() + reach]
     if emitter is not None:  # dead slots all sit at the nozzle: frame the spray's paths instead
         live[emitter.first:emitter.first + emitter.capacity] = False
         live[emitter.first] = True
@@ -252,7 +269,22 @@ def describe(scene: Scene) -> SceneVisual:
         tearing=alive is not None, springs=springs, rest_length=rest, spring_alive=alive,
         line_springs=line_springs.astype(np.int64), spheres=spheres, plane=plane, emitter=emitter, pole=pole,
         grabber=getattr(scene, "grabber", None), trail=first_order, guides=guides,
-        particle_radius=float(radius), bounds=(lo, hi), view=view)
+        particle_radius=float(radius), bounds=(lo, hi), view=view, solids=solids)
+
+
+def _solids(scene) -> Solids | None:
+    """The scene's capsules and boxes as one :class:`Solids`, or None without any."""
+    parts = [(c, "capsule") for c in (getattr(scene, "capsules", None),) if c is not None]
+    parts += [(b, "box") for b in (getattr(scene, "boxes", None),) if b is not None]
+    if not parts:
+        return None
+    kinds, sizes = [], []
+    for colliders, kind in parts:
+        for shape in colliders.shapes:
+            kinds.append(kind)
+            sizes.append([*shape.half_axis, shape.radius] if kind == "capsule" else [*shape.half_extents, 0.0])
+    return Solids(centers=lambda: np.concatenate([c.centers() for c, _ in parts]), kinds=tuple(kinds),
+                  sizes=np.asarray(sizes, np.float64))
 
 
 def _pole(pins: np.ndarray, plane: Plane | None) -> Pole | None:

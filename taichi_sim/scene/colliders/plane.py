@@ -1,0 +1,56 @@
+"""A static plane (any normal) with restitution and Coulomb friction."""
+import numpy as np
+import taichi as ti
+
+from ... import runtime
+
+
+@ti.data_oriented
+class PlaneCollider:
+    """A ground plane: a free particle below it is projected onto it, and its normal velocity
+    is reflected and scaled by ``restitution`` (0: it stops, 1: elastic bounce); ``friction``
+    mu scales the tangential velocity down by mu * (1 + e) |v_n| (Coulomb), never reversing it.
+
+    The plane does not move and is a half-space, so the end-only test is already continuous:
+    a particle whose step crossed it ends below it.
+
+    Args:
+        point: a point on the plane (m); normal: its upward normal (nonzero; normalised here).
+    """
+
+    def __init__(self, point, normal, restitution: float, friction: float, free):
+        real = runtime.real()
+        normal = np.asarray(normal, float)
+        if normal.shape != (3,) or not np.linalg.norm(normal) > 0.0:
+            raise ValueError("plane_normal must be a nonzero 3-vector")
+        self.point_np = np.asarray(point, float)
+        self.normal_np = normal / np.linalg.norm(normal)
+        self.free = free
+        self.point = ti.Vector.field(3, real, shape=())
+        self.normal = ti.Vector.field(3, real, shape=())
+        self.restitution = ti.field(real, shape=())
+        self.friction = ti.field(real, shape=())
+        self.point[None] = self.point_np.tolist()
+        self.normal[None] = self.normal_np.tolist()
+        self.restitution[None] = float(restitution)
+        self.friction[None] = float(friction)
+
+    def __call__(self, state, t: float, h: float) -> None:
+        self._project(state)
+
+    @ti.kernel
+    def _project(self, y: ti.template()):
+        n = self.normal[None]
+        for i in y.x:
+            if self.free[i]:
+                depth = (y.x[i] - self.point[None]).dot(n)
+                if depth < 0.0:
+                    y.x[i] -= depth * n
+                    vn = y.v[i].dot(n)
+                    if vn < 0.0:
+                        tangential = y.v[i] - vn * n
+                        speed_t = tangential.norm()
+                        scale = 1.0
+                        if speed_t > 0.0:
+                            scale = ti.max(0.0, 1.0 + self.friction[None] * (1.0 + self.restitution[None]) * vn / speed_t)
+                        y.v[i] = scale * tangential - self.restitution[None] * vn * n

@@ -1,0 +1,220 @@
+"""Capsules and axis-aligned boxes that translate along scripted paths, tested over the step's
+relative motion by conservative advancement."""
+from dataclasses import dataclass
+
+import numpy as np
+import taichi as ti
+
+from ... import runtime
+from .contact import inelastic_friction
+from .path import PathFields, SpherePath
+from .step_start import StepStart
+
+# Marching rounds per particle and shape: a segment that grazes the surface needs many short
+# advances; past this many the particle keeps the end-only test (it ends outside, or is
+# pushed out along the surface's normal at its end).
+MAX_ADVANCES = 48
+# An advance that leaves the march this close (relative to the shape's thinnest size) counts as
+# touching: a ray marched by signed distance only approaches the surface.
+TOUCH_FRACTION = 1e-4
+
+
+@dataclass(frozen=True)
+class Capsule:
+    """A capsule: the points within ``radius`` (m) of the segment centre +- ``half_axis`` (m,
+    a 3-vector, nonzero: a zero-length capsule is a sphere, use one)."""
+
+    path: SpherePath
+    radius: float
+    half_axis: tuple
+    friction: float = 0.0
+
+    def __post_init__(self):
+        if not self.radius > 0:
+            raise ValueError("capsule_radius must be > 0")
+        e = np.asarray(self.half_axis, float)
+        if e.shape != (3,) or not np.linalg.norm(e) > 0:
+            raise ValueError("capsule_length must be > 0 (half_axis a nonzero 3-vector)")
+        if not self.friction >= 0:
+            raise ValueError("capsule_friction must be >= 0")
+
+
+@dataclass(frozen=True)
+class Box:
+    """An axis-aligned box of ``half_extents`` (m, three values > 0) about the path's centre."""
+
+    path: SpherePath
+    half_extents: tuple
+    friction: float = 0.0
+
+    def __post_init__(self):
+        e = np.asarray(self.half_extents, float)
+        if e.shape != (3,) or not np.all(e > 0):
+            raise ValueError("box half_extents must be three values > 0")
+        if not self.friction >= 0:
+            raise ValueError("box_friction must be >= 0")
+
+
+@ti.data_oriented
+class _TranslatingShapes:
+    """What capsules and boxes share: paths, step starts, the march and the response.
+
+    In a shape's frame a free particle goes from a = p0 - c(t - h) to b = p1 - c(t). Starting
+    outside, it marches along a -> b by the signed distance to the surface (conservative
+    advancement: a step never crosses the surface), so it finds where the segment first
+    touches however fast the shape moves; from there the particle moves on by the rest of its
+    step's motion along the surface's tangent plane (then back onto the surface if that entered
+    it), so it stays on the side it came from and a resting particle still slides, and gets the inelastic, Coulomb-friction response against the shape's
+    velocity. A particle that ends inside after starting inside (a reset, a jump) is pushed out
+    along the normal at its end. Only vertices are tested (see SphereColliders).
+    """
+
+    def __init__(self, shapes, free):
+        real = runtime.real()
+        self.count = K = len(shapes)
+        self.shapes = tuple(shapes)
+        self.paths = [s.path for s in shapes]
+        self.free = free
+        self.path = PathFields(K)
+        self.path.upload(self.paths)
+        self.friction = ti.field(real, shape=K)
+        self.touch = ti.field(real, shape=K)
+        self.friction.from_numpy(np.asarray([s.friction for s in shapes], runtime.np_real()))
+        self.touch.from_numpy(np.asarray([TOUCH_FRACTION * self.thinnest(s) for s in shapes], runtime.np_real()))
+        self.start = StepStart(free.shape[0])
+        self.move_to(0.0)
+
+    def restore(self) -> None:
+        self.start.restore()
+        self.move_to(0.0)
+
+    def move_to(self, t: float) -> None:
+        """Place every shape where its path puts it at time t (s)."""
+        self.t = t
+
+    def centers(self) -> np.ndarray:
+        """(K, 3) float64: the centres (m) now."""
+        return np.asarray([p.at(self.t)[0] for p in self.paths], np.float64).reshape(-1, 3)
+
+    def fastest_speed(self) -> float:
+        return max(p.fastest_speed() for p in self.paths)
+
+    def __call__(self, state, t: float, h: float) -> None:
+        self.start.begin(state, t, h)
+        self.move_to(t)
+        self._collide(state, self.start.x, t, h)
+        self.start.end(state, t)
+
+    @ti.kernel
+    def _collide(self, y: ti.template(), x_start: ti.template(), t: float, h: float):
+        for i in y.x:
+            if self.free[i]:
+                for k in range(self.count):
+                    center = self.path.center(k, t)
+                    a = x_start[i] - self.path.center(k, t - h)
+                    b = y.x[i] - center
+                    hit = self.distance(k, b) < 0.0
+                    q = b
+                    if self.distance(k, a) >= 0.0:
+                        length = (b - a).norm()
+                        s = 0.0
+                        if length > 0.0:
+                            direction = (b - a) / length
+                            for _ in range(MAX_ADVANCES):
+                                p = a + s * direction
+                                dist = self.distance(k, p)
+                                if dist <= self.touch[k]:
+                                    # touching counts only when heading in: a convex shape is
+                                    # never re-entered by a segment that leaves its surface
+                                    hit = hit or direction.dot(self.normal(k, p)) < 0.0
+                                    break
+                                s += dist
+                                if s >= length:
+                                    break
+                            if hit:  # where the march stopped: outside, or touching
+                                q = a + ti.min(s, length) * direction
+                    if hit:
+                        # from where it met the surface, the step's motion along it is kept (a
+                        # resting particle slides) and the motion into it dropped
+                        m = self.normal(k, q)
+                        rest = b - q
+                        q += rest - ti.min(rest.dot(m), 0.0) * m
+                        n = self.normal(k, q)
+                        dist = self.distance(k, q)
+                        if dist < 0.0:
+                            q -= dist * n
+                        y.x[i] = center + q
+                        y.v[i] = inelastic_friction(y.v[i], self.path.velocity(k, t), n, self.friction[k])
+
+
+@ti.data_oriented
+class CapsuleColliders(_TranslatingShapes):
+    """Capsules (see :class:`Capsule` and :class:`_TranslatingShapes`)."""
+
+    def __init__(self, capsules: list[Capsule], free):
+        real = runtime.real()
+        self.radius = ti.field(real, shape=len(capsules))
+        self.half_axis = ti.Vector.field(3, real, shape=len(capsules))
+        self.radius.from_numpy(np.asarray([c.radius for c in capsules], runtime.np_real()))
+        self.half_axis.from_numpy(np.asarray([c.half_axis for c in capsules], runtime.np_real()))
+        super().__init__(capsules, free)
+
+    @staticmethod
+    def thinnest(capsule: Capsule) -> float:
+        return capsule.radius
+
+    @ti.func
+    def closest_on_axis(self, k, q):
+        e = self.half_axis[k]
+        u = ti.math.clamp(q.dot(e) / e.dot(e), -1.0, 1.0)
+        return u * e
+
+    @ti.func
+    def distance(self, k, q):
+        return (q - self.closest_on_axis(k, q)).norm() - self.radius[k]
+
+    @ti.func
+    def normal(self, k, q):
+        d = q - self.closest_on_axis(k, q)
+        n = 0.0 * q
+        n[1] = 1.0  # on the axis itself (a particle started inside): out along y
+        if d.norm() > 0.0:
+            n = d.normalized()
+        return n
+
+
+@ti.data_oriented
+class BoxColliders(_TranslatingShapes):
+    """Axis-aligned boxes (see :class:`Box` and :class:`_TranslatingShapes`)."""
+
+    def __init__(self, boxes: list[Box], free):
+        self.half = ti.Vector.field(3, runtime.real(), shape=len(boxes))
+        self.half.from_numpy(np.asarray([b.half_extents for b in boxes], runtime.np_real()))
+        super().__init__(boxes, free)
+
+    @staticmethod
+    def thinnest(box: Box) -> float:
+        return float(min(box.half_extents))
+
+    @ti.func
+    def distance(self, k, q):
+        over = ti.abs(q) - self.half[k]
+        outside = ti.max(over, 0.0).norm()
+        inside = ti.min(ti.max(over[0], ti.max(over[1], over[2])), 0.0)
+        return outside + inside
+
+    @ti.func
+    def normal(self, k, q):
+        over = ti.abs(q) - self.half[k]
+        n = 0.0 * q
+        if over.max() > 0.0:  # outside: towards q from its closest point
+            n = ti.math.sign(q) * ti.max(over, 0.0)
+            n = n.normalized()
+        else:  # inside: out through the nearest face
+            axis = 0
+            if over[1] > over[axis]:
+                axis = 1
+            if over[2] > over[axis]:
+                axis = 2
+            n[axis] = 1.0 if q[axis] >= 0.0 else -1.0
+        return n
