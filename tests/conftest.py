@@ -18,3 +18,13 @@ def f32():
 @pytest.fixture
 def rng():
     return np.random.default_rng(12345)
+
+
+def pytest_configure(config):
+    config.addinivalue_line("markers", "long: takes tens of seconds; scheduled first")
+
+
+def pytest_collection_modifyitems(config, items):
+    """The long tests first: with one worker per core (pytest-xdist), a long test that starts
+    last keeps the whole run waiting for it while the other worker idles."""
+    items.sort(key=lambda item: item.get_closest_marker("long") is None)

@@ -96,6 +96,7 @@ def test_apart_all_step_is_never_a_touch(f64, kind, rng):
         assert (t_hit < 0).all()
 
 
+@pytest.mark.long
 def test_the_side_is_the_one_before_the_touch(f64):
     # a vertex falling through a still triangle whose normal is +y: from above, then from below
     tri = [[0.0, 0.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]]

@@ -15,6 +15,7 @@ from taichi_sim.integrators import INTEGRATORS
 STEPS = 10  # enough for every explicit blow-up in the matrix to pass the audit's bounds
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("label", list(extremes.SCENES))
 def test_no_run_at_the_extremes_is_silent(f64, label):
     rows = extremes.run_extremes({label: extremes.SCENES[label]}, list(INTEGRATORS),

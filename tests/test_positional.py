@@ -45,6 +45,7 @@ def test_colouring_separates_the_springs_of_each_particle():
         colour_springs(2, np.array([[1, 1]]))
 
 
+@pytest.mark.long
 def test_projective_dynamics_converges_to_the_exact_backward_euler_step(f64):
     """Every local/global iteration lowers the same objective whose minimiser is backward Euler:
     iterated to a tight tolerance PD gives implicit_euler's step to 1e-9 m (8 x 8 cloth, the
@@ -195,6 +196,7 @@ def test_guard_limits_apply(f64):
     assert result.status.value == "diverged"
 
 
+@pytest.mark.long
 def test_bench_stiff_cloth_writes_its_study(tmp_path, capsys):
     """A tiny study: XPBD's three settings and symplectic Euler's point against the reference,
     with finite errors, and the damping rows."""

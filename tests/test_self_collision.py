@@ -14,6 +14,7 @@ def stage_of(scene):
     return stage
 
 
+@pytest.mark.long
 def test_a_falling_vertex_rests_on_a_triangle_at_the_thickness(f64):
     b = SceneBuilder()
     b.add_particles(np.array([[0, 0, 0], [1, 0, 0], [0, 0, 1], [0.2, 0.5, 0.2]], float), 0.01,
@@ -29,6 +30,7 @@ def test_a_falling_vertex_rests_on_a_triangle_at_the_thickness(f64):
     assert stage_of(scene).contacts_total > 0 and stage_of(scene).overflow_total == 0
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("self_collision", [True, False])
 def test_a_folding_cloth_does_not_pass_through_itself(f64, self_collision):
     scene = ts.build_scene("cloth-fold", {"nx": 12, "ny": 12, "self_collision": self_collision})
@@ -42,6 +44,7 @@ def test_a_folding_cloth_does_not_pass_through_itself(f64, self_collision):
     assert result.energy.max() <= result.energy[0] * (1 + 1e-9)  # contacts never add energy here
 
 
+@pytest.mark.long
 def test_self_collision_works_with_tearing_and_is_paid_for_only_where_asked(f64):
     torn = ts.build_scene("cloth-tear", {"nx": 10, "ny": 10, "self_collision": True})
     assert ts.run(torn, "symplectic_euler", dt=1e-3, steps=300).status.value == "ok"
@@ -65,6 +68,7 @@ def test_bad_parameters_are_named(f64):
             SelfCollision(scene.system, scene.mesh, scene.x0, **kwargs)
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("integrator", ["implicit_euler", "projective_dynamics"])
 def test_a_32_cloth_folds_300_frames_at_one_step_a_frame_without_intersecting(f32, integrator):
     # frame-sized steps (h = 1/60 s) move vertices by centimetres, several times the thickness:
@@ -90,6 +94,7 @@ def test_a_32_cloth_folds_300_frames_at_one_step_a_frame_without_intersecting(f3
     assert len(kinetic_gain) == 300 and max(kinetic_gain) <= 1e-4 * result.energy[0]
 
 
+@pytest.mark.long
 def test_the_cli_says_what_the_stage_did_and_warns_when_it_could_not_keep_its_promise(f64, tmp_path, capsys):
     from taichi_sim.cli import main
 

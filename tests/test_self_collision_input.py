@@ -88,6 +88,7 @@ def test_scenes_refuse_a_thickness_their_rest_shape_cannot_keep(f32):
         b.finalize(name="t", params={}, default_dt=1e-3, default_integrator="symplectic_euler")
 
 
+@pytest.mark.long
 def test_a_jittered_start_closer_than_the_thickness_is_accepted_and_stays_finite(f32):
     # The limit is measured on the rest shape (the grid before its seeded jitter): a start that
     # the jitter brought closer than the thickness is a disturbance the contacts smooth out.

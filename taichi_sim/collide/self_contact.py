@@ -82,6 +82,9 @@ class SelfCollision:
         self.dx = ti.Vector.field(3, real, shape=n)
         self.dv = ti.Vector.field(3, real, shape=n)
         self.hits = ti.field(ti.i32, shape=n)
+        # moved by the last contact round: a pair none of whose vertices moved cannot have come
+        # into contact since that round found it out of contact
+        self.moved = ti.field(ti.i32, shape=n)
         # candidate pairs of a step: (vertex, triangle) and (edge, edge); beyond these lengths
         # pairs are dropped and counted as overflow
         self.vt_pairs = ti.Vector.field(2, ti.i32, shape=192 * n)
@@ -143,8 +146,8 @@ class SelfCollision:
         self._mark_intact()
         self._broad_phase(state)
         found = 1
-        for _ in range(self.iterations):
-            found = self._resolve(state)
+        for round_ in range(self.iterations):
+            found = self._resolve(state, int(round_ == 0))
             self.contacts_total += found
             if found == 0:
                 break
@@ -376,19 +379,26 @@ class SelfCollision:
                         self.ee_pairs[k] = ti.Vector([a, b])
 
     @ti.kernel
-    def _resolve(self, y: ti.template()) -> ti.i32:
-        """One Jacobi round over the collected pairs; returns the contacts found."""
+    def _resolve(self, y: ti.template(), first_round: ti.i32) -> ti.i32:
+        """One Jacobi round over the collected pairs; returns the contacts found. After the
+        first round only pairs with a vertex the previous round moved are looked at: the others
+        were out of contact then and nothing they depend on has changed."""
         for i in self.dx:
+            self.moved[i] = 1 if first_round or self.hits[i] > 0 else 0
             self.dx[i] = ti.Vector.zero(self.dx.dtype, 3)
             self.dv[i] = ti.Vector.zero(self.dx.dtype, 3)
             self.hits[i] = 0
         self.contacts[None] = 0
         for k in range(ti.min(self.pair_count[0], self.vt_pairs.shape[0])):
             pair = self.vt_pairs[k]
-            self._vertex_triangle(y, pair[0], self.mesh.triangles[pair[1]])
+            tri = self.mesh.triangles[pair[1]]
+            if self.moved[pair[0]] or self.moved[tri[0]] or self.moved[tri[1]] or self.moved[tri[2]]:
+                self._vertex_triangle(y, pair[0], tri)
         for k in range(ti.min(self.pair_count[1], self.ee_pairs.shape[0])):
             pair = self.ee_pairs[k]
-            self._edge_edge(y, self.edges[pair[0]], self.edges[pair[1]])
+            ea, eb = self.edges[pair[0]], self.edges[pair[1]]
+            if self.moved[ea[0]] or self.moved[ea[1]] or self.moved[eb[0]] or self.moved[eb[1]]:
+                self._edge_edge(y, ea, eb)
         for i in y.x:
             if self.hits[i] > 0:
                 y.x[i] += self.dx[i] / self.hits[i]

@@ -110,7 +110,9 @@ def _broad_phase(corners: np.ndarray, tris: np.ndarray) -> np.ndarray:
         pairs.append(np.stack([w, np.tile(others, len(wide))], axis=1))
     p = np.concatenate(pairs)
     p = p[p[:, 0] != p[:, 1]]
-    p = np.unique(np.sort(p, axis=1), axis=0)
+    # each pair once: unique on one int64 key (np.unique on rows sorts them as records, ~8x slower)
+    key = np.unique(p.min(axis=1) * len(corners) + p.max(axis=1))
+    p = np.stack([key // len(corners), key % len(corners)], axis=1)
     a, b = p[:, 0], p[:, 1]
     boxes = np.all((lo[a] <= hi[b]) & (lo[b] <= hi[a]), axis=1)
     shared = (tris[a][:, :, None] == tris[b][:, None, :]).any(axis=(1, 2))
