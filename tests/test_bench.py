@@ -254,3 +254,15 @@ def test_importing_the_bench_does_not_initialise_taichi():
             "from taichi_sim import runtime\nassert not runtime.is_initialized()\n"
             "import taichi.lang.impl as impl\nassert impl.get_runtime().prog is None\n")
     subprocess.run([sys.executable, "-c", code], check=True, timeout=120)
+
+
+def test_every_throughput_feature_variant_builds_the_feature_it_names(f32):
+    from taichi_sim.bench.throughput_worker import FEATURE_VARIANTS
+
+    built = {}
+    for label, extra in FEATURE_VARIANTS:
+        params = extra(8) if callable(extra) else extra
+        built[label] = ts.build_scene("cloth", {"nx": 8, "ny": 8, **params}).features
+    assert not any(f.get("self_collision") for label, f in built.items() if "self-collision" not in label)
+    assert built["cloth + self-collision"]["self_collision"]  # a cloth pays for the stage only when asked
+    assert built["cloth + tearing"]["tearing"] and not built["cloth"]["tearing"]

@@ -27,7 +27,8 @@ import time
 
 from taichi_sim.bench.protocol import emit, serve
 
-# name, extra parameters: the same cloth with one feature switched on (or off)
+# name, extra parameters (or a function of the grid side n that gives them): the same cloth
+# with one feature switched on (or off)
 FEATURE_VARIANTS = (
     ("cloth", {}),
     ("cloth, no dashpots", {"damping": 0.0}),
@@ -35,6 +36,8 @@ FEATURE_VARIANTS = (
     ("cloth + sphere", {"sphere": True}),
     ("cloth + tearing", {"tear": True}),
     ("cloth + wind + sphere + tearing", {"wind": True, "sphere": True, "tear": True}),
+    # thickness half the grid spacing: the stage refuses one at or above spacing / sqrt(2)
+    ("cloth + self-collision", lambda n: {"self_collision": True, "thickness": 0.5 / max(n - 1, 1)}),
 )
 
 
@@ -236,6 +239,8 @@ def main(argv=None) -> int:
             record = {**base, "kind": "feature", "name": label, "integrator": "symplectic_euler"}
             try:
                 start = time.perf_counter()
+                if callable(extra):  # parameters that depend on the grid side
+                    extra = extra(n)
                 variant = ts.build_scene("cloth", {"nx": n, "ny": n, **extra})
                 record["build_s"] = time.perf_counter() - start
                 record["features"] = {k: v for k, v in variant.features.items() if v}
