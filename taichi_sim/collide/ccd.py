@@ -86,17 +86,22 @@ def candidate_times(k, crossings_only: ti.template()):
         knots[1] = r1
     elif in2:
         knots[1] = r2
+    start_counts = 1  # a zero at t = 0 is a candidate
     if ti.static(not crossings_only):
         if in1:
             times[3] = r1
         if in2:
             times[4] = r2
-    for j in ti.static(range(3)):
+    else:
+        start_counts = 0
+    # runtime loops, here and over the candidates: unrolled, each inlined its bisection or
+    # distance test again, and compiling the stage took seconds longer
+    for j in range(3):
         lo, hi = knots[j], knots[j + 1]
         if j == 0 or hi > lo:
             f_lo, f_hi = cubic_at(k, lo), cubic_at(k, hi)
             if f_lo == 0.0:
-                if ti.static(not crossings_only) or j > 0:
+                if start_counts == 1 or j > 0:
                     times[j] = lo
             elif f_hi == 0.0:
                 times[j] = hi
@@ -152,7 +157,7 @@ def vertex_triangle_hit(p0, p1, a0, a1, b0, b1, c0, c1, delta, crossings_only: t
         ea0, eb0, ep0 = b0 - a0, c0 - a0, p0 - a0
         k = coplanarity_cubic(ea0, (b1 - a1) - ea0, eb0, (c1 - a1) - eb0, ep0, (p1 - a1) - ep0)
         times = candidate_times(k, crossings_only)
-        for j in ti.static(range(5)):
+        for j in range(5):
             t = times[j]
             if t >= 0.0 and (t_hit < 0.0 or t < t_hit):
                 if _point_triangle_distance(p0 + t * (p1 - p0), a0 + t * (a1 - a0), b0 + t * (b1 - b0),
@@ -174,7 +179,7 @@ def edge_edge_hit(p0, p1, q0, q1, r0, r1, s0, s1, delta, crossings_only: ti.temp
         ea0, eb0, ep0 = q0 - p0, s0 - r0, r0 - p0
         k = coplanarity_cubic(ea0, (q1 - p1) - ea0, eb0, (s1 - r1) - eb0, ep0, (r1 - p1) - ep0)
         times = candidate_times(k, crossings_only)
-        for j in ti.static(range(5)):
+        for j in range(5):
             t = times[j]
             if t >= 0.0 and (t_hit < 0.0 or t < t_hit):
                 if _segment_distance(p0 + t * (p1 - p0), q0 + t * (q1 - q0), r0 + t * (r1 - r0),
