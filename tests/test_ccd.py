@@ -143,6 +143,18 @@ def test_a_zone_moves_rigidly_and_keeps_momentum_without_adding_energy(rng):
         assert d1 == pytest.approx(d0, abs=1e-12)
 
 
+def test_a_zone_no_new_touch_reaches_keeps_its_motion(rng):
+    mass, x0, x1, v1 = rigid_zone_case(rng)
+    zones = ImpactZones(mass, np.ones(12, int))
+    x_a, v_a = zones.rigidify(np.array([[0, 1, 2, 3]]), x0, x1, v1, 0.1)
+    x_b, _ = zones.rigidify(np.array([[8, 9, 10, 11]]), x0, x_a, v_a, 0.1)
+    assert np.array_equal(x_b[:4], x_a[:4])  # zone 0..3: no touch reached it, not moved again
+    assert np.abs(x_b[8:] - x_a[8:]).max() > 1e-3  # zone 8..11 moved
+    # why: fitting zone 0..3 again to its own rigid displacement is not the identity
+    x_c, _ = zones.rigidify(np.array([[0, 1, 2, 3]]), x0, x_b, v_a, 0.1)
+    assert np.abs(x_c[:4] - x_b[:4]).max() > 1e-3
+
+
 def test_no_four_points_of_a_zone_become_coplanar_during_its_step(rng):
     mass, x0, x1, v1 = rigid_zone_case(rng)
     x_new, _ = ImpactZones(mass, np.ones(12, int)).rigidify(np.array([[0, 1, 2, 3], [2, 3, 4, 5]]), x0, x1, v1, 0.1)

@@ -30,6 +30,22 @@ def test_a_falling_vertex_rests_on_a_triangle_at_the_thickness(f64):
     assert stage_of(scene).contacts_total > 0 and stage_of(scene).overflow_total == 0
 
 
+def test_a_vertex_crossing_many_cells_in_one_step_is_still_caught(f64):
+    """A vertex moving ten triangle sizes in one step: its swept box is longer than the hash's
+    cells allow (4 per axis), so the cells grow for that step instead of clipping the box."""
+    b = SceneBuilder()
+    b.add_particles(np.array([[0, 0.3, 0], [0.1, 0.3, 0], [0, 0.3, 0.1], [0.02, 0.5, 0.02]], float), 0.01,
+                    v=np.array([[0, 0, 0], [0, 0, 0], [0, 0, 0], [0, -60.0, 0]]),
+                    pinned=np.array([1, 1, 1, 0], bool))
+    b.add_triangles(np.array([[0, 2, 1]]))
+    b.enable_self_collision(0.01, 0.0, 4)
+    scene = b.finalize(name="t", params={}, default_dt=1 / 60, default_integrator="symplectic_euler")
+    ts.run(scene, "symplectic_euler", dt=1 / 60, steps=1)  # from y = 0.5 to y = -0.5 unchecked
+    x, _ = scene.state.to_numpy()
+    assert x[3, 1] > 0.3  # stopped above the triangle it would have passed through
+    assert stage_of(scene).overflow_total == 0
+
+
 @pytest.mark.long
 @pytest.mark.parametrize("self_collision", [True, False])
 def test_a_folding_cloth_does_not_pass_through_itself(f64, self_collision):

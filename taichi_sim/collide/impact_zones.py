@@ -22,10 +22,12 @@ class ImpactZones:
         self.mass = np.asarray(mass, float)
         self.free = np.asarray(free) != 0
         self.parent: dict[int, int] = {}
+        self.refit_all = False  # merge_all was called: every zone moves at the next rigidify
 
     def clear(self) -> None:
         """Forget the zones (a new step)."""
         self.parent.clear()
+        self.refit_all = False
 
     def _root(self, i: int) -> int:
         parent = self.parent
@@ -48,16 +50,25 @@ class ImpactZones:
         """One zone of every vertex: the last resort, which no touch survives (the whole cloth
         moves rigidly over the step)."""
         self.parent = {i: 0 for i in range(len(self.mass))}
+        self.refit_all = True
 
-    def zones(self) -> list[np.ndarray]:
-        """The vertex ids of each zone."""
+    def zones(self, roots=None) -> list[np.ndarray]:
+        """The vertex ids of each zone (of those whose root is in ``roots``, when given)."""
         groups: dict[int, list[int]] = {}
         for i in list(self.parent):
-            groups.setdefault(self._root(i), []).append(i)
+            root = self._root(i)
+            if roots is None or root in roots:
+                groups.setdefault(root, []).append(i)
         return [np.array(sorted(g), np.int64) for g in groups.values()]
 
     def rigidify(self, touches: np.ndarray, x0: np.ndarray, x1: np.ndarray, v1: np.ndarray, h: float):
-        """Merge ``touches`` into the zones, then move every zone rigidly from its start ``x0``.
+        """Merge ``touches`` into the zones, then move every zone they reached rigidly from its
+        start ``x0`` (every zone after :meth:`merge_all`).
+
+        A zone no touch reached keeps the rigid motion an earlier call gave it: the fit of a
+        rigid displacement (rotation chord plus translation) is not that displacement again (its
+        turn changes), so fitting it again would alter a motion nothing called into question and
+        move vertices whose pairs the next round would then have to look at again.
 
         Each zone's motion keeps the linear and angular momentum of its vertices' displacements
         over the step, (x1 - x0) / h: the end positions are the exact rigid transform
@@ -70,12 +81,14 @@ class ImpactZones:
             x0, x1, v1: (n, 3) start positions, end positions (m) and end velocities (m/s).
             h: the step (s).
         Returns:
-            (x1, v1) as new (n, 3) arrays, changed on zone vertices only.
+            (x1, v1) as new (n, 3) arrays, changed on the moved zones' vertices only.
         """
         self.merge(touches)
+        roots = None if self.refit_all else {self._root(int(i)) for i in np.asarray(touches).ravel()}
+        self.refit_all = False
         x1, v1 = np.array(x1, float), np.array(v1, float)
         x0 = np.asarray(x0, float)
-        for ids in self.zones():
+        for ids in self.zones(roots):
             free = self.free[ids]
             m = self.mass[ids].copy()
             if not free.all():

@@ -28,7 +28,7 @@ import taichi as ti
 from .. import runtime
 from .ccd import edge_edge_hit, vertex_triangle_hit
 from .closest_points import closest_barycentric, segment_parameters
-from .hash_grid import PrimitiveHash
+from .hash_grid import MAX_CELLS_PER_AXIS, PrimitiveHash
 from .impact_zones import ImpactZones
 
 DELTA_FRACTION = 1e-3  # a touch: closer than this fraction of the thickness at some moment of the step
@@ -76,6 +76,8 @@ class SelfCollision:
         self.triangle_alive = ti.field(ti.i32, shape=max(mesh.triangle_count, 1))
         # Boxes grown by half the thickness each: two boxes overlap when their primitives could
         # be closer than the thickness (grown by all of it on both sides, twice the pairs).
+        self.base_cell = cell  # the cells' side unless a box this step is longer (see _fit_cells)
+        self.box_extent = ti.field(real, shape=())
         self.triangle_grid = PrimitiveHash(mesh.triangle_count, 3, cell, 0.5 * thickness)
         self.edge_grid = PrimitiveHash(len(edges), 2, cell, 0.5 * thickness)
         self.x_start = ti.Vector.field(3, real, shape=n)
@@ -160,17 +162,53 @@ class SelfCollision:
         """All candidate pairs at the current positions into the pair lists; or, with
         ``only_changed``, the pairs holding a vertex in ``changed``, in the lists' place or
         (``append``) after them."""
+        self._fit_cells(state)
         self.triangle_grid.build(self.x_start, state.x, self.mesh.triangles, self.triangle_alive)
         self.edge_grid.build(self.x_start, state.x, self.edges, self.edge_alive)
-        overflow = self.triangle_grid.overflowed() + self.edge_grid.overflowed()
+        overflow = 0
         if only_changed:
             self.vertex_grid.build(self.x_start, state.x, self.vertex_ids, self.vertex_alive)
             overflow += self.vertex_grid.overflowed()
             self._collect_changed(state, append)
         else:
             self._collect(state)
+        # read after the queries: a vertex's clipped query box counts in the triangle hash's
+        overflow += self.triangle_grid.overflowed() + self.edge_grid.overflowed()
         vt, ee = self.pair_count.to_numpy()
         self.overflow_total += overflow + max(0, vt - self.vt_pairs.shape[0]) + max(0, ee - self.ee_pairs.shape[0])
+
+    def _fit_cells(self, state) -> None:
+        """Size the hashes' cells (one side for all three, as the queries mix them) so that no
+        box of this step spans more than MAX_CELLS_PER_AXIS cells on an axis: the longest edge
+        of the rest mesh, or a third of the longest box where something moves or stretches
+        further (a fast step), so that no box is clipped and the hash misses no pair."""
+        extent = self._longest_box(state)
+        # a box of side at most 3 cells spans at most 4 (1e-3: room for round-off in the cells' ids)
+        cell = max(self.base_cell, extent / ((MAX_CELLS_PER_AXIS - 1) * (1.0 - 1e-3)))
+        for grid in (self.triangle_grid, self.edge_grid, self.vertex_grid):
+            grid.cell[None] = cell
+
+    @ti.kernel
+    def _longest_box(self, y: ti.template()) -> ti.f64:
+        """The longest side of any primitive's swept box (m), its margins included."""
+        self.box_extent[None] = 0.0
+        for t in range(self.mesh.triangle_count):
+            if self.triangle_alive[t]:
+                tri = self.mesh.triangles[t]
+                lo = ti.min(ti.min(self.x_start[tri[0]], y.x[tri[0]]), ti.min(self.x_start[tri[1]], y.x[tri[1]]))
+                hi = ti.max(ti.max(self.x_start[tri[0]], y.x[tri[0]]), ti.max(self.x_start[tri[1]], y.x[tri[1]]))
+                lo = ti.min(lo, ti.min(self.x_start[tri[2]], y.x[tri[2]]))
+                hi = ti.max(hi, ti.max(self.x_start[tri[2]], y.x[tri[2]]))
+                ti.atomic_max(self.box_extent[None], (hi - lo).max())
+        for a in range(self.edge_count):
+            if self.edge_alive[a]:
+                e = self.edges[a]
+                lo = ti.min(ti.min(self.x_start[e[0]], y.x[e[0]]), ti.min(self.x_start[e[1]], y.x[e[1]]))
+                hi = ti.max(ti.max(self.x_start[e[0]], y.x[e[0]]), ti.max(self.x_start[e[1]], y.x[e[1]]))
+                ti.atomic_max(self.box_extent[None], (hi - lo).max())
+        for i in y.x:
+            ti.atomic_max(self.box_extent[None], (ti.max(self.x_start[i], y.x[i]) - ti.min(self.x_start[i], y.x[i])).max())
+        return self.box_extent[None] + self.thickness[None]
 
     def _fail_safe(self, state, h: float, rounds_clean: bool) -> None:
         """Rigid impact zones (Provot 1997; Bridson et al. 2002, section 7.4): while some pair
