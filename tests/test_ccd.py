@@ -179,6 +179,20 @@ def test_a_zone_turns_about_its_still_pin_and_three_pins_hold_it_still(rng):
     assert x_new[:6] == pytest.approx(x0[:6], abs=1e-6)
 
 
+def test_a_zone_carries_its_pins_when_their_paths_keep_a_touch_inside_it(rng):
+    mass, x0, x1, v1 = rigid_zone_case(rng)
+    free = np.ones(12, int)
+    free[:2] = 0  # two pins on paths no rigid motion follows: apart along x
+    x1[0], x1[1] = x0[0] + [0.5, 0, 0], x0[1] - [0.5, 0, 0]
+    zones = ImpactZones(mass, free)
+    x_a, v_a = zones.rigidify(np.array([[0, 1, 2, 3]]), x0, x1, v1, 0.1)
+    assert (x_a[:2] == x1[:2]).all()  # pins on their paths, so the zone cannot be rigid
+    x_b, _ = zones.rigidify(np.array([[0, 1, 2, 3]]), x0, x_a, v_a, 0.1)  # the touch stayed inside
+    d0 = np.linalg.norm(x0[:4, None] - x0[None, :4], axis=2)
+    assert np.linalg.norm(x_b[:4, None] - x_b[None, :4], axis=2) == pytest.approx(d0, abs=1e-12)
+    assert np.abs(x_b[:2] - x1[:2]).max() > 1e-3  # carried off their paths for this step
+
+
 def test_the_last_resort_moves_the_whole_cloth_as_one_rigid_zone(rng):
     mass, x0, x1, v1 = rigid_zone_case(rng)
     zones = ImpactZones(mass, np.ones(12, int))

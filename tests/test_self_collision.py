@@ -30,6 +30,20 @@ def test_a_falling_vertex_rests_on_a_triangle_at_the_thickness(f64):
     assert stage_of(scene).contacts_total > 0 and stage_of(scene).overflow_total == 0
 
 
+@pytest.mark.long
+def test_lists_that_fill_up_grow_instead_of_dropping_pairs(f64, monkeypatch):
+    from taichi_sim.collide import self_contact
+    monkeypatch.setattr(self_contact, "PAIRS_PER_PRIMITIVE", 1)
+    monkeypatch.setattr(self_contact, "TOUCHES_PER_VERTEX", 0)
+    scene = ts.build_scene("cloth-fold", {"nx": 12, "ny": 12})
+    stage, n = stage_of(scene), scene.particle_count
+    ts.run(scene, "implicit_euler", dt=1 / 60, steps=45)
+    assert stage.zone_steps > 0 and stage.overflow_total == 0 and stage.unresolved_total == 0
+    assert stage.vt_pairs.shape[0] > n and stage.collided.shape[0] > 0  # they grew
+    x, _ = scene.state.to_numpy()
+    assert self_intersections(x, scene.mesh.triangles_np).count == 0
+
+
 def test_a_vertex_crossing_many_cells_in_one_step_is_still_caught(f64):
     """A vertex moving ten triangle sizes in one step: its swept box is longer than the hash's
     cells allow (4 per axis), so the cells grow for that step instead of clipping the box."""

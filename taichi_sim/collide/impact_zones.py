@@ -15,7 +15,8 @@ class ImpactZones:
 
     Args:
         mass: (n,) particle masses (kg).
-        free: (n,) nonzero for particles that move; pinned ones keep their own motion.
+        free: (n,) nonzero for particles that move; pinned ones keep their own motion, unless
+            their zone cannot be resolved without moving them (see :meth:`rigidify`).
     """
 
     def __init__(self, mass: np.ndarray, free: np.ndarray):
@@ -23,11 +24,13 @@ class ImpactZones:
         self.free = np.asarray(free) != 0
         self.parent: dict[int, int] = {}
         self.refit_all = False  # merge_all was called: every zone moves at the next rigidify
+        self.stuck: set[int] = set()  # vertices of touches inside one zone: their zones carry their pins
 
     def clear(self) -> None:
         """Forget the zones (a new step)."""
         self.parent.clear()
         self.refit_all = False
+        self.stuck.clear()
 
     def _root(self, i: int) -> int:
         parent = self.parent
@@ -38,8 +41,11 @@ class ImpactZones:
         return i
 
     def merge(self, touches: np.ndarray) -> None:
-        """Join the zones of the four vertices of each touching pair ((m, 4) vertex ids)."""
+        """Join the zones of the four vertices of each touching pair ((m, 4) vertex ids). A touch
+        whose four vertices already share a zone is remembered in ``stuck``."""
         for ids in np.asarray(touches, np.int64).reshape(-1, 4):
+            if all(int(j) in self.parent for j in ids) and len({self._root(int(j)) for j in ids}) == 1:
+                self.stuck.add(int(ids[0]))
             r = self._root(int(ids[0]))
             for j in ids[1:]:
                 s = self._root(int(j))
@@ -47,8 +53,8 @@ class ImpactZones:
                     self.parent[s] = r
 
     def merge_all(self) -> None:
-        """One zone of every vertex: the last resort, which no touch survives (the whole cloth
-        moves rigidly over the step)."""
+        """One zone of every vertex: the last resort, which no touch survives (the whole cloth,
+        pins included, moves rigidly over the step)."""
         self.parent = {i: 0 for i in range(len(self.mass))}
         self.refit_all = True
 
@@ -76,6 +82,13 @@ class ImpactZones:
         end positions (the mass-weighted projection onto rigid motions: momentum kept, kinetic
         energy never raised).
 
+        Pinned vertices keep their own motion, and a zone holding them is fitted with them
+        weighing PINNED_WEIGHT times the zone, so that it follows a still pin exactly enough.
+        Pins on scripted paths need not move rigidly together, though, and a touch inside one
+        zone then survives its fit; such a zone (a touch inside it was seen: ``stuck``) and the
+        last resort (:meth:`merge_all`) move their pins with them, off their paths for this
+        step, as no touch may remain (the pins' owner puts them back on their paths).
+
         Args:
             touches: (m, 4) vertex ids of touching pairs (may be empty).
             x0, x1, v1: (n, 3) start positions, end positions (m) and end velocities (m/s).
@@ -84,8 +97,10 @@ class ImpactZones:
             (x1, v1) as new (n, 3) arrays, changed on the moved zones' vertices only.
         """
         self.merge(touches)
+        carry_all = self.refit_all
         roots = None if self.refit_all else {self._root(int(i)) for i in np.asarray(touches).ravel()}
         self.refit_all = False
+        carrying = {self._root(i) for i in self.stuck}
         x1, v1 = np.array(x1, float), np.array(v1, float)
         x0 = np.asarray(x0, float)
         for ids in self.zones(roots):
@@ -100,9 +115,10 @@ class ImpactZones:
             # the end velocities get their own rigid part (at the end positions): the displacement
             # also holds position fixes (a plane's projection) that must not become velocity
             w_cm, spin = _rigid_part(m, r_end, v1[ids])
-            moving = ids[free]
-            x1[moving] = (c0 + h * v_cm + r_end)[free]
-            v1[moving] = (w_cm + np.cross(spin, r_end))[free]
+            carries_pins = carry_all or self._root(int(ids[0])) in carrying
+            moves = np.ones_like(free) if carries_pins else free
+            x1[ids[moves]] = (c0 + h * v_cm + r_end)[moves]
+            v1[ids[moves]] = (w_cm + np.cross(spin, r_end))[moves]
         return x1, v1
 
 

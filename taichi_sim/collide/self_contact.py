@@ -26,17 +26,21 @@ import numpy as np
 import taichi as ti
 
 from .. import runtime
+from .candidates import CandidatePairs, PairList
 from .ccd import edge_edge_hit, vertex_triangle_hit
 from .closest_points import closest_barycentric, segment_parameters
-from .hash_grid import MAX_CELLS_PER_AXIS, PrimitiveHash
+from .hash_grid import PrimitiveHash
 from .impact_zones import ImpactZones
 
 DELTA_FRACTION = 1e-3  # a touch: closer than this fraction of the thickness at some moment of the step
 MAX_ZONE_ROUNDS = 32  # fail-safe rounds per step before the whole cloth moves as one zone
+PAIRS_PER_PRIMITIVE = 64  # the pair lists' first room, per vertex and per edge; they grow when full
+TOUCHES_PER_VERTEX = 4  # the fail-safe's first room for touching pairs; it grows when full
+TouchList = ti.types.ndarray(dtype=ti.math.ivec4, ndim=1)
 
 
 @ti.data_oriented
-class SelfCollision:
+class SelfCollision(CandidatePairs):
     """The post-step self-contact stage of a cloth (call it as ``stage(state, t, h)``).
 
     Args:
@@ -87,10 +91,10 @@ class SelfCollision:
         # moved by the last contact round: a pair none of whose vertices moved cannot have come
         # into contact since that round found it out of contact
         self.moved = ti.field(ti.i32, shape=n)
-        # candidate pairs of a step: (vertex, triangle) and (edge, edge); beyond these lengths
-        # pairs are dropped and counted as overflow
-        self.vt_pairs = ti.Vector.field(2, ti.i32, shape=192 * n)
-        self.ee_pairs = ti.Vector.field(2, ti.i32, shape=160 * max(len(edges), 1))
+        # candidate pairs of a step: (vertex, triangle) and (edge, edge), in arrays passed to the
+        # kernels, so that a list that fills up is replaced by a longer one without compiling
+        self.vt_pairs = ti.Vector.ndarray(2, ti.i32, shape=PAIRS_PER_PRIMITIVE * n)
+        self.ee_pairs = ti.Vector.ndarray(2, ti.i32, shape=PAIRS_PER_PRIMITIVE * max(len(edges), 1))
         self.pair_count = ti.field(ti.i32, shape=2)
         self.thickness = ti.field(real, shape=())
         self.friction = ti.field(real, shape=())
@@ -102,7 +106,8 @@ class SelfCollision:
         self.delta[None] = DELTA_FRACTION * float(thickness)
         self.x_collected = ti.Vector.field(3, real, shape=n)  # the end positions the pairs came from
         self.moved_count = ti.field(ti.i32, shape=())
-        self.collided = ti.Vector.field(4, ti.i32, shape=4 * n)  # the fail-safe's touching pairs
+        # the fail-safe's touching pairs (four vertex ids); longer when a round finds more
+        self.collided = ti.Vector.ndarray(4, ti.i32, shape=TOUCHES_PER_VERTEX * n)
         self.collided_count = ti.field(ti.i32, shape=())
         self.zones = ImpactZones(system.mass.to_numpy(), system.free.to_numpy())
         # the fail-safe's later rounds re-collect only around the vertices its zones moved
@@ -149,7 +154,7 @@ class SelfCollision:
         self._broad_phase(state)
         found = 1
         for round_ in range(self.iterations):
-            found = self._resolve(state, int(round_ == 0))
+            found = self._resolve(state, int(round_ == 0), self.vt_pairs, self.ee_pairs)
             self.contacts_total += found
             if found == 0:
                 break
@@ -157,58 +162,6 @@ class SelfCollision:
         self._keep_end(state)
         self.t_end = t
         return False  # the state changed, the system did not
-
-    def _broad_phase(self, state, only_changed: bool = False, append: bool = False) -> None:
-        """All candidate pairs at the current positions into the pair lists; or, with
-        ``only_changed``, the pairs holding a vertex in ``changed``, in the lists' place or
-        (``append``) after them."""
-        self._fit_cells(state)
-        self.triangle_grid.build(self.x_start, state.x, self.mesh.triangles, self.triangle_alive)
-        self.edge_grid.build(self.x_start, state.x, self.edges, self.edge_alive)
-        overflow = 0
-        if only_changed:
-            self.vertex_grid.build(self.x_start, state.x, self.vertex_ids, self.vertex_alive)
-            overflow += self.vertex_grid.overflowed()
-            self._collect_changed(state, append)
-        else:
-            self._collect(state)
-        # read after the queries: a vertex's clipped query box counts in the triangle hash's
-        overflow += self.triangle_grid.overflowed() + self.edge_grid.overflowed()
-        vt, ee = self.pair_count.to_numpy()
-        self.overflow_total += overflow + max(0, vt - self.vt_pairs.shape[0]) + max(0, ee - self.ee_pairs.shape[0])
-
-    def _fit_cells(self, state) -> None:
-        """Size the hashes' cells (one side for all three, as the queries mix them) so that no
-        box of this step spans more than MAX_CELLS_PER_AXIS cells on an axis: the longest edge
-        of the rest mesh, or a third of the longest box where something moves or stretches
-        further (a fast step), so that no box is clipped and the hash misses no pair."""
-        extent = self._longest_box(state)
-        # a box of side at most 3 cells spans at most 4 (1e-3: room for round-off in the cells' ids)
-        cell = max(self.base_cell, extent / ((MAX_CELLS_PER_AXIS - 1) * (1.0 - 1e-3)))
-        for grid in (self.triangle_grid, self.edge_grid, self.vertex_grid):
-            grid.cell[None] = cell
-
-    @ti.kernel
-    def _longest_box(self, y: ti.template()) -> ti.f64:
-        """The longest side of any primitive's swept box (m), its margins included."""
-        self.box_extent[None] = 0.0
-        for t in range(self.mesh.triangle_count):
-            if self.triangle_alive[t]:
-                tri = self.mesh.triangles[t]
-                lo = ti.min(ti.min(self.x_start[tri[0]], y.x[tri[0]]), ti.min(self.x_start[tri[1]], y.x[tri[1]]))
-                hi = ti.max(ti.max(self.x_start[tri[0]], y.x[tri[0]]), ti.max(self.x_start[tri[1]], y.x[tri[1]]))
-                lo = ti.min(lo, ti.min(self.x_start[tri[2]], y.x[tri[2]]))
-                hi = ti.max(hi, ti.max(self.x_start[tri[2]], y.x[tri[2]]))
-                ti.atomic_max(self.box_extent[None], (hi - lo).max())
-        for a in range(self.edge_count):
-            if self.edge_alive[a]:
-                e = self.edges[a]
-                lo = ti.min(ti.min(self.x_start[e[0]], y.x[e[0]]), ti.min(self.x_start[e[1]], y.x[e[1]]))
-                hi = ti.max(ti.max(self.x_start[e[0]], y.x[e[0]]), ti.max(self.x_start[e[1]], y.x[e[1]]))
-                ti.atomic_max(self.box_extent[None], (hi - lo).max())
-        for i in y.x:
-            ti.atomic_max(self.box_extent[None], (ti.max(self.x_start[i], y.x[i]) - ti.min(self.x_start[i], y.x[i])).max())
-        return self.box_extent[None] + self.thickness[None]
 
     def _fail_safe(self, state, h: float, rounds_clean: bool) -> None:
         """Rigid impact zones (Provot 1997; Bridson et al. 2002, section 7.4): while some pair
@@ -231,18 +184,18 @@ class SelfCollision:
                     return
                 if stale:  # the vertices that moved further: their pairs are added to the lists
                     self._broad_phase(state, only_changed=True, append=True)
-                touching = self._detect(state)
+                touching = self._touches(state)
             else:
                 # only the zones' vertices moved: only pairs holding one can touch anew, and the
                 # lists are refilled with just those (the rounds are over: nothing else reads them)
                 self._broad_phase(state, only_changed=True)
-                touching = self._detect(state)
+                touching = self._touches(state)
             if touching == 0:
                 return
             if round_ == 0:
                 self.zone_steps += 1
             self.zone_rounds += 1
-            ids = self.collided.to_numpy()[:min(touching, self.collided.shape[0])]
+            ids = self.collided.to_numpy()[:touching]
             self._move_zones_rigidly(state, ids, h)
         # Out of rounds: the whole cloth moves rigidly for this step (it kills the step's relative
         # motion, but no touch survives it); what still touches is counted, never hidden.
@@ -250,17 +203,31 @@ class SelfCollision:
         self.zones.merge_all()
         self._move_zones_rigidly(state, np.zeros((0, 4), np.int64), h)
         self._broad_phase(state)
-        self.unresolved_total += self._detect(state)
+        self.unresolved_total += self._touches(state)
+
+    def _touches(self, state) -> int:
+        """How many listed pairs touch during the step, all of them in ``collided``: a touch left
+        out of the zones would not be looked at again (later rounds list only the pairs of
+        vertices the zones moved), so a list too short is replaced and the detection repeated."""
+        touching = self._detect(state, self.vt_pairs, self.ee_pairs, self.collided)
+        if touching > self.collided.shape[0]:
+            self.collided = ti.Vector.ndarray(4, ti.i32, shape=touching + touching // 2)
+            touching = self._detect(state, self.vt_pairs, self.ee_pairs, self.collided)
+        return touching
 
     def _move_zones_rigidly(self, state, touches: np.ndarray, h: float) -> None:
-        """Merge ``touches`` into the zones, move every zone rigidly over the step, and mark the
-        vertices that moved as ``changed``."""
+        """Merge ``touches`` into the zones, move the zones they reached rigidly over the step,
+        and mark the vertices that moved, and those of the touches, as ``changed``."""
         x_before = state.x.to_numpy()
         x1, v1 = self.zones.rigidify(touches, self.x_start.to_numpy(), x_before, state.v.to_numpy(), h)
         x1 = x1.astype(runtime.np_real())
         state.x.from_numpy(x1)
         state.v.from_numpy(v1.astype(runtime.np_real()))
-        self.changed.from_numpy((x1 != x_before).any(axis=1).astype(np.int32))
+        changed = (x1 != x_before).any(axis=1)
+        # a touch whose zone did not move it (its fit came out the same: pins on scripted paths
+        # that no rigid motion follows) still touches, and the next round must see it again
+        changed[np.asarray(touches, np.int64).ravel()] = True
+        self.changed.from_numpy(changed.astype(np.int32))
 
     @ti.kernel
     def _estimate_start(self, y: ti.template(), h: float):
@@ -290,31 +257,31 @@ class SelfCollision:
         return self.moved_count[None]
 
     @ti.kernel
-    def _detect(self, y: ti.template()) -> ti.i32:
+    def _detect(self, y: ti.template(), vt: PairList, ee: PairList, touched: TouchList) -> ti.i32:
         """Every listed pair that touches during the step (continuous detection only), into
-        ``collided`` as four vertex ids; returns how many touch."""
+        ``touched`` as four vertex ids; returns how many touch."""
         self.collided_count[None] = 0
         delta = self.delta[None]
-        for k in range(ti.min(self.pair_count[0], self.vt_pairs.shape[0])):
-            i, tri = self.vt_pairs[k][0], self.mesh.triangles[self.vt_pairs[k][1]]
+        for k in range(ti.min(self.pair_count[0], vt.shape[0])):
+            i, tri = vt[k][0], self.mesh.triangles[vt[k][1]]
             t_hit, _ = vertex_triangle_hit(self.x_start[i], y.x[i], self.x_start[tri[0]], y.x[tri[0]],
                                            self.x_start[tri[1]], y.x[tri[1]], self.x_start[tri[2]], y.x[tri[2]],
                                            delta, True)
             if t_hit >= 0.0:
-                self._record_touch(ti.Vector([i, tri[0], tri[1], tri[2]]))
-        for k in range(ti.min(self.pair_count[1], self.ee_pairs.shape[0])):
-            ea, eb = self.edges[self.ee_pairs[k][0]], self.edges[self.ee_pairs[k][1]]
+                self._record_touch(touched, ti.Vector([i, tri[0], tri[1], tri[2]]))
+        for k in range(ti.min(self.pair_count[1], ee.shape[0])):
+            ea, eb = self.edges[ee[k][0]], self.edges[ee[k][1]]
             t_hit, _ = edge_edge_hit(self.x_start[ea[0]], y.x[ea[0]], self.x_start[ea[1]], y.x[ea[1]],
                                      self.x_start[eb[0]], y.x[eb[0]], self.x_start[eb[1]], y.x[eb[1]], delta, True)
             if t_hit >= 0.0:
-                self._record_touch(ti.Vector([ea[0], ea[1], eb[0], eb[1]]))
+                self._record_touch(touched, ti.Vector([ea[0], ea[1], eb[0], eb[1]]))
         return self.collided_count[None]
 
     @ti.func
-    def _record_touch(self, ids):
+    def _record_touch(self, touched: ti.template(), ids):
         slot = ti.atomic_add(self.collided_count[None], 1)
-        if slot < self.collided.shape[0]:
-            self.collided[slot] = ids
+        if slot < touched.shape[0]:
+            touched[slot] = ids
 
     @ti.func
     def _inverse_mass(self, i):
@@ -324,100 +291,7 @@ class SelfCollision:
         return inv
 
     @ti.kernel
-    def _collect(self, y: ti.template()):
-        """The broad phase, once per step: every vertex-triangle and edge-edge pair whose swept
-        boxes overlap (each pair once), into the pair lists the rounds go through."""
-        self.pair_count[0], self.pair_count[1] = 0, 0
-        for i in y.x:
-            self.x_collected[i] = y.x[i]
-        for i in y.x:
-            self._vertex_pairs(y, i)
-        for a in range(self.edge_count):
-            if self.edge_alive[a]:
-                self._edge_pairs(a, False)
-
-    @ti.kernel
-    def _collect_changed(self, y: ti.template(), append: ti.template()):
-        """The pairs holding a vertex in ``changed``, each once, in place of the lists or after
-        them (``append``: a pair already listed may then be listed twice, harmless to the
-        fail-safe, which only asks which pairs touch): a changed vertex against every triangle, a
-        triangle with a changed corner against every unchanged vertex, an edge with a changed
-        end against every edge."""
-        if ti.static(not append):
-            self.pair_count[0], self.pair_count[1] = 0, 0
-        for i in y.x:
-            if self.changed[i]:
-                self._vertex_pairs(y, i)
-        for t in range(self.mesh.triangle_count):
-            tri = self.mesh.triangles[t]
-            if self.triangle_alive[t] and (self.changed[tri[0]] or self.changed[tri[1]] or self.changed[tri[2]]):
-                lo, hi = self.triangle_grid.lo[t], self.triangle_grid.hi[t]
-                c_lo, c_hi = self.triangle_grid.cell_lo[t], self.triangle_grid.cell_hi[t]
-                for ci, cj, ck in ti.ndrange((c_lo[0], c_hi[0] + 1), (c_lo[1], c_hi[1] + 1), (c_lo[2], c_hi[2] + 1)):
-                    cell = ti.Vector([ci, cj, ck])
-                    first_entry, end_entry = self.vertex_grid.entries(self.vertex_grid.bucket(cell))
-                    for e in range(first_entry, end_entry):
-                        i = self.vertex_grid.items[e]
-                        if (not self.changed[i] and tri[0] != i and tri[1] != i and tri[2] != i
-                                and all(lo <= self.vertex_grid.hi[i]) and all(self.vertex_grid.lo[i] <= hi)
-                                and self.vertex_grid.first_shared_cell(cell, c_lo, c_hi, i)):
-                            self._add_vt(i, t)
-        for a in range(self.edge_count):
-            ea = self.edges[a]
-            if self.edge_alive[a] and (self.changed[ea[0]] or self.changed[ea[1]]):
-                self._edge_pairs(a, True)
-
-    @ti.func
-    def _add_vt(self, i, t):
-        k = ti.atomic_add(self.pair_count[0], 1)
-        if k < self.vt_pairs.shape[0]:
-            self.vt_pairs[k] = ti.Vector([i, t])
-
-    @ti.func
-    def _vertex_pairs(self, y, i):
-        """Vertex i against every triangle whose box its swept box overlaps."""
-        thick = self.thickness[None]
-        p0, p1 = self.x_start[i], y.x[i]
-        lo, hi = ti.min(p0, p1) - 0.5 * thick, ti.max(p0, p1) + 0.5 * thick
-        c_lo, c_hi, clipped = self.triangle_grid.box_cells(lo, hi)
-        if clipped:
-            ti.atomic_add(self.triangle_grid.overflow[None], 1)
-        for ci, cj, ck in ti.ndrange((c_lo[0], c_hi[0] + 1), (c_lo[1], c_hi[1] + 1), (c_lo[2], c_hi[2] + 1)):
-            cell = ti.Vector([ci, cj, ck])
-            first_entry, end_entry = self.triangle_grid.entries(self.triangle_grid.bucket(cell))
-            for e in range(first_entry, end_entry):
-                t = self.triangle_grid.items[e]
-                tri = self.mesh.triangles[t]
-                if (tri[0] != i and tri[1] != i and tri[2] != i and all(lo <= self.triangle_grid.hi[t])
-                        and all(self.triangle_grid.lo[t] <= hi)
-                        and self.triangle_grid.first_shared_cell(cell, c_lo, c_hi, t)):
-                    self._add_vt(i, t)
-
-    @ti.func
-    def _edge_pairs(self, a, changed_only: ti.template()):
-        """Edge a against every edge whose box its box overlaps: those after it (each pair once),
-        or, with ``changed_only``, also those before it that have no changed end."""
-        ea = self.edges[a]
-        lo, hi = self.edge_grid.lo[a], self.edge_grid.hi[a]
-        c_lo, c_hi = self.edge_grid.cell_lo[a], self.edge_grid.cell_hi[a]
-        for ci, cj, ck in ti.ndrange((c_lo[0], c_hi[0] + 1), (c_lo[1], c_hi[1] + 1), (c_lo[2], c_hi[2] + 1)):
-            cell = ti.Vector([ci, cj, ck])
-            first_entry, end_entry = self.edge_grid.entries(self.edge_grid.bucket(cell))
-            for e in range(first_entry, end_entry):
-                b = self.edge_grid.items[e]
-                eb = self.edges[b]
-                after = b > a
-                if ti.static(changed_only):
-                    after = after or not (self.changed[eb[0]] or self.changed[eb[1]])
-                if (after and ea[0] != eb[0] and ea[0] != eb[1] and ea[1] != eb[0] and ea[1] != eb[1]
-                        and all(lo <= self.edge_grid.hi[b]) and all(self.edge_grid.lo[b] <= hi)
-                        and self.edge_grid.first_shared_cell(cell, c_lo, c_hi, b)):
-                    k = ti.atomic_add(self.pair_count[1], 1)
-                    if k < self.ee_pairs.shape[0]:
-                        self.ee_pairs[k] = ti.Vector([a, b])
-
-    @ti.kernel
-    def _resolve(self, y: ti.template(), first_round: ti.i32) -> ti.i32:
+    def _resolve(self, y: ti.template(), first_round: ti.i32, vt: PairList, ee: PairList) -> ti.i32:
         """One Jacobi round over the collected pairs; returns the contacts found. After the
         first round only pairs with a vertex the previous round moved are looked at: the others
         were out of contact then and nothing they depend on has changed."""
@@ -427,13 +301,13 @@ class SelfCollision:
             self.dv[i] = ti.Vector.zero(self.dx.dtype, 3)
             self.hits[i] = 0
         self.contacts[None] = 0
-        for k in range(ti.min(self.pair_count[0], self.vt_pairs.shape[0])):
-            pair = self.vt_pairs[k]
+        for k in range(ti.min(self.pair_count[0], vt.shape[0])):
+            pair = vt[k]
             tri = self.mesh.triangles[pair[1]]
             if self.moved[pair[0]] or self.moved[tri[0]] or self.moved[tri[1]] or self.moved[tri[2]]:
                 self._vertex_triangle(y, pair[0], tri)
-        for k in range(ti.min(self.pair_count[1], self.ee_pairs.shape[0])):
-            pair = self.ee_pairs[k]
+        for k in range(ti.min(self.pair_count[1], ee.shape[0])):
+            pair = ee[k]
             ea, eb = self.edges[pair[0]], self.edges[pair[1]]
             if self.moved[ea[0]] or self.moved[ea[1]] or self.moved[eb[0]] or self.moved[eb[1]]:
                 self._edge_edge(y, ea, eb)
