@@ -20,7 +20,8 @@ class CandidatePairs:
     def _broad_phase(self, state, only_changed: bool = False, append: bool = False) -> None:
         """All candidate pairs at the current positions into the pair lists; or, with
         ``only_changed``, the pairs holding a vertex in ``changed``, in the lists' place or
-        (``append``) after them."""
+        (``append``) after them. A list that fills up is replaced by a longer one, and every
+        pair collected afresh into both."""
         self._fit_cells(state)
         self.triangle_grid.build(self.x_start, state.x, self.mesh.triangles, self.triangle_alive)
         self.edge_grid.build(self.x_start, state.x, self.edges, self.edge_alive)
