@@ -96,6 +96,22 @@ def test_apart_all_step_is_never_a_touch(f64, kind, rng):
         assert (t_hit < 0).all()
 
 
+def test_a_contact_that_ends_exactly_coplanar_is_a_touch_whatever_the_round_off(f32):
+    # a triangle tilted at the start lands flat on y = 0 while a vertex lands on it there: f(1) is
+    # exactly zero, and the cubic's coefficients summed in f32 need not give that zero's sign
+    rng = np.random.default_rng(3)
+    starts, ends = [], []
+    for _ in range(64):
+        tri1 = np.c_[rng.uniform(0, 1, 3), np.zeros(3), rng.uniform(0, 1, 3)]
+        tri0 = tri1 + np.c_[np.zeros(3), rng.uniform(0, 0.01, 3), np.zeros(3)]
+        p1 = tri1.mean(0)
+        p0 = p1 + [0.0, 0.02, 0.0]
+        starts.append([p0, *tri0])
+        ends.append([p1, *tri1])
+    t_hit, _ = hits("vt", np.array(starts), np.array(ends))
+    assert (t_hit >= 0).all()
+
+
 @pytest.mark.long
 def test_the_side_is_the_one_before_the_touch(f64):
     # a vertex falling through a still triangle whose normal is +y: from above, then from below
@@ -191,6 +207,18 @@ def test_a_zone_carries_its_pins_when_their_paths_keep_a_touch_inside_it(rng):
     d0 = np.linalg.norm(x0[:4, None] - x0[None, :4], axis=2)
     assert np.linalg.norm(x_b[:4, None] - x_b[None, :4], axis=2) == pytest.approx(d0, abs=1e-12)
     assert np.abs(x_b[:2] - x1[:2]).max() > 1e-3  # carried off their paths for this step
+
+
+def test_a_zone_that_would_end_below_the_floor_is_moved_up_onto_it_rigidly(rng):
+    mass, x0, x1, v1 = rigid_zone_case(rng)
+    x0[:, 1] += 10.0  # all above the floor y = 0 at the start
+    x1 = x0 + [0.0, -12.0, 0.0]  # falling through it
+    zones = ImpactZones(mass, np.ones(12, int), floor=([0, 0, 0], [0, 1.0, 0]))
+    x_new, _ = zones.rigidify(np.array([[0, 1, 2, 3]]), x0, x1, v1, 0.1)
+    assert x_new[:4, 1].min() == pytest.approx(0.0, abs=1e-12)  # its lowest vertex on the floor
+    d0 = np.linalg.norm(x0[:4, None] - x0[None, :4], axis=2)
+    assert np.linalg.norm(x_new[:4, None] - x_new[None, :4], axis=2) == pytest.approx(d0, abs=1e-12)
+    assert (x_new[4:] == x1[4:]).all()  # the floor is the plane collider's business elsewhere
 
 
 def test_the_last_resort_moves_the_whole_cloth_as_one_rigid_zone(rng):

@@ -75,7 +75,9 @@ def candidate_times(k, crossings_only: ti.template()):
 
     With ``crossings_only``, only the times at which f changes sign or reaches zero, not the
     critical points and not a zero it starts from: the moments the primitives could pass through
-    each other, rather than all the moments they come near."""
+    each other, rather than all the moments they come near; and the end of the step, because a
+    contact that ends exactly coplanar (two layers laid on one plane) has its zero at t = 1, where
+    round-off can give f the sign it started with and hide it."""
     r1, r2 = _critical_points(k)
     in1, in2 = r1 > 0.0 and r1 < 1.0, r2 > 0.0 and r2 < 1.0
     times = ti.Vector([NO_TIME, NO_TIME, NO_TIME, NO_TIME, NO_TIME])
@@ -94,6 +96,7 @@ def candidate_times(k, crossings_only: ti.template()):
             times[4] = r2
     else:
         start_counts = 0
+        times[3] = 1.0
     # runtime loops, here and over the candidates: unrolled, each inlined its bisection or
     # distance test again, and compiling the stage took seconds longer
     for j in range(3):

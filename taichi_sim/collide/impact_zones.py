@@ -17,14 +17,16 @@ class ImpactZones:
         mass: (n,) particle masses (kg).
         free: (n,) nonzero for particles that move; pinned ones keep their own motion, unless
             their zone cannot be resolved without moving them (see :meth:`rigidify`).
+        floor: ``(point, unit normal)`` of a ground plane no zone may end below, or None.
     """
 
-    def __init__(self, mass: np.ndarray, free: np.ndarray):
+    def __init__(self, mass: np.ndarray, free: np.ndarray, floor=None):
         self.mass = np.asarray(mass, float)
         self.free = np.asarray(free) != 0
         self.parent: dict[int, int] = {}
         self.refit_all = False  # merge_all was called: every zone moves at the next rigidify
         self.stuck: set[int] = set()  # vertices of touches inside one zone: their zones carry their pins
+        self.floor = None if floor is None else (np.asarray(floor[0], float), np.asarray(floor[1], float))
 
     def clear(self) -> None:
         """Forget the zones (a new step)."""
@@ -89,6 +91,9 @@ class ImpactZones:
         last resort (:meth:`merge_all`) move their pins with them, off their paths for this
         step, as no touch may remain (the pins' owner puts them back on their paths).
 
+        With a ``floor``, a zone whose motion would end partly below it is moved up along its
+        normal until its lowest vertex is on it: still one rigid motion, so still no touch inside.
+
         Args:
             touches: (m, 4) vertex ids of touching pairs (may be empty).
             x0, x1, v1: (n, 3) start positions, end positions (m) and end velocities (m/s).
@@ -117,7 +122,11 @@ class ImpactZones:
             w_cm, spin = _rigid_part(m, r_end, v1[ids])
             carries_pins = carry_all or self._root(int(ids[0])) in carrying
             moves = np.ones_like(free) if carries_pins else free
-            x1[ids[moves]] = (c0 + h * v_cm + r_end)[moves]
+            end = c0 + h * v_cm + r_end
+            if self.floor is not None:
+                depth = ((end[moves] - self.floor[0]) @ self.floor[1]).min(initial=0.0)
+                end -= depth * self.floor[1]
+            x1[ids[moves]] = end[moves]
             v1[ids[moves]] = (w_cm + np.cross(spin, r_end))[moves]
         return x1, v1
 

@@ -50,12 +50,15 @@ class SelfCollision(CandidatePairs):
         thickness: the distance (m) a vertex keeps from any triangle it is not a corner of.
         friction: Coulomb coefficient between cloth layers (>= 0).
         iterations: rounds of contact resolution per step (>= 1).
+        floor: ``(point, unit normal)`` of the scene's ground plane, or None. Contacts do not push
+            a vertex near it into it, and a vertex the stage moved below it is lifted back onto it
+            (and its pairs looked at again), so the stage never undoes the plane's work.
     Raises:
         ValueError: naming ``thickness``, ``friction`` or ``iterations``.
     """
 
     def __init__(self, system, mesh, x0: np.ndarray, *, thickness: float, friction: float = 0.0,
-                 iterations: int = 4):
+                 iterations: int = 4, floor=None):
         if not (isinstance(thickness, (int, float)) and math.isfinite(thickness) and thickness > 0):
             raise ValueError(f"thickness must be a finite number > 0 (m), got {thickness!r}")
         if not (isinstance(friction, (int, float)) and math.isfinite(friction) and friction >= 0):
@@ -109,7 +112,13 @@ class SelfCollision(CandidatePairs):
         # the fail-safe's touching pairs (four vertex ids); longer when a round finds more
         self.collided = ti.Vector.ndarray(4, ti.i32, shape=TOUCHES_PER_VERTEX * n)
         self.collided_count = ti.field(ti.i32, shape=())
-        self.zones = ImpactZones(system.mass.to_numpy(), system.free.to_numpy())
+        self.zones = ImpactZones(system.mass.to_numpy(), system.free.to_numpy(), floor=floor)
+        self.floor_point = ti.Vector.field(3, real, shape=())
+        self.floor_normal = ti.Vector.field(3, real, shape=())  # zero: no floor
+        if floor is not None:
+            self.floor_point[None] = np.asarray(floor[0], float).tolist()
+            self.floor_normal[None] = np.asarray(floor[1], float).tolist()
+        self.floor_count = ti.field(ti.i32, shape=())
         # the fail-safe's later rounds re-collect only around the vertices its zones moved
         self.changed = ti.field(ti.i32, shape=n)
         self.vertex_grid = PrimitiveHash(n, 1, cell, 0.5 * thickness)
@@ -158,7 +167,8 @@ class SelfCollision(CandidatePairs):
             self.contacts_total += found
             if found == 0:
                 break
-        self._fail_safe(state, h, rounds_clean=found == 0)
+        lifted = self._lift_to_floor(state)
+        self._fail_safe(state, h, rounds_clean=found == 0 and lifted == 0)
         self._keep_end(state)
         self.t_end = t
         return False  # the state changed, the system did not
@@ -228,6 +238,22 @@ class SelfCollision(CandidatePairs):
         # that no rigid motion follows) still touches, and the next round must see it again
         changed[np.asarray(touches, np.int64).ravel()] = True
         self.changed.from_numpy(changed.astype(np.int32))
+
+    @ti.kernel
+    def _lift_to_floor(self, y: ti.template()) -> ti.i32:
+        """Put every free vertex below the floor back onto it, without its velocity into it, and
+        mark it ``changed`` (its pairs must be looked at again); returns how many."""
+        self.floor_count[None] = 0
+        n = self.floor_normal[None]
+        for i in y.x:
+            if self.system.free[i]:
+                depth = (y.x[i] - self.floor_point[None]).dot(n)
+                if depth < 0.0:
+                    y.x[i] -= depth * n
+                    y.v[i] -= ti.min(0.0, y.v[i].dot(n)) * n
+                    self.changed[i] = 1
+                    ti.atomic_add(self.floor_count[None], 1)
+        return self.floor_count[None]
 
     @ti.kernel
     def _estimate_start(self, y: ti.template(), h: float):
@@ -376,6 +402,12 @@ class SelfCollision(CandidatePairs):
         vertex ``ids[k]`` moves with weight ``w[k]`` (positive on the side ``n`` points to)."""
         inv = ti.Vector([self._inverse_mass(ids[0]), self._inverse_mass(ids[1]),
                          self._inverse_mass(ids[2]), self._inverse_mass(ids[3])])
+        # a vertex within the thickness of the floor is not pushed towards it: it stays, and the
+        # other side moves the whole gap (else the layers' contacts would press it through)
+        up = self.floor_normal[None]
+        for k in ti.static(range(4)):
+            if w[k] * n.dot(up) < 0.0 and (y.x[ids[k]] - self.floor_point[None]).dot(up) < self.thickness[None]:
+                inv[k] = 0.0
         denom = (w * w * inv).sum()
         if denom > 0.0:
             ti.atomic_add(self.contacts[None], 1)

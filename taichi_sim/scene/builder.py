@@ -417,8 +417,9 @@ class SceneBuilder:
             # is a disturbance the contacts may smooth out, not a shape the cloth returns to);
             # the start is checked for coincident points and flat triangles all the same.
             check_contact_mesh(x0, mesh.triangles_np, thickness, rest=np.concatenate(self._rest_x))
+            floor = None if plane is None else (plane.point_np, plane.normal_np)
             post_step.append(SelfCollision(system, mesh, x0, thickness=thickness, friction=friction,
-                                           iterations=iterations))
+                                           iterations=iterations, floor=floor))
             features["self_collision"] = True
         if springs is not None and springs.tearable:
             post_step.append(Tearing(springs))
