@@ -15,7 +15,7 @@ per step over the measured steps:
 Run from the repository root (outside pytest):
 
     .venv/bin/python benchmarks/bench_self_collision.py [--sizes 32,64] [--integrator implicit_euler]
-        [--dt 0.016666666666666666] [--warmup 30] [--steps 60]
+        [--dt 0.016666666666666666] [--warmup 30] [--steps 60] [--collision-iterations K]
 """
 import argparse
 import collections
@@ -68,13 +68,18 @@ def main() -> None:
     parser.add_argument("--warmup", type=int, default=30, help="steps before timing")
     parser.add_argument("--steps", type=int, default=60, help="steps timed")
     parser.add_argument("--profile", action="store_true", help="also print Taichi's per-kernel times")
+    parser.add_argument("--collision-iterations", type=int, default=None,
+                        help="contact rounds per step (default: the scene's)")
     args = parser.parse_args()
     ts.init(arch="cpu", precision="f32", kernel_profiler=args.profile)
     print(f"cloth-fold, {args.integrator}, dt = {args.dt:.4g} s, f32; ms per step over {args.steps} steps "
           f"after {args.warmup}")
     print("size  pairs(v-t, e-e)  broad  rounds  fail-safe  stage   step  zone steps (rounds)  stage/step")
     for n in (int(s) for s in args.sizes.split(",")):
-        scene = ts.build_scene("cloth-fold", {"nx": n, "ny": n})
+        params = {"nx": n, "ny": n}
+        if args.collision_iterations is not None:
+            params["collision_iterations"] = args.collision_iterations
+        scene = ts.build_scene("cloth-fold", params)
         (stage,) = [e for e in scene.post_step if isinstance(e, SelfCollision)]
         integrator = ts.create_integrator(args.integrator, scene.system)
         timer = PhaseTimer()
