@@ -25,6 +25,7 @@ class CandidatePairs:
         self._fit_cells(state)
         self.triangle_grid.build(self.x_start, state.x, self.mesh.triangles, self.triangle_alive)
         self.edge_grid.build(self.x_start, state.x, self.edges, self.edge_alive)
+        clipped_in_build = self.triangle_grid.overflowed()
         overflow = 0
         if only_changed:
             self.vertex_grid.build(self.x_start, state.x, self.vertex_ids, self.vertex_alive)
@@ -33,7 +34,8 @@ class CandidatePairs:
         else:
             self._collect(state, self.vt_pairs, self.ee_pairs)
         vt, ee = (int(c) for c in self.pair_count.to_numpy())
-        if self._grow_lists(vt, ee):  # a list was full: every pair afresh into longer ones
+        while self._grow_lists(vt, ee):  # a list was full: every pair afresh into longer ones
+            self.triangle_grid.overflow[None] = clipped_in_build  # the queries count theirs again
             self._collect(state, self.vt_pairs, self.ee_pairs)
             vt, ee = (int(c) for c in self.pair_count.to_numpy())
         # read after the queries: a vertex's clipped query box counts in the triangle hash's

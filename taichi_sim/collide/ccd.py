@@ -124,6 +124,17 @@ def _side_before(k, t_hit):
 
 
 @ti.func
+def _counts(t, start_distance, delta, crossings_only: ti.template()):
+    """Whether candidate time ``t`` is tested: with ``crossings_only``, the step's end only for a
+    pair that did not start within ``delta`` (no rigid motion can part such a pair, so it would
+    keep the fail-safe's zones from ever finishing)."""
+    ok = True
+    if ti.static(crossings_only):
+        ok = t < 1.0 or start_distance >= delta
+    return ok
+
+
+@ti.func
 def _motion_spread(d0, d1, d2, d3):
     """How far any point of one primitive can move relative to any point of the other during the
     step, given the four corners' displacements: their spread about a common translation."""
@@ -155,14 +166,14 @@ def vertex_triangle_hit(p0, p1, a0, a1, b0, b1, c0, c1, delta, crossings_only: t
     # the distance can shrink no faster than the motion's spread: far apart at both ends
     # relative to it, the pair cannot touch in between (the common case, without the cubic)
     spread = _motion_spread(p1 - p0, a1 - a0, b1 - b0, c1 - c0)
-    if (_point_triangle_distance(p0, a0, b0, c0) + _point_triangle_distance(p1, a1, b1, c1) - spread
-            <= 2.0 * delta):
+    start = _point_triangle_distance(p0, a0, b0, c0)
+    if start + _point_triangle_distance(p1, a1, b1, c1) - spread <= 2.0 * delta:
         ea0, eb0, ep0 = b0 - a0, c0 - a0, p0 - a0
         k = coplanarity_cubic(ea0, (b1 - a1) - ea0, eb0, (c1 - a1) - eb0, ep0, (p1 - a1) - ep0)
         times = candidate_times(k, crossings_only)
         for j in range(5):
             t = times[j]
-            if t >= 0.0 and (t_hit < 0.0 or t < t_hit):
+            if t >= 0.0 and (t_hit < 0.0 or t < t_hit) and _counts(t, start, delta, crossings_only):
                 if _point_triangle_distance(p0 + t * (p1 - p0), a0 + t * (a1 - a0), b0 + t * (b1 - b0),
                                             c0 + t * (c1 - c0)) < delta:
                     t_hit = t
@@ -178,13 +189,14 @@ def edge_edge_hit(p0, p1, q0, q1, r0, r1, s0, s1, delta, crossings_only: ti.temp
     t_hit = NO_TIME
     side = 1.0
     spread = _motion_spread(p1 - p0, q1 - q0, r1 - r0, s1 - s0)
-    if _segment_distance(p0, q0, r0, s0) + _segment_distance(p1, q1, r1, s1) - spread <= 2.0 * delta:
+    start = _segment_distance(p0, q0, r0, s0)
+    if start + _segment_distance(p1, q1, r1, s1) - spread <= 2.0 * delta:
         ea0, eb0, ep0 = q0 - p0, s0 - r0, r0 - p0
         k = coplanarity_cubic(ea0, (q1 - p1) - ea0, eb0, (s1 - r1) - eb0, ep0, (r1 - p1) - ep0)
         times = candidate_times(k, crossings_only)
         for j in range(5):
             t = times[j]
-            if t >= 0.0 and (t_hit < 0.0 or t < t_hit):
+            if t >= 0.0 and (t_hit < 0.0 or t < t_hit) and _counts(t, start, delta, crossings_only):
                 if _segment_distance(p0 + t * (p1 - p0), q0 + t * (q1 - q0), r0 + t * (r1 - r0),
                                      s0 + t * (s1 - s0)) < delta:
                     t_hit = t

@@ -44,10 +44,15 @@ class ImpactZones:
 
     def merge(self, touches: np.ndarray) -> None:
         """Join the zones of the four vertices of each touching pair ((m, 4) vertex ids). A touch
-        whose four vertices already share a zone is remembered in ``stuck``."""
-        for ids in np.asarray(touches, np.int64).reshape(-1, 4):
-            if all(int(j) in self.parent for j in ids) and len({self._root(int(j)) for j in ids}) == 1:
+        whose four vertices shared a zone before this call is remembered in ``stuck`` (touches of
+        one call that only this call's merging puts in one zone are not: one crossing is often
+        found as several touches over the same vertices)."""
+        touches = np.asarray(touches, np.int64).reshape(-1, 4)
+        before = {int(j): self._root(int(j)) for j in np.unique(touches) if int(j) in self.parent}
+        for ids in touches:
+            if all(int(j) in before for j in ids) and len({before[int(j)] for j in ids}) == 1:
                 self.stuck.add(int(ids[0]))
+        for ids in touches:
             r = self._root(int(ids[0]))
             for j in ids[1:]:
                 s = self._root(int(j))
@@ -92,7 +97,9 @@ class ImpactZones:
         step, as no touch may remain (the pins' owner puts them back on their paths).
 
         With a ``floor``, a zone whose motion would end partly below it is moved up along its
-        normal until its lowest vertex is on it: still one rigid motion, so still no touch inside.
+        normal until its lowest vertex is on it: still one rigid motion, so still no touch inside
+        (its moving vertices only: pins it does not carry stay, and a touch that leaves inside it
+        makes it carry them in the next round). Velocities are left to the plane's collider.
 
         Args:
             touches: (m, 4) vertex ids of touching pairs (may be empty).

@@ -51,8 +51,9 @@ class SelfCollision(CandidatePairs):
         friction: Coulomb coefficient between cloth layers (>= 0).
         iterations: rounds of contact resolution per step (>= 1).
         floor: ``(point, unit normal)`` of the scene's ground plane, or None. Contacts do not push
-            a vertex near it into it, and a vertex the stage moved below it is lifted back onto it
-            (and its pairs looked at again), so the stage never undoes the plane's work.
+            a vertex near it into it, a vertex the contact rounds left below it is lifted back
+            onto it, and a zone that would end below it is moved up: the stage does not undo the
+            plane's work.
     Raises:
         ValueError: naming ``thickness``, ``friction`` or ``iterations``.
     """
@@ -119,6 +120,7 @@ class SelfCollision(CandidatePairs):
             self.floor_point[None] = np.asarray(floor[0], float).tolist()
             self.floor_normal[None] = np.asarray(floor[1], float).tolist()
         self.floor_count = ti.field(ti.i32, shape=())
+        self.blocked = ti.field(ti.i32, shape=())  # contacts no push could resolve this step
         # the fail-safe's later rounds re-collect only around the vertices its zones moved
         self.changed = ti.field(ti.i32, shape=n)
         self.vertex_grid = PrimitiveHash(n, 1, cell, 0.5 * thickness)
@@ -160,6 +162,7 @@ class SelfCollision(CandidatePairs):
         if self.t_end is None or abs((t - h) - self.t_end) > 1e-9 * max(1.0, abs(t)):
             self._estimate_start(state, h)
         self._mark_intact()
+        self.blocked[None] = 0
         self._broad_phase(state)
         found = 1
         for round_ in range(self.iterations):
@@ -168,7 +171,8 @@ class SelfCollision(CandidatePairs):
             if found == 0:
                 break
         lifted = self._lift_to_floor(state)
-        self._fail_safe(state, h, rounds_clean=found == 0 and lifted == 0)
+        clean = found == 0 and lifted == 0 and self.blocked[None] == 0
+        self._fail_safe(state, h, rounds_clean=clean)
         self._keep_end(state)
         self.t_end = t
         return False  # the state changed, the system did not
@@ -241,8 +245,9 @@ class SelfCollision(CandidatePairs):
 
     @ti.kernel
     def _lift_to_floor(self, y: ti.template()) -> ti.i32:
-        """Put every free vertex below the floor back onto it, without its velocity into it, and
-        mark it ``changed`` (its pairs must be looked at again); returns how many."""
+        """Put every free vertex below the floor back onto it, without its velocity into it;
+        returns how many (then the fail-safe's first round looks at every listed pair, after
+        collecting again those of vertices that moved beyond the boxes' margin)."""
         self.floor_count[None] = 0
         n = self.floor_normal[None]
         for i in y.x:
@@ -251,7 +256,6 @@ class SelfCollision(CandidatePairs):
                 if depth < 0.0:
                     y.x[i] -= depth * n
                     y.v[i] -= ti.min(0.0, y.v[i].dot(n)) * n
-                    self.changed[i] = 1
                     ti.atomic_add(self.floor_count[None], 1)
         return self.floor_count[None]
 
@@ -403,14 +407,20 @@ class SelfCollision(CandidatePairs):
         inv = ti.Vector([self._inverse_mass(ids[0]), self._inverse_mass(ids[1]),
                          self._inverse_mass(ids[2]), self._inverse_mass(ids[3])])
         # a vertex within the thickness of the floor is not pushed towards it: it stays, and the
-        # other side moves the whole gap (else the layers' contacts would press it through)
+        # other side moves the whole gap (else the layers' contacts would press it through). Only
+        # the positions: the velocity impulses keep the true masses, so that momentum is kept
+        # and no kinetic energy is added (a floor vertex moving up must not throw the other side)
+        inv_x = inv
         up = self.floor_normal[None]
         for k in ti.static(range(4)):
             if w[k] * n.dot(up) < 0.0 and (y.x[ids[k]] - self.floor_point[None]).dot(up) < self.thickness[None]:
-                inv[k] = 0.0
+                inv_x[k] = 0.0
         denom = (w * w * inv).sum()
+        denom_x = (w * w * inv_x).sum()
         if denom > 0.0:
             ti.atomic_add(self.contacts[None], 1)
+            if denom_x == 0.0:  # pins and the floor hold both sides: left to the fail-safe
+                ti.atomic_add(self.blocked[None], 1)
             rel = ti.Vector.zero(self.dx.dtype, 3)
             for k in ti.static(range(4)):
                 rel += w[k] * y.v[ids[k]]
@@ -421,13 +431,13 @@ class SelfCollision(CandidatePairs):
             jt = ti.Vector.zero(self.dx.dtype, 3)
             if speed_t > 0.0:  # Coulomb: at most friction x the normal change, never reversing
                 jt = -ti.min(self.friction[None] * ti.max(0.0, -vn), speed_t) / denom * vt / speed_t
-            jx = gap / denom
+            jx = gap / ti.max(denom_x, 1e-30)
             for k in ti.static(range(4)):
-                self._share(ids[k], inv[k], w[k], n * jx, n * jv + jt)
+                self._share(ids[k], inv_x[k], inv[k], w[k], n * jx, n * jv + jt)
 
     @ti.func
-    def _share(self, j, inv, weight, dx, dv):
+    def _share(self, j, inv_x, inv, weight, dx, dv):
         if inv > 0.0:
-            ti.atomic_add(self.dx[j], weight * inv * dx)
+            ti.atomic_add(self.dx[j], weight * inv_x * dx)
             ti.atomic_add(self.dv[j], weight * inv * dv)
             ti.atomic_add(self.hits[j], 1)
