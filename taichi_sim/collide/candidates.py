@@ -58,38 +58,19 @@ class CandidatePairs:
         box of this step spans more than MAX_CELLS_PER_AXIS cells on an axis: the longest edge
         of the rest mesh, or a third of the longest box where something moves or stretches
         further (a fast step), so that no box is clipped and the hash misses no pair."""
-        extent = self._longest_box(state)
+        hashes = ((self.triangle_grid, self.mesh.triangles, self.triangle_alive),
+                  (self.edge_grid, self.edges, self.edge_alive),
+                  (self.vertex_grid, self.vertex_ids, self.vertex_alive))
+        extent = max(grid.longest_box(self.x_start, state.x, prims, alive) for grid, prims, alive in hashes)
         # a box of side at most 3 cells spans at most 4 (1e-3: room for round-off in the cells' ids)
         cell = max(self.base_cell, extent / ((MAX_CELLS_PER_AXIS - 1) * (1.0 - 1e-3)))
-        for grid in (self.triangle_grid, self.edge_grid, self.vertex_grid):
+        for grid, _, _ in hashes:
             grid.cell[None] = cell
 
     @ti.kernel
-    def _longest_box(self, y: ti.template()) -> ti.f64:
-        """The longest side of any primitive's swept box (m), its margins included."""
-        self.box_extent[None] = 0.0
-        for t in range(self.mesh.triangle_count):
-            if self.triangle_alive[t]:
-                tri = self.mesh.triangles[t]
-                lo = ti.min(ti.min(self.x_start[tri[0]], y.x[tri[0]]), ti.min(self.x_start[tri[1]], y.x[tri[1]]))
-                hi = ti.max(ti.max(self.x_start[tri[0]], y.x[tri[0]]), ti.max(self.x_start[tri[1]], y.x[tri[1]]))
-                lo = ti.min(lo, ti.min(self.x_start[tri[2]], y.x[tri[2]]))
-                hi = ti.max(hi, ti.max(self.x_start[tri[2]], y.x[tri[2]]))
-                ti.atomic_max(self.box_extent[None], (hi - lo).max())
-        for a in range(self.edge_count):
-            if self.edge_alive[a]:
-                e = self.edges[a]
-                lo = ti.min(ti.min(self.x_start[e[0]], y.x[e[0]]), ti.min(self.x_start[e[1]], y.x[e[1]]))
-                hi = ti.max(ti.max(self.x_start[e[0]], y.x[e[0]]), ti.max(self.x_start[e[1]], y.x[e[1]]))
-                ti.atomic_max(self.box_extent[None], (hi - lo).max())
-        for i in y.x:
-            ti.atomic_max(self.box_extent[None], (ti.max(self.x_start[i], y.x[i]) - ti.min(self.x_start[i], y.x[i])).max())
-        return self.box_extent[None] + self.thickness[None]
-
-    @ti.kernel
     def _collect(self, y: ti.template(), vt: PairList, ee: PairList):
-        """The broad phase, once per step: every vertex-triangle and edge-edge pair whose swept
-        boxes overlap (each pair once), into the pair lists the rounds go through."""
+        """Every vertex-triangle and edge-edge pair whose swept boxes overlap (each pair once),
+        into the pair lists the rounds go through."""
         self.pair_count[0], self.pair_count[1] = 0, 0
         for i in y.x:
             self.x_collected[i] = y.x[i]

@@ -37,6 +37,7 @@ class PrimitiveHash:
         self.fill = ti.field(ti.i32, shape=self.buckets)
         self.items = ti.field(ti.i32, shape=self.capacity)
         self.overflow = ti.field(ti.i32, shape=())
+        self.extent = ti.field(real, shape=())
 
     @ti.func
     def cell_of(self, p):
@@ -73,6 +74,27 @@ class PrimitiveHash:
         last = ti.min(c_hi, self.cell_hi[p])
         return all(cell == first) and all(first <= last)
 
+    @ti.func
+    def swept_box(self, x0, x1, ids):
+        """The box of a primitive's corners ``ids`` at positions x0 and x1, grown by the margin."""
+        lo = ti.min(x0[ids[0]], x1[ids[0]])
+        hi = ti.max(x0[ids[0]], x1[ids[0]])
+        for k in ti.static(range(1, self.corners)):
+            lo = ti.min(lo, ti.min(x0[ids[k]], x1[ids[k]]))
+            hi = ti.max(hi, ti.max(x0[ids[k]], x1[ids[k]]))
+        return lo - self.margin[None], hi + self.margin[None]
+
+    @ti.kernel
+    def longest_box(self, x0: ti.template(), x1: ti.template(), prims: ti.template(),
+                    alive: ti.template()) -> ti.f64:
+        """The longest side (m) of any live primitive's swept box, as :meth:`build` would make it."""
+        self.extent[None] = 0.0
+        for p in range(self.n):
+            if alive[p]:
+                lo, hi = self.swept_box(x0, x1, prims[p])
+                ti.atomic_max(self.extent[None], (hi - lo).max())
+        return self.extent[None]
+
     @ti.kernel
     def build(self, x0: ti.template(), x1: ti.template(), prims: ti.template(), alive: ti.template()):
         """Bucket every primitive ``prims[p]`` (a vector of vertex ids) with ``alive[p]`` != 0 by
@@ -81,14 +103,7 @@ class PrimitiveHash:
             self.count[b] = 0
         self.overflow[None] = 0
         for p in range(self.n):
-            ids = prims[p]
-            lo = ti.min(x0[ids[0]], x1[ids[0]])
-            hi = ti.max(x0[ids[0]], x1[ids[0]])
-            for k in ti.static(range(1, self.corners)):
-                lo = ti.min(lo, ti.min(x0[ids[k]], x1[ids[k]]))
-                hi = ti.max(hi, ti.max(x0[ids[k]], x1[ids[k]]))
-            lo -= self.margin[None]
-            hi += self.margin[None]
+            lo, hi = self.swept_box(x0, x1, prims[p])
             self.lo[p], self.hi[p] = lo, hi
             c_lo, c_hi, clipped = self.box_cells(lo, hi)
             self.cell_lo[p], self.cell_hi[p] = c_lo, c_hi

@@ -85,7 +85,6 @@ class SelfCollision(CandidatePairs):
         # Boxes grown by half the thickness each: two boxes overlap when their primitives could
         # be closer than the thickness (grown by all of it on both sides, twice the pairs).
         self.base_cell = cell  # the cells' side unless a box this step is longer (see _fit_cells)
-        self.box_extent = ti.field(real, shape=())
         self.triangle_grid = PrimitiveHash(mesh.triangle_count, 3, cell, 0.5 * thickness)
         self.edge_grid = PrimitiveHash(len(edges), 2, cell, 0.5 * thickness)
         self.x_start = ti.Vector.field(3, real, shape=n)
