@@ -140,7 +140,7 @@ def solve_reference(data: Mapping[str, np.ndarray], t_end: float, *, rtol: float
                     atol: float = 1e-12, method: str = "DOP853") -> tuple[np.ndarray, np.ndarray]:
     """Positions and velocities at ``t_end`` from (x0, v0), by scipy's ``method``.
 
-    Needs scipy (a test/benchmark dependency, never needed by the simulator itself).
+    Uses scipy (a dependency of the package).
     """
     from scipy.integrate import solve_ivp
 

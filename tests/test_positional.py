@@ -10,6 +10,7 @@ from taichi_sim.errors import ConfigError
 from taichi_sim.guard import GuardLimits
 from taichi_sim.integrators import create_integrator
 from taichi_sim.integrators.positional.colouring import colour_springs
+from taichi_sim.integrators.positional.global_matrix import GlobalMatrix
 
 POSITIONAL = ["xpbd", "projective_dynamics"]
 UNDAMPED = {"damping": 0.0, "drag": 0.0}
@@ -46,6 +47,30 @@ def test_colouring_separates_the_springs_of_each_particle():
 
 
 @pytest.mark.long
+def test_the_global_matrix_solves_three_axes_at_once_and_refuses_what_is_not_spd():
+    n = 12
+    edges = [(i, i + 1) for i in range(n - 1)] + [(0, 5), (3, 9)]
+    rows, cols, vals = [], [], []
+    for i, j in edges:  # a weighted graph Laplacian as COO triplets, with duplicates
+        w = 1.0 + i + j
+        rows += [i, j, i, j]
+        cols += [i, j, j, i]
+        vals += [w, w, -w, -w]
+    rows += list(range(n))
+    cols += list(range(n))
+    vals += [0.5] * n  # a mass term: positive definite
+    matrix = GlobalMatrix(n, len(vals) + 3, np.float64)  # three unused triplets stay 0
+    matrix.rows[:len(vals)], matrix.cols[:len(vals)], matrix.vals[:len(vals)] = rows, cols, vals
+    assert matrix.factorise()
+    dense = np.zeros((n, n))
+    np.add.at(dense, (matrix.rows, matrix.cols), matrix.vals)
+    rhs = np.random.default_rng(1).normal(size=(n, 3))
+    np.testing.assert_allclose(matrix.solve(rhs), np.linalg.solve(dense, rhs), rtol=1e-12, atol=1e-12)
+    # Symmetric with a positive diagonal but indefinite (the mass term outweighed): no factor.
+    matrix.vals[len(vals) - n:len(vals)] = -0.5
+    assert not matrix.factorise() and not matrix.factorised
+
+
 def test_projective_dynamics_converges_to_the_exact_backward_euler_step(f64):
     """Every local/global iteration lowers the same objective whose minimiser is backward Euler:
     iterated to a tight tolerance PD gives implicit_euler's step to 1e-9 m (8 x 8 cloth, the

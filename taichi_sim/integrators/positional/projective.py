@@ -11,6 +11,7 @@ from ...systems.base import System
 from ..base import Integrator, Status, StepReport
 from ..implicit.common import positive_int
 from .external import ExplicitForces
+from .global_matrix import GlobalMatrix
 
 
 @ti.data_oriented
@@ -29,10 +30,10 @@ class ProjectiveDynamics(Integrator):
     gathers the right-hand side) and the *global* step, a linear solve with the constant
     matrix A = M / h^2 + L_k + L_c / h (+ the grab's k + c/h on its particle), L_k and L_c the
     spring graph's Laplacians weighted by stiffness and damping. A is the same for x, y and z
-    (an n x n matrix, not 3n x 3n) and is factorised (Taichi's sparse Cholesky) once per
-    topology and step size: again only when a spring tears, a grab starts or ends, the step
-    size or a spring's stiffness or damping changes, or :meth:`refactorise` is called. Then
-    v = (x - x0) / h.
+    (an n x n matrix, not 3n x 3n) and is factorised (:class:`~.global_matrix.GlobalMatrix`:
+    SuperLU, symmetric, solving x, y and z in one call) once per topology and step size:
+    again only when a spring tears, a grab starts or ends, the step size or a spring's
+    stiffness or damping changes, or :meth:`refactorise` is called. Then v = (x - x0) / h.
 
     What it converges to: every iteration lowers g, and g's minimiser is the backward Euler
     step of the springs with spring forces exact; so with enough ``iterations`` (or a
@@ -77,8 +78,8 @@ class ProjectiveDynamics(Integrator):
             raise ConfigError(f"chebyshev_rho must be a number in [0, 1), got {chebyshev_rho!r}")
         self.chebyshev_rho = float(chebyshev_rho)
         if system.term("springs") is not None and runtime.backend() not in ("x64", "arm64"):
-            raise ConfigError(f"projective_dynamics factorises on the CPU backend only (this run uses "
-                              f"{runtime.backend()}); use xpbd")
+            raise ConfigError(f"projective_dynamics runs on the CPU backend only (its kernels share the "
+                              f"global solve's arrays in place; this run uses {runtime.backend()}); use xpbd")
         real, n = runtime.real(), system.particle_count
         self.external = ExplicitForces(system)
         self.springs = system.term("springs")
@@ -87,14 +88,13 @@ class ProjectiveDynamics(Integrator):
         self.start = ti.Vector.field(3, real, shape=n)  # x0 (m)
         self.inertial = ti.Vector.field(3, real, shape=n)  # y (m)
         self.earlier = ti.Vector.field(3, real, shape=n)  # the iterate before last (Chebyshev)
-        self.rhs = ti.Vector.field(3, real, shape=n)  # global step's right-hand side (N)
-        self.solved = ti.Vector.field(3, real, shape=n)  # the global step's solution (m)
-        self.solver = None
+        # The global step's right-hand side (N), (n, 3): a numpy array the kernels write in place.
+        self.rhs = np.zeros((n, 3), runtime.np_real())
         self.factored_key = None
-        self.builder = None
+        self.matrix = None
         if self.springs is not None or self.grab is not None:
             springs = self.springs.spring_count if self.springs is not None else 0
-            self.builder = ti.linalg.SparseMatrixBuilder(n, n, max_num_triplets=n + 4 * springs + 1, dtype=real)
+            self.matrix = GlobalMatrix(n, n + 4 * springs, runtime.np_real())
         self.factorisations = 0
         self.factorise_seconds = 0.0
         self.total_iterations = 0
@@ -111,28 +111,28 @@ class ProjectiveDynamics(Integrator):
 
     def step(self, state, t: float, h: float) -> StepReport:
         self._begin(state, h, t)
-        if self.builder is None:  # nothing coupled or solved: x = y
+        if self.matrix is None:  # nothing coupled or solved: x = y
             self._finish(state, h)
             return StepReport(accepted=True, h=h, next_h=h, f_evals=1)
         self._factorise_if_needed(h)
-        if self.solver is None:
+        if not self.matrix.factorised:
             return StepReport(accepted=False, h=0.0, next_h=h, f_evals=1, status=Status.DIVERGED,
                               message="projective dynamics: the global matrix is not positive definite")
         omega = 1.0
         iterations = 0
+        self._local_step(state, h, self.rhs)
         for k in range(self.iterations):
             iterations += 1
-            self._local_step(state, h)
-            rhs = self.rhs.to_numpy()
-            solution = np.empty_like(rhs)
-            for axis in range(3):
-                solution[:, axis] = self.solver.solve(np.ascontiguousarray(rhs[:, axis]))
-            self.solved.from_numpy(solution.astype(runtime.np_real(), copy=False))
+            solved = self.matrix.solve(self.rhs)
             if self.chebyshev_rho > 0.0:
                 rho2 = self.chebyshev_rho ** 2
                 omega = 1.0 if k == 0 else (2.0 / (2.0 - rho2) if k == 1 else 4.0 / (4.0 - rho2 * omega))
-            change, displacement = self._accept(state, omega)
-            if self.tolerance is not None and change <= self.tolerance * max(displacement, 1e-300):
+            last = k == self.iterations - 1
+            # One launch per iteration: the solution is accepted and, unless this was the last
+            # iteration, the next local step runs in the same kernel.
+            change, displacement = self._accept(state, solved, omega, h, self.rhs, not last)
+            if not last and self.tolerance is not None \
+                    and change <= self.tolerance * max(displacement, 1e-300):
                 break
         self._finish(state, h)
         self.total_iterations += iterations
@@ -144,42 +144,47 @@ class ProjectiveDynamics(Integrator):
         springs = (self.springs.topology_version, self.springs.parameters_version) if self.has_springs else ()
         grabbed = int(self.grab.particle[None]) if self.has_grab else -1
         key = (h, springs, grabbed)
-        if key == self.factored_key:
+        if key == self.factored_key and self.matrix.factorised:
             return
         start = time.perf_counter()
-        self._assemble(self.builder, h)
-        matrix = self.builder.build()
-        solver = ti.linalg.SparseSolver(dtype=runtime.real(), solver_type="LLT")
-        solver.analyze_pattern(matrix)
-        solver.factorize(matrix)
-        self.solver = solver if solver.info() else None
-        self.factored_key = key if self.solver is not None else None
+        self.matrix.vals.fill(0)
+        self._assemble(self.matrix.rows, self.matrix.cols, self.matrix.vals, h)
+        self.factored_key = key if self.matrix.factorise() else None
         self.factorisations += 1
         self.factorise_seconds += time.perf_counter() - start
 
     @ti.kernel
-    def _assemble(self, builder: ti.types.sparse_matrix_builder(), h: float):
-        for i in self.system.free:
+    def _assemble(self, rows: ti.types.ndarray(ndim=1), cols: ti.types.ndarray(ndim=1),
+                  vals: ti.types.ndarray(ndim=1), h: float):
+        """COO triplets of A: triplet i is particle i's diagonal, triplets n + 4 s .. n + 4 s + 3
+        spring s's four entries (left 0 where an end is pinned or the spring torn)."""
+        n = self.system.particle_count
+        for i in range(n):
             diagonal = ti.cast(1.0, self.start.dtype)
             if self.system.free[i]:
                 diagonal = self.system.mass[i] / (h * h)
                 if ti.static(self.has_grab):
                     if i == self.grab.particle[None]:
                         diagonal += self.grab.stiffness[None] + self.grab.damping[None] / h
-            builder[i, i] += diagonal
+            rows[i], cols[i], vals[i] = i, i, diagonal
         if ti.static(self.has_springs):
             springs = self.springs
-            for s in springs.rest:
+            for s in range(springs.spring_count):
+                i, j = springs.ends[s][0], springs.ends[s][1]
+                first = n + 4 * s
+                rows[first], cols[first] = i, i
+                rows[first + 1], cols[first + 1] = j, j
+                rows[first + 2], cols[first + 2] = i, j
+                rows[first + 3], cols[first + 3] = j, i
                 if springs.is_alive(s):
-                    i, j = springs.ends[s][0], springs.ends[s][1]
                     weight = springs.stiffness[s] + springs.damping[s] / h
                     if self.system.free[i]:
-                        builder[i, i] += weight
+                        vals[first] = weight
                     if self.system.free[j]:
-                        builder[j, j] += weight
+                        vals[first + 1] = weight
                     if self.system.free[i] and self.system.free[j]:
-                        builder[i, j] -= weight
-                        builder[j, i] -= weight
+                        vals[first + 2] = -weight
+                        vals[first + 3] = -weight
 
     # -- kernels --------------------------------------------------------------------------------
 
@@ -195,10 +200,10 @@ class ProjectiveDynamics(Integrator):
             self.earlier[i] = target
             y.x[i] = target
 
-    @ti.kernel
-    def _local_step(self, y: ti.template(), h: float):
+    @ti.func
+    def _project_and_gather(self, y, h, rhs: ti.template()):
         """Project every spring at the iterate ``y.x`` and gather the global step's right-hand
-        side: per particle, a pass over its own springs (no atomics)."""
+        side (N) into ``rhs`` (n, 3): per particle, a pass over its own springs (no atomics)."""
         for i in y.x:
             b = self.start[i]  # a pinned particle's row is the identity
             if self.system.free[i]:
@@ -221,22 +226,32 @@ class ProjectiveDynamics(Integrator):
                             b += c / h * (self.start[i] - self.start[j])
                             if not self.system.free[j]:  # its column moved to the right-hand side
                                 b += (k + c / h) * self.start[j]
-            self.rhs[i] = b
+            for a in ti.static(range(3)):
+                rhs[i, a] = b[a]
 
     @ti.kernel
-    def _accept(self, y: ti.template(), omega: float) -> (float, float):
+    def _local_step(self, y: ti.template(), h: float, rhs: ti.types.ndarray(ndim=2)):
+        self._project_and_gather(y, h, rhs)
+
+    @ti.kernel
+    def _accept(self, y: ti.template(), solved: ti.types.ndarray(ndim=2), omega: float, h: float,
+                rhs: ti.types.ndarray(ndim=2), then_local: ti.template()) -> (float, float):
         """x <- omega (solution - earlier) + earlier (Chebyshev; omega = 1: the solution), keeping
-        the iterate before as ``earlier``; returns (largest change of this iteration, largest
-        displacement from the step's start) in m."""
+        the iterate before as ``earlier``, then (``then_local``) the next local step into
+        ``rhs``; returns (largest change of this iteration, largest displacement from the step's
+        start) in m."""
         change = 0.0
         displacement = 0.0
         for i in y.x:
             if self.system.free[i]:
-                new = omega * (self.solved[i] - self.earlier[i]) + self.earlier[i]
+                solution = ti.Vector([solved[i, 0], solved[i, 1], solved[i, 2]], y.x.dtype)
+                new = omega * (solution - self.earlier[i]) + self.earlier[i]
                 ti.atomic_max(change, (new - y.x[i]).norm())
                 ti.atomic_max(displacement, (new - self.start[i]).norm())
                 self.earlier[i] = y.x[i]
                 y.x[i] = new
+        if ti.static(then_local):
+            self._project_and_gather(y, h, rhs)
         return change, displacement
 
     @ti.kernel
