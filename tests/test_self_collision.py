@@ -152,3 +152,56 @@ def test_out_of_zone_rounds_the_whole_cloth_moves_rigidly_and_nothing_intersects
     assert stage.zone_fallbacks > 0 and stage.unresolved_total == 0
     assert "whole cloth rigid" in stage.summary()
     assert max(self_intersections(x, scene.mesh.triangles_np).count for x in result.x_history) == 0
+
+
+class _Press:
+    """Kinematic pins moving down at ``speed`` (m/s) for ``duration`` s, then holding still."""
+
+    def __init__(self, x0, speed: float, duration: float):
+        self.x0, self.speed, self.duration = np.asarray(x0, float), speed, duration
+
+    def at(self, t: float):
+        x = self.x0.copy()
+        x[:, 1] -= self.speed * min(max(t, 0.0), self.duration)
+        v = np.zeros_like(x)
+        if t < self.duration:
+            v[:, 1] = -self.speed
+        return x, v
+
+    def fastest_speed(self) -> float:
+        return self.speed
+
+    def farthest_travel(self) -> float:
+        return self.speed * self.duration
+
+
+def test_a_pinned_triangle_pressing_a_vertex_onto_the_floor_is_blocked_and_never_passes_it(f64, monkeypatch):
+    """The floor rule (no push into the floor for a vertex within the thickness of it) and the
+    pins leave the contact nothing to move: it is counted as blocked, the fail-safe runs, and
+    the vertex stays under the triangle and on the floor while the triangle comes down to
+    0.4 of the thickness above the floor."""
+    triangle = np.array([[-0.2, 0.03, -0.2], [-0.2, 0.03, 0.3], [0.3, 0.03, -0.2]])
+    b = SceneBuilder()
+    b.add_particles(np.vstack([triangle, [[0.0, 0.004, 0.0]]]), 0.01, pinned=np.array([1, 1, 1, 0], bool))
+    b.add_triangles(np.array([[0, 1, 2]]))
+    b.set_gravity(9.8)
+    b.set_plane((0.0, 0.0, 0.0), (0.0, 1.0, 0.0), restitution=0.0)
+    b.enable_self_collision(0.01, 0.0, 4)
+    b.add_kinematic([0, 1, 2], _Press(triangle, speed=1.0, duration=0.026))  # from 3 cm down to 4 mm
+    scene = b.finalize(name="t", params={}, default_dt=1 / 240, default_integrator="symplectic_euler")
+    stage = stage_of(scene)
+    seen = []  # (blocked contacts, rounds clean) of each step, as the fail-safe is called
+    fail_safe = stage._fail_safe
+
+    def spy(state, h, rounds_clean):
+        seen.append((int(stage.blocked[None]), rounds_clean))
+        fail_safe(state, h, rounds_clean)
+
+    monkeypatch.setattr(stage, "_fail_safe", spy)
+    result = ts.run(scene, "symplectic_euler", dt=1 / 240, steps=24, save_every=1)
+    assert result.status.value == "ok"
+    assert any(blocked > 0 for blocked, _ in seen)
+    assert all(not clean for blocked, clean in seen if blocked > 0)  # a blocked step is never clean
+    for x in result.x_history:
+        assert x[3, 1] < x[0, 1]  # under the triangle: never passed through it
+        assert x[3, 1] >= -1e-12  # and never pushed through the floor

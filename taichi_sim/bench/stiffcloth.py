@@ -21,6 +21,7 @@ METHODS: tuple[tuple[str, dict], ...] = (
     ("implicit_euler", {}),
     ("implicit_euler_linearised", {}),
     ("projective_dynamics", {"iterations": 5}),
+    ("projective_dynamics", {"iterations": 5, "chebyshev_rho": 0.9}),
     ("projective_dynamics", {"iterations": 20}),
     ("xpbd", {"substeps": 10}),
     ("xpbd", {"substeps": 50}),

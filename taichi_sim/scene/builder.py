@@ -261,7 +261,9 @@ class SceneBuilder:
     def add_kinematic(self, ids, path) -> None:
         """Move pinned particles ``ids`` along a script between steps (see
         :class:`~taichi_sim.scene.kinematic.KinematicPins`): ``path.at(t)`` gives their
-        positions (m) and velocities (m/s) at time t (s), ``path.at(0)`` where they are now."""
+        positions (m) and velocities (m/s) at time t (s), ``path.at(0)`` where they are now;
+        ``path.fastest_speed()`` (m/s) and ``path.farthest_travel()`` (m) bound them for the
+        blow-up guard."""
         ids = np.asarray(ids, np.int64).reshape(-1)
         if len(ids) == 0:
             raise ValueError("kinematic pins need at least one particle")
