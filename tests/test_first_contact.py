@@ -221,10 +221,12 @@ def test_bench_says_what_it_skips_without_scipy_or_matplotlib(tmp_path, monkeypa
 
 def test_run_sh_installs_the_extras_the_readme_examples_use():
     run_sh = (ROOT / "run.sh").read_text()
-    extras = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["optional-dependencies"]
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    extras = project["optional-dependencies"]
     chosen = next(line for line in run_sh.splitlines() if "source scripts/bootstrap.sh" in line)
     names = chosen.split("TS_EXTRAS=", 1)[1].split()[0].split(",")
-    installed = {req.split(">")[0].split("=")[0].split("[")[0] for name in names if name for req in extras[name]}
+    requirements = project["dependencies"] + [req for name in names if name for req in extras[name]]
+    installed = {req.split(">")[0].split("=")[0].split("[")[0] for req in requirements}
     assert {"scipy", "matplotlib"} <= installed  # the npz check, bench plots and references
     readme = (ROOT / "README.md").read_text()
     assert "\npip install -e" not in readme and "\n pip install" not in readme
