@@ -21,7 +21,17 @@ from .errors import ConfigError
 ARCHS = ("cpu", "gpu")
 PRECISIONS = ("f32", "f64")
 
-_current: dict = {"arch": None, "precision": None, "backend": None}
+_current: dict = {"arch": None, "precision": None, "backend": None, "threads": 1}
+
+SERIAL_WORK = 300_000
+"""Items (particles plus springs) times spare threads below which a hot loop runs on one
+thread (:func:`serial_loops`). On the 2-vCPU development machine a parallel loop costs about
+30-80 us of thread hand-off and gains little (the two vCPUs share one core): a cloth's
+symplectic Euler step, serial against parallel, took 39 against 121 us at 32 x 32 (7k items),
+103 against 183 us at 64 x 64, 365 against 424 us at 128 x 128 (113k items) and 794 against
+824 us at 192 x 192 (256k); at 256 x 256 (456k items) parallel won, 1286 against 1410 us (f32,
+``benchmarks/bench_serial_loops.py``, alternated rounds, medians). Machines with more threads
+were not measured: that the break-even shrinks as 1 / (threads - 1) is a guess."""
 
 
 def init(arch: str = "cpu", precision: str = "f64", *, debug: bool = False,
@@ -68,7 +78,19 @@ def init(arch: str = "cpu", precision: str = "f64", *, debug: bool = False,
         _write_kernel_cache_at_exit()
     if arch == "gpu":
         print(f"taichi_sim: --arch gpu: {describe_gpu_choice(chosen, log)}", file=sys.stderr)
-    _current.update(arch=arch, precision=precision, backend=chosen)
+    threads = int(cpu_max_num_threads) if cpu_max_num_threads is not None else (os.cpu_count() or 1)
+    _current.update(arch=arch, precision=precision, backend=chosen, threads=max(1, threads))
+
+
+def serial_loops(items: int, break_even: int | None = None) -> bool:
+    """Whether a loop over ``items`` (with work about the same per item) should run on one
+    thread: only on a CPU backend, and only when ``items`` times the spare threads is below
+    ``break_even`` (default :data:`SERIAL_WORK`). On a GPU a serial loop is one GPU thread:
+    never."""
+    if _current["backend"] not in ("x64", "arm64"):
+        return False
+    limit = SERIAL_WORK if break_even is None else break_even
+    return _current["threads"] <= 1 or items * (_current["threads"] - 1) < limit
 
 
 _AT_EXIT = {"registered": False}

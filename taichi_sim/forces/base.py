@@ -41,6 +41,10 @@ class ForceTerm:
     first. True unless a term says otherwise (gravity, drag, the grab pull), so that a new
     term is safe by default."""
 
+    serial_loops = False
+    """Whether the term's whole-system pass (``precompute``) runs on one thread; set by the
+    system the term belongs to (see :func:`taichi_sim.runtime.serial_loops`)."""
+
     precomputes = False
     """Whether the term can split its force into a pass over the whole system and a cheap sum
     per particle: ``@ti.func precompute(y)`` (a loop at the top level of the calling kernel that

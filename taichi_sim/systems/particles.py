@@ -50,7 +50,10 @@ class ParticleSystem(ImplicitAPI, System):
         self.particle_count = n = len(mass)
         self.mass_np = mass
         self.pinned_np = pinned
-        self.terms = list(terms)
+        self.terms = []
+        self.serial_loops = False
+        for term in terms:
+            self.add_term(term)
         self.constraints = None
         self._launchers: dict[tuple, object] = {}
         self.mass = ti.field(runtime.real(), shape=n)
@@ -67,6 +70,11 @@ class ParticleSystem(ImplicitAPI, System):
     def add_term(self, term: ForceTerm) -> None:
         """Add a force term; only before the first eval_f (its kernel is compiled then)."""
         self.terms.append(term)
+        springs = sum(getattr(t, "spring_count", 0) for t in self.terms)
+        # one thread where hand-off costs more than the second thread gives (runtime.SERIAL_WORK)
+        self.serial_loops = runtime.serial_loops(self.particle_count + springs)
+        for t in self.terms:  # their whole-system passes (precompute) follow the system's choice
+            t.serial_loops = self.serial_loops
 
     def set_constraints(self, constraints) -> None:
         """Add the constraint stage; only before the first eval_f (compiled into its kernels).
@@ -166,7 +174,8 @@ class ParticleSystem(ImplicitAPI, System):
     @ti.func
     def _eval_f_body(self, y, out, t):
         self._prepare(y, t)
-        for i in y.x:
+        ti.loop_config(serialize=self.serial_loops)
+        for i in range(self.particle_count):
             self._derivative(i, y, out, t)
 
     def eval_f_staged(self, y: State, t: float, out: State, h: float, after=None) -> None:
@@ -193,7 +202,8 @@ class ParticleSystem(ImplicitAPI, System):
     @ti.func
     def _eval_f_staged_body(self, y, out, t, h, after: ti.template()):
         self._prepare(y, t)
-        for i in y.x:
+        ti.loop_config(serialize=self.serial_loops)
+        for i in range(self.particle_count):
             self._derivative(i, y, out, t)
             if ti.static(_given(after)):
                 after.apply(i, h)
@@ -228,17 +238,20 @@ class ParticleSystem(ImplicitAPI, System):
     def _symplectic_body(self, y, scratch, t, h):
         self._prepare(y, t)
         if ti.static(self.sums_locally()):
-            for i in y.x:
+            ti.loop_config(serialize=self.serial_loops)
+            for i in range(self.particle_count):
                 v = y.v[i]
                 if self.free[i]:
                     v += h * (self._net_force(i, y, self.mass[i], t) / self.mass[i])
                     y.v[i] = v
                 y.x[i] += h * v
         else:
-            for i in y.x:
+            ti.loop_config(serialize=self.serial_loops)
+            for i in range(self.particle_count):
                 if self.free[i]:
                     scratch.v[i] = self._net_force(i, y, self.mass[i], t) / self.mass[i]
-            for i in y.x:
+            ti.loop_config(serialize=self.serial_loops)
+            for i in range(self.particle_count):
                 v = y.v[i]
                 if self.free[i]:
                     v += h * scratch.v[i]

@@ -132,6 +132,7 @@ class GridSprings(Springs):
     def precompute(self, y):
         """Every slot's spring force at ``y`` (one pass over the grid points)."""
         first, nx, ny = ti.static(self.layout.first, self.layout.nx, self.layout.ny)
+        ti.loop_config(serialize=self.serial_loops)
         for i, j in ti.ndrange(nx, ny):
             p = first + i * ny + j
             xp = y.x[p]

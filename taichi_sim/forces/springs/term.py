@@ -169,6 +169,7 @@ class Springs(SpringJacobians, ForceTerm):
     def precompute(self, y):
         """Each live spring's force on its first end at ``y`` into ``spring_force`` (a
         spring-parallel loop: see :attr:`ForceTerm.precomputes`)."""
+        ti.loop_config(serialize=self.serial_loops)
         for s in range(self.spring_count):
             g = ti.Vector.zero(y.x.dtype, 3)
             if self.is_alive(s):

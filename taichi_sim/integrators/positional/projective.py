@@ -82,6 +82,7 @@ class ProjectiveDynamics(Integrator):
                               f"global solve's arrays in place; this run uses {runtime.backend()}); use xpbd")
         real, n = runtime.real(), system.particle_count
         self.external = ExplicitForces(system)
+        self.external.serial = system.serial_loops
         self.springs = system.term("springs")
         self.grab = system.term("grab")
         self.has_springs, self.has_grab = self.springs is not None, self.grab is not None
@@ -191,7 +192,8 @@ class ProjectiveDynamics(Integrator):
     @ti.kernel
     def _begin(self, y: ti.template(), h: float, t: float):
         self.external.gather(y, t)
-        for i in y.x:
+        ti.loop_config(serialize=self.system.serial_loops)
+        for i in range(self.system.particle_count):
             self.start[i] = y.x[i]
             target = y.x[i]
             if self.system.free[i]:
@@ -204,7 +206,8 @@ class ProjectiveDynamics(Integrator):
     def _project_and_gather(self, y, h, rhs: ti.template()):
         """Project every spring at the iterate ``y.x`` and gather the global step's right-hand
         side (N) into ``rhs`` (n, 3): per particle, a pass over its own springs (no atomics)."""
-        for i in y.x:
+        ti.loop_config(serialize=self.system.serial_loops)
+        for i in range(self.system.particle_count):
             b = self.start[i]  # a pinned particle's row is the identity
             if self.system.free[i]:
                 b = self.system.mass[i] / (h * h) * self.inertial[i]
@@ -242,7 +245,8 @@ class ProjectiveDynamics(Integrator):
         start) in m."""
         change = 0.0
         displacement = 0.0
-        for i in y.x:
+        ti.loop_config(serialize=self.system.serial_loops)
+        for i in range(self.system.particle_count):
             if self.system.free[i]:
                 solution = ti.Vector([solved[i, 0], solved[i, 1], solved[i, 2]], y.x.dtype)
                 new = omega * (solution - self.earlier[i]) + self.earlier[i]
@@ -256,6 +260,7 @@ class ProjectiveDynamics(Integrator):
 
     @ti.kernel
     def _finish(self, y: ti.template(), h: float):
-        for i in y.x:
+        ti.loop_config(serialize=self.system.serial_loops)
+        for i in range(self.system.particle_count):
             if self.system.free[i]:
                 y.v[i] = (y.x[i] - self.start[i]) / h

@@ -10,9 +10,13 @@ from .colouring import colour_springs
 from .external import ExplicitForces
 
 FUSED_ITERATIONS = 4  # up to this many sweeps are unrolled into the one kernel of a substep
-# Serial loops below this many springs: on a 64 x 64 cloth (24k springs, 2 cores) a substep took
-# 0.77 ms serial against 1.2 ms parallel, on 128 x 128 (97k) 2.8 ms against 2.7 ms.
-SERIAL_SPRINGS = 40_000
+# Serial loops below this many springs (times spare threads; runtime.serial_loops, never on a
+# GPU). On the 2-vCPU development machine a 20-substep step, serial against parallel, took 1.5
+# against 12.6 ms at 32 x 32, 4.6 against 21.6 ms at 64 x 64, 17.4 against 64.2 ms at
+# 128 x 128 (97k springs), 69 against 204 ms at 256 x 256 and 160 against 329 ms at 384 x 384
+# (1.0M springs; f32, benchmarks/bench_serial_loops.py): the colour loops are short and many
+# (12 a sweep), so a parallel one is mostly hand-off. Larger cloths were not measured.
+SERIAL_SPRINGS = 2_000_000
 
 
 @ti.data_oriented
@@ -76,10 +80,10 @@ class XPBD(Integrator):
             self.multiplier = ti.field(real, shape=max(1, self.springs.spring_count))  # lambda (N s^2)
         self.grab_multiplier = ti.Vector.field(3, real, shape=())
         self.fused = self.iterations <= FUSED_ITERATIONS
-        # Below SERIAL_SPRINGS each parallel loop costs more in thread hand-off than in work
-        # (about 30 us per loop on 2 cores, 17 loops per substep): run the loops on one thread.
+        # Below SERIAL_SPRINGS each parallel loop costs more in thread hand-off than it gains
+        # (17 loops per substep): run the loops on one thread.
         springs = self.springs.spring_count if self.has_springs else 0
-        self.serial = self.external.serial = springs < SERIAL_SPRINGS
+        self.serial = self.external.serial = runtime.serial_loops(springs, SERIAL_SPRINGS)
 
     @property
     def colour_count(self) -> int:

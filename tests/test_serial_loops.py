@@ -1,0 +1,46 @@
+"""Hot loops on one thread for small systems: the choice, and that it changes no result."""
+import numpy as np
+import pytest
+
+import taichi_sim as ts
+from taichi_sim import runtime
+from taichi_sim.integrators import create_integrator
+from taichi_sim.integrators.positional import xpbd
+
+
+def test_the_choice_depends_on_the_backend_the_threads_and_the_size(monkeypatch):
+    def choose(backend, threads, items, break_even=None):
+        monkeypatch.setitem(runtime._current, "backend", backend)
+        monkeypatch.setitem(runtime._current, "threads", threads)
+        return runtime.serial_loops(items, break_even)
+
+    limit = runtime.SERIAL_WORK
+    assert choose("x64", 2, limit - 1) and not choose("x64", 2, limit)
+    assert choose("x64", 1, 10 ** 9)  # one thread: every loop is serial anyway
+    assert not choose("x64", 16, limit // 10)  # 15 spare threads: a tenth of the limit is past it
+    assert choose("arm64", 3, 100, break_even=201) and not choose("arm64", 3, 100, break_even=200)
+    for gpu in ("cuda", "vulkan", "metal"):
+        assert not choose(gpu, 2, 1)  # a serial loop on a GPU is one GPU thread
+
+
+@pytest.mark.parametrize("integrator", ["symplectic_euler", "rk4", "xpbd"])
+def test_serial_and_parallel_loops_give_the_same_trajectory_bit_for_bit(f64, monkeypatch, integrator):
+    """No loop that runs serial for small systems reduces into a shared value or reads what
+    another iteration writes, so the order of its iterations cannot change a bit."""
+    if runtime._current["threads"] <= 1:
+        pytest.skip("one thread: every loop runs serial")
+    dt = 1 / 60 if integrator == "xpbd" else 1e-3
+    runs = []
+    for serial in (True, False):
+        monkeypatch.setattr(runtime, "SERIAL_WORK", 10 ** 12 if serial else 0)
+        monkeypatch.setattr(xpbd, "SERIAL_SPRINGS", 10 ** 12 if serial else 0)
+        scene = ts.build_scene("cloth", {"nx": 12, "ny": 12, "wind": True})
+        method = create_integrator(integrator, scene.system)
+        assert scene.system.serial_loops is serial
+        assert all(term.serial_loops is serial for term in scene.system.terms)
+        if integrator == "xpbd":
+            assert method.serial is serial
+        result = ts.run(scene, method, dt=dt, steps=30)
+        assert result.status.value == "ok"
+        runs.append(scene.state.to_numpy())
+    assert np.array_equal(runs[0][0], runs[1][0]) and np.array_equal(runs[0][1], runs[1][1])
