@@ -79,7 +79,7 @@ def main() -> None:
             serial_t, parallel_t = statistics.median(times[True]), statistics.median(times[False])
             # what the default break-even picks for this cloth
             picks_serial = (runtime.serial_loops(items) if name != "xpbd" else
-                            runtime.serial_loops(pair[True][1].springs.spring_count, xpbd.SERIAL_SPRINGS))
+                            runtime.serial_loops(items, xpbd.SERIAL_SPRINGS))
             chosen = "serial" if picks_serial else "parallel"
             print(f"{n:>5} {name:<18} {items:>8} {serial_t:>15.0f} {parallel_t:>17.0f} "
                   f"{serial_t / parallel_t:>16.2f} {chosen:>8}", flush=True)

@@ -78,8 +78,17 @@ def init(arch: str = "cpu", precision: str = "f64", *, debug: bool = False,
         _write_kernel_cache_at_exit()
     if arch == "gpu":
         print(f"taichi_sim: --arch gpu: {describe_gpu_choice(chosen, log)}", file=sys.stderr)
-    threads = int(cpu_max_num_threads) if cpu_max_num_threads is not None else (os.cpu_count() or 1)
+    threads = int(cpu_max_num_threads) if cpu_max_num_threads is not None else usable_cpus()
     _current.update(arch=arch, precision=precision, backend=chosen, threads=max(1, threads))
+
+
+def usable_cpus() -> int:
+    """CPUs this process may run on (its affinity mask where the OS has one, e.g. a container
+    limited to 2 of a host's 64; else the machine's count): what a parallel loop can gain."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
 
 
 def serial_loops(items: int, break_even: int | None = None) -> bool:

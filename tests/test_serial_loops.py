@@ -23,13 +23,13 @@ def test_the_choice_depends_on_the_backend_the_threads_and_the_size(monkeypatch)
         assert not choose(gpu, 2, 1)  # a serial loop on a GPU is one GPU thread
 
 
-@pytest.mark.parametrize("integrator", ["symplectic_euler", "rk4", "xpbd"])
+@pytest.mark.parametrize("integrator", ["symplectic_euler", "rk4", "xpbd", "projective_dynamics"])
 def test_serial_and_parallel_loops_give_the_same_trajectory_bit_for_bit(f64, monkeypatch, integrator):
     """No loop that runs serial for small systems reduces into a shared value or reads what
     another iteration writes, so the order of its iterations cannot change a bit."""
     if runtime._current["threads"] <= 1:
         pytest.skip("one thread: every loop runs serial")
-    dt = 1 / 60 if integrator == "xpbd" else 1e-3
+    dt = 1 / 60 if integrator in ("xpbd", "projective_dynamics") else 1e-3
     runs = []
     for serial in (True, False):
         monkeypatch.setattr(runtime, "SERIAL_WORK", 10 ** 12 if serial else 0)

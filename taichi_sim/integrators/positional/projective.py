@@ -77,7 +77,8 @@ class ProjectiveDynamics(Integrator):
                 or not 0 <= chebyshev_rho < 1:
             raise ConfigError(f"chebyshev_rho must be a number in [0, 1), got {chebyshev_rho!r}")
         self.chebyshev_rho = float(chebyshev_rho)
-        if system.term("springs") is not None and runtime.backend() not in ("x64", "arm64"):
+        coupled = system.term("springs") is not None or system.term("grab") is not None
+        if coupled and runtime.backend() not in ("x64", "arm64"):
             raise ConfigError(f"projective_dynamics runs on the CPU backend only (its kernels share the "
                               f"global solve's arrays in place; this run uses {runtime.backend()}); use xpbd")
         real, n = runtime.real(), system.particle_count

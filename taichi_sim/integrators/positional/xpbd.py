@@ -10,8 +10,8 @@ from .colouring import colour_springs
 from .external import ExplicitForces
 
 FUSED_ITERATIONS = 4  # up to this many sweeps are unrolled into the one kernel of a substep
-# Serial loops below this many springs (times spare threads; runtime.serial_loops, never on a
-# GPU). On the 2-vCPU development machine a 20-substep step, serial against parallel, took 1.5
+# Serial loops below this many particles plus springs (times spare threads;
+# runtime.serial_loops, never on a GPU). On the 2-vCPU development machine a 20-substep step, serial against parallel, took 1.5
 # against 12.6 ms at 32 x 32, 4.6 against 21.6 ms at 64 x 64, 17.4 against 64.2 ms at
 # 128 x 128 (97k springs), 69 against 204 ms at 256 x 256 and 160 against 329 ms at 384 x 384
 # (1.0M springs; f32, benchmarks/bench_serial_loops.py): the colour loops are short and many
@@ -83,7 +83,7 @@ class XPBD(Integrator):
         # Below SERIAL_SPRINGS each parallel loop costs more in thread hand-off than it gains
         # (17 loops per substep): run the loops on one thread.
         springs = self.springs.spring_count if self.has_springs else 0
-        self.serial = self.external.serial = runtime.serial_loops(springs, SERIAL_SPRINGS)
+        self.serial = self.external.serial = runtime.serial_loops(n + springs, SERIAL_SPRINGS)
 
     @property
     def colour_count(self) -> int:
