@@ -36,8 +36,9 @@ class XPBD(Integrator):
     - a grab is the zero-length constraint x - target with compliance 1/``grab_stiffness``.
 
     The springs are edge-coloured once (:func:`~.colouring.colour_springs`): the springs of one
-    colour share no particle and are projected in parallel. Tearing only kills springs, so the
-    colouring stays valid; nothing is refactorised.
+    colour share no particle, so a colour can be projected in parallel (on a GPU; on a CPU the
+    loops run on one thread below :data:`SERIAL_SPRINGS`, where that is faster). Tearing only
+    kills springs, so the colouring stays valid; nothing is refactorised.
 
     What it converges to: with the sweeps converged, each substep is a backward Euler step of the
     springs (with the explicit forces applied first), so XPBD inherits backward Euler's
