@@ -55,6 +55,7 @@ class SceneBuilder:
         self._capsules: list[Capsule] = []
         self._boxes: list[Box] = []
         self._continuous_spheres = True
+        self._object_faces = True
         self._tear_strain = None
         self._self_collision = None
         self._kinematic = None
@@ -233,6 +234,13 @@ class SceneBuilder:
         self._spheres.append((path, float(radius), float(friction)))
         self._continuous_spheres = bool(continuous)
 
+    def set_object_faces(self, on: bool) -> None:
+        """Whether spheres, capsules and boxes test the cloth's triangles as well as its
+        vertices (default on; needs triangles; see
+        :class:`~taichi_sim.scene.colliders.faces.FaceContact`). Off, an object smaller than
+        the cloth's spacing can pass between vertices, through a face."""
+        self._object_faces = bool(on)
+
     def add_capsule(self, path: SpherePath, radius: float, half_axis, friction: float = 0.0) -> None:
         """A capsule collider: the points within ``radius`` (m) of the segment from centre -
         ``half_axis`` to centre + ``half_axis`` (m), the centre translating along ``path``."""
@@ -311,7 +319,7 @@ class SceneBuilder:
         features: dict[str, Any] = {"particles": self._count, "pinned": int(pinned.sum()),
                                     "gravity": False, "drag": False, "springs": 0, "grid_stencil": False,
                                     "dashpots": False, "wind": False, "turbulence": False, "spheres": 0,
-                                    "capsules": 0, "boxes": 0, "plane": False, "tearing": False, "emitter": 0,
+                                    "capsules": 0, "boxes": 0, "object_faces": False, "plane": False, "tearing": False, "emitter": 0,
                                     "grab": False, "triangles": 0, "self_collision": False, "constraints": 0,
                                     "kinematic": 0}
         arrays: dict[str, np.ndarray] = {
@@ -350,9 +358,11 @@ class SceneBuilder:
             features.update(springs=springs.spring_count, dashpots=springs.damped,
                             tearing=springs.tearable, grid_stencil=layout is not None)
         mesh = None
+        faces = None  # the mesh the object colliders test, when they test faces
         if self._triangles:
             mesh = TriangleMesh(self._count, np.concatenate(self._triangles), springs)
             features["triangles"] = mesh.triangle_count
+            faces = mesh if self._object_faces else None
         if self._wind is not None:
             if mesh is None:
                 raise ValueError("wind acts on triangles: add_triangles first")
@@ -384,7 +394,7 @@ class SceneBuilder:
         if self._spheres:
             paths, radii, frictions = zip(*self._spheres)
             spheres = SphereColliders(list(paths), list(radii), list(frictions), system.free,
-                                      continuous=self._continuous_spheres)
+                                      continuous=self._continuous_spheres, mesh=faces, mass=system.mass)
             post_step.append(spheres)
             features["spheres"] = spheres.count
             arrays["sphere_radius"] = np.asarray(radii, float)
@@ -392,16 +402,17 @@ class SceneBuilder:
                 arrays["sphere_omega"] = np.stack([p.angular_velocity() for p in paths])
         capsules = boxes = None
         if self._capsules:
-            capsules = CapsuleColliders(self._capsules, system.free)
+            capsules = CapsuleColliders(self._capsules, system.free, mesh=faces, mass=system.mass)
             post_step.append(capsules)
             features["capsules"] = capsules.count
             arrays["capsule_radius"] = np.asarray([c.radius for c in self._capsules], float)
             arrays["capsule_half_axis"] = np.asarray([c.half_axis for c in self._capsules], float)
         if self._boxes:
-            boxes = BoxColliders(self._boxes, system.free)
+            boxes = BoxColliders(self._boxes, system.free, mesh=faces, mass=system.mass)
             post_step.append(boxes)
             features["boxes"] = boxes.count
             arrays["box_half_extents"] = np.asarray([b.half_extents for b in self._boxes], float)
+        features["object_faces"] = faces is not None and bool(self._spheres or self._capsules or self._boxes)
         if self._plane is not None:
             plane = PlaneCollider(*self._plane, free=system.free)
             post_step.append(plane)

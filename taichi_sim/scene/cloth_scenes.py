@@ -60,6 +60,8 @@ CLOTH_PARAMS: tuple[Param, ...] = (
     Param("sphere_friction", 0.0, "", "Coulomb friction coefficient on the sphere", minimum=0.0),
     Param("sphere_spin", 0.0, "rad/s", "the sphere's spin about the vertical axis through its centre "
           "(friction drags what lies on it)"),
+    Param("object_faces", True, "", "test the cloth's triangles against spheres, capsules and boxes "
+          "too, not only its vertices (an object smaller than the spacing cannot pass between them)"),
     # capsule (axis along x) and axis-aligned box
     Param("capsule", False, "", "a capsule (axis along x) the cloth collides with"),
     Param("capsule_radius", 0.1, "m", "capsule radius", minimum=0.0, exclusive=True),
@@ -219,6 +221,7 @@ def build_cloth(preset: ScenePreset, p: dict[str, Any], seed: int) -> Scene:
     if p["wind"]:
         b.set_wind(speed=p["wind_speed"], heading=p["wind_heading"], gust=p["wind_gust"],
                    gust_frequency=p["wind_gust_frequency"], drag_coefficient=p["wind_drag"], seed=seed)
+    b.set_object_faces(p["object_faces"])
     if p["sphere"]:
         b.add_sphere(sphere_path(p), p["sphere_radius"], p["sphere_friction"])
     if p["capsule"]:

@@ -7,6 +7,7 @@ import taichi as ti
 
 from ... import runtime
 from .contact import inelastic_friction
+from .faces import FaceContact, box_separation, segment_crosses_triangle, segment_to_triangle
 from .path import PathFields, SpherePath
 from .step_start import StepStart
 
@@ -56,7 +57,7 @@ class Box:
 
 
 @ti.data_oriented
-class _TranslatingShapes:
+class _TranslatingShapes(FaceContact):
     """What capsules and boxes share: paths, step starts, the march and the response.
 
     In a shape's frame a free particle goes from a = p0 - c(t - h) to b = p1 - c(t). Starting
@@ -66,10 +67,11 @@ class _TranslatingShapes:
     step's motion along the surface's tangent plane (then back onto the surface if that entered
     it), so it stays on the side it came from and a resting particle still slides, and gets the inelastic, Coulomb-friction response against the shape's
     velocity. A particle that ends inside after starting inside (a reset, a jump) is pushed out
-    along the normal at its end. Only vertices are tested (see SphereColliders).
+    along the normal at its end. Given a ``mesh`` (and the ``mass`` field), the triangles are
+    tested too (:class:`FaceContact`).
     """
 
-    def __init__(self, shapes, free):
+    def __init__(self, shapes, free, mesh=None, mass=None):
         real = runtime.real()
         self.count = K = len(shapes)
         self.shapes = tuple(shapes)
@@ -82,6 +84,7 @@ class _TranslatingShapes:
         self.friction.from_numpy(np.asarray([s.friction for s in shapes], runtime.np_real()))
         self.touch.from_numpy(np.asarray([TOUCH_FRACTION * self.thinnest(s) for s in shapes], runtime.np_real()))
         self.start = StepStart(free.shape[0])
+        self._init_faces(mesh, mass, [self.bounding_box(s) for s in shapes], [self.thinnest(s) for s in shapes])
         self.move_to(0.0)
 
     def restore(self) -> None:
@@ -103,7 +106,12 @@ class _TranslatingShapes:
         self.start.begin(state, t, h)
         self.move_to(t)
         self._collide(state, self.start.x, t, h)
+        self._faces(state, self.start.x, t, h)
         self.start.end(state, t)
+
+    @ti.func
+    def surface_velocity(self, k, t, r):
+        return self.path.velocity(k, t)  # they translate only
 
     @ti.kernel
     def _collide(self, y: ti.template(), x_start: ti.template(), t: float, h: float):
@@ -151,17 +159,45 @@ class _TranslatingShapes:
 class CapsuleColliders(_TranslatingShapes):
     """Capsules (see :class:`Capsule` and :class:`_TranslatingShapes`)."""
 
-    def __init__(self, capsules: list[Capsule], free):
+    def __init__(self, capsules: list[Capsule], free, mesh=None, mass=None):
         real = runtime.real()
         self.radius = ti.field(real, shape=len(capsules))
         self.half_axis = ti.Vector.field(3, real, shape=len(capsules))
         self.radius.from_numpy(np.asarray([c.radius for c in capsules], runtime.np_real()))
         self.half_axis.from_numpy(np.asarray([c.half_axis for c in capsules], runtime.np_real()))
-        super().__init__(capsules, free)
+        super().__init__(capsules, free, mesh, mass)
 
     @staticmethod
     def thinnest(capsule: Capsule) -> float:
         return capsule.radius
+
+    @staticmethod
+    def bounding_box(capsule: Capsule) -> tuple:
+        return tuple(np.abs(np.asarray(capsule.half_axis, float)) + capsule.radius)
+
+    @ti.func
+    def triangle_contact(self, k, a, b, c):
+        e = self.half_axis[k]
+        dist, w, z = segment_to_triangle(-e, e, a, b, c)
+        p = w[0] * a + w[1] * b + w[2] * c
+        n = (b - a).cross(c - a).normalized()  # on the axis itself: out through the face's normal
+        if dist > 0.0:
+            n = (p - z) / dist
+        return dist - self.radius[k], w, n, z + self.radius[k] * n
+
+    @ti.func
+    def end_overlap(self, k, a, b, c, side):
+        depth, out = 0.0 * a[0], side
+        e = self.half_axis[k]
+        if segment_crosses_triangle(-e, e, a, b, c):
+            # the distance from the features holds only apart: pushed back along the side the
+            # face came from, past the capsule's extent that way
+            reach = ti.abs(e.dot(side)) + self.radius[k]
+            depth = reach - ti.min(a.dot(side), ti.min(b.dot(side), c.dot(side)))
+        else:
+            d, _, n, _ = self.triangle_contact(k, a, b, c)
+            depth, out = -d, n
+        return depth, out
 
     @ti.func
     def closest_on_axis(self, k, q):
@@ -187,14 +223,31 @@ class CapsuleColliders(_TranslatingShapes):
 class BoxColliders(_TranslatingShapes):
     """Axis-aligned boxes (see :class:`Box` and :class:`_TranslatingShapes`)."""
 
-    def __init__(self, boxes: list[Box], free):
+    KEEPS_START_OVERLAP = True
+
+    def __init__(self, boxes: list[Box], free, mesh=None, mass=None):
         self.half = ti.Vector.field(3, runtime.real(), shape=len(boxes))
         self.half.from_numpy(np.asarray([b.half_extents for b in boxes], runtime.np_real()))
-        super().__init__(boxes, free)
+        super().__init__(boxes, free, mesh, mass)
 
     @staticmethod
     def thinnest(box: Box) -> float:
         return float(min(box.half_extents))
+
+    @staticmethod
+    def bounding_box(box: Box) -> tuple:
+        return tuple(box.half_extents)
+
+    @ti.func
+    def triangle_contact(self, k, a, b, c):
+        gap, w, n = box_separation(self.half[k], a, b, c)
+        p = w[0] * a + w[1] * b + w[2] * c
+        return gap, w, n, p - gap * n  # a point on the plane across the gap: all the push needs
+
+    @ti.func
+    def end_overlap(self, k, a, b, c, side):
+        gap, _, n = box_separation(self.half[k], a, b, c)
+        return -gap, n
 
     @ti.func
     def distance(self, k, q):

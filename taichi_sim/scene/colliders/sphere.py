@@ -6,12 +6,13 @@ import taichi as ti
 
 from ... import runtime
 from .contact import inelastic_friction
+from .faces import FaceContact, sphere_to_triangle
 from .path import PathFields, SpherePath
 from .step_start import StepStart
 
 
 @ti.data_oriented
-class SphereColliders:
+class SphereColliders(FaceContact):
     """Spheres that particles cannot enter, however fast they move.
 
     After each accepted step, in each sphere's frame a free particle goes from p0 - c(t - h) to
@@ -25,18 +26,20 @@ class SphereColliders:
     surface velocity is v_c + omega x r, so a spinning sphere drags what lies on it. A particle
     that starts a step inside (only after a reset or a jump) is pushed out along c -> p1.
 
-    Only vertices are tested: a sphere smaller than the cloth's spacing can still pass between
-    them (through a triangle), and an edge can cut across a sphere whose vertices stay out.
+    Given a ``mesh``, the triangles are tested too (:class:`FaceContact`): a sphere smaller
+    than the cloth's spacing cannot pass between vertices through a face.
 
     Args:
         paths: one :class:`SpherePath` per sphere; radii (m) and frictions alike.
         free: the system's (n,) i32 field, 1 for particles that move.
-        continuous: False tests only the end positions (the old projection, which lets a sphere
-            that moves more than its radius per step pass through): kept to compare.
+        continuous: False tests only the end positions of vertices (the old projection, which
+            lets a sphere that moves more than its radius per step pass through): kept to compare.
+        mesh: the cloth's :class:`~taichi_sim.mesh.TriangleMesh`, or None (vertices only);
+        mass: the system's (n,) mass field (kg), needed with a mesh.
     """
 
     def __init__(self, paths: list[SpherePath], radii: list[float], frictions: list[float], free,
-                 continuous: bool = True):
+                 continuous: bool = True, mesh=None, mass=None):
         real = runtime.real()
         self.count = K = len(paths)
         self.paths = list(paths)
@@ -50,6 +53,9 @@ class SphereColliders:
         self.start = StepStart(free.shape[0])
         self.paths0 = tuple(self.paths)
         self.path.upload(self.paths)
+        self.touch = ti.field(real, shape=K)
+        self.touch.from_numpy(np.asarray([1e-4 * r for r in radii], runtime.np_real()))
+        self._init_faces(mesh if continuous else None, mass, [(r, r, r) for r in radii], radii)
         self.move_to(0.0)
 
     def set_speed(self, speed: float) -> None:
@@ -91,7 +97,21 @@ class SphereColliders:
         self.move_to(t)
         self._collide(state, self.start.x, t, h, self.continuous)
         if self.continuous:
+            self._faces(state, self.start.x, t, h)
             self.start.end(state, t)
+
+    @ti.func
+    def triangle_contact(self, k, a, b, c):
+        return sphere_to_triangle(self.radius[k], a, b, c)
+
+    @ti.func
+    def end_overlap(self, k, a, b, c, side):
+        d, _, n, _ = sphere_to_triangle(self.radius[k], a, b, c)
+        return -d, n
+
+    @ti.func
+    def surface_velocity(self, k, t, r):
+        return self.path.velocity(k, t) + self.path.omega[k].cross(r)
 
     @ti.kernel
     def _collide(self, y: ti.template(), x_start: ti.template(), t: float, h: float, continuous: ti.template()):
