@@ -15,29 +15,31 @@ from taichi_sim.scene.colliders.faces import ALLOWED_OVERLAP
 # faces may end a step overlapping an object by ALLOWED_OVERLAP of its thinnest size (plus the
 # march's touching distance, 1e-4 of it)
 CLEAR = 1.0 - ALLOWED_OVERLAP - 2e-4
-# a cloth wrapped tight round a small sphere or rod can use up the 32 rounds of a step, leaving
-# more: at most 0.51 % of the sphere's radius in these 30 steps (measured; the gather is serial
-# at this size, so the run repeats exactly)
+# what the test allows, with room for other machines' threads (measured: 0.51 % of the sphere's
+# radius at most in these 30 steps, ALLOWED_OVERLAP and the touching distance; the gather is
+# serial at this size, so the run repeats exactly)
 WRAPPED_CLEAR = 0.98
 
 N, SIZE, DT = 15, 0.5, 1e-2   # spacing 0.5 / 14 = 0.036 m
 SPEED = 3.0                   # 0.03 m per step: three times the objects' 0.01 m half thickness
-# starts above the middle of a face, between vertices (the vertex test alone never meets it)
-START = (0.25 * SIZE / (N - 1), 0.05, 0.125 * SIZE / (N - 1))
+# above a point a third of the spacing from the nearest row of vertices (0.012 m) and 0.017 m
+# from the nearest vertex: objects narrower than that pass between vertices, touching none
+START = (2 * SIZE / (N - 1) / 3, 0.05, SIZE / (N - 1) / 3)
 
 
-def pressed_cloth(add_object, faces=True):
-    """A free horizontal cloth with an object moving down through its middle at SPEED."""
+def pressed_cloth(add_object, faces=True, pinned=None, velocity=(0.0, -SPEED, 0.0), start=START):
+    """A free horizontal cloth (``pinned``: an (n,) bool mask) with an object moving at
+    ``velocity`` from ``start`` through its middle."""
     x = topo.grid_positions(N, N, SIZE, SIZE, origin=(-SIZE / 2, 0.0, -SIZE / 2),
                             u_axis=(1, 0, 0), v_axis=(0, 0, 1))
     b = SceneBuilder()
-    b.add_particles(x, 0.01)
+    b.add_particles(x, 0.01, pinned=pinned)
     ends, kind = topo.grid_springs(N, N)
     b.add_springs(ends, stiffness=5.0, damping=0.0, kind=kind)
     triangles = topo.grid_triangles(N, N)
     if faces:
         b.add_triangles(triangles)
-    add_object(b, SpherePath(START, velocity=(0.0, -SPEED, 0.0)))
+    add_object(b, SpherePath(start, velocity=velocity))
     scene = b.finalize(name="t", params={}, default_dt=DT, default_integrator="symplectic_euler")
     return scene, np.asarray(triangles).reshape(-1, 3)
 
@@ -71,9 +73,9 @@ def test_a_sphere_smaller_than_the_spacing_does_not_pass_through_a_cloth(f64, fa
         x = run_checked(scene, 30, lambda: scene.spheres.centers()[0], stays_out)
         assert x[:, 1].min() < -0.85  # carried 0.9 m down with it, never passed
         assert scene.spheres.face_contacts_total > 0
-    else:  # vertices only: the sphere slips between them, through a face, touching nothing
-        with pytest.raises(AssertionError):
-            run_checked(scene, 30, lambda: scene.spheres.centers()[0], stays_out)
+    else:  # vertices only: it passes between them, through a face, and the cloth never moves
+        x = run_checked(scene, 30, lambda: scene.spheres.centers()[0], lambda x, c: None)
+        assert np.abs(x[:, 1]).max() == 0.0 and scene.spheres.centers()[0][1] < -0.8
 
 
 # --- a rod: a capsule of radius 0.01 m and length 0.2 m --------------------------------------
@@ -96,16 +98,46 @@ def segment_to_triangles(p, q, a, b, e):
     return np.where(crosses & inside, 0.0, d)
 
 
-def test_a_rod_thinner_than_the_spacing_does_not_pass_through_a_cloth(f64):
+@pytest.mark.parametrize("faces", [True, False])
+def test_a_rod_thinner_than_the_spacing_does_not_pass_through_a_cloth(f64, faces):
+    # the rod lies along x, between two rows of vertices
     radius, half = 0.01, np.array([0.1, 0.0, 0.0])
-    scene, tris = pressed_cloth(lambda b, path: b.add_capsule(path, radius, tuple(half)))
+    scene, tris = pressed_cloth(lambda b, path: b.add_capsule(path, radius, tuple(half)), faces)
 
     def stays_out(x, c):
         gap = segment_to_triangles(c - half, c + half, *corners(x, tris)).min()
         assert gap >= WRAPPED_CLEAR * radius
 
-    x = run_checked(scene, 30, lambda: scene.capsules.centers()[0], stays_out)
-    assert x[:, 1].min() < -0.85
+    if faces:
+        x = run_checked(scene, 30, lambda: scene.capsules.centers()[0], stays_out)
+        assert x[:, 1].min() < -0.85
+    else:
+        x = run_checked(scene, 30, lambda: scene.capsules.centers()[0], lambda x, c: None)
+        assert np.abs(x[:, 1]).max() == 0.0
+
+
+# --- pinned corners -------------------------------------------------------------------------
+
+@pytest.mark.parametrize("kind", ["sphere", "capsule", "box"])
+def test_a_face_beside_a_pin_is_pushed_gently(f64, kind):
+    # an object rising at 1 m/s into the cloth just beside a pinned vertex: the faces it meets
+    # have a pinned corner that takes none of the push. Shared by weight over mass, the free
+    # corners' share grew as 1 / their weight (velocities of 1e3 to 1e7 m/s); they must stay
+    # of the order of the object's speed
+    middle = (N // 2) * N + N // 2
+    pinned = np.zeros(N * N, bool)
+    pinned[middle] = True
+    add = {"sphere": lambda b, path: b.add_sphere(path, 0.025),
+           "capsule": lambda b, path: b.add_capsule(path, 0.025, (0.02, 0.0, 0.0)),
+           "box": lambda b, path: b.add_box(path, (0.025, 0.025, 0.025))}[kind]
+    for offset in (1e-4, 5e-4, 2e-3):
+        scene, _ = pressed_cloth(add, pinned=pinned, velocity=(0.0, 1.0, 0.0), start=(offset, -0.04, 0.3 * offset))
+        stepper = ts.create_integrator("symplectic_euler", scene.system)
+        for k in range(8):
+            assert stepper.step(scene.state, k * DT, DT).status is ts.Status.OK
+            scene.after_step((k + 1) * DT, DT)
+            speed = np.linalg.norm(scene.state.to_numpy()[1], axis=1).max()
+            assert speed < 10.0, (kind, offset, k, speed)
 
 
 # --- a box of half extent 0.008 m -----------------------------------------------------------
@@ -129,9 +161,9 @@ def box_meets_cloth(x, tris, centre, half) -> bool:
 
 @pytest.mark.parametrize("faces", [True, False])
 def test_a_small_box_is_stopped_by_the_face_it_hits(f64, faces):
-    # a box's corner and edges meet the face's inside, where no vertex is; a cloth wrapped
-    # tightly round a box smaller than its spacing is cut after about 6 steps (README), so
-    # this checks the first 4, in which the box pushes the face 0.07 m down
+    # a box's corner and edges meet the face's inside, where no vertex is (between samples the
+    # box would jump clean over the cloth, so "carried" is the test; the intersection check
+    # guards the steps in contact)
     half = np.full(3, 0.008)
     scene, tris = pressed_cloth(lambda b, path: b.add_box(path, tuple(half)), faces)
     shrunk = half * CLEAR  # (an overlap d along a unit axis u needs |u|_1 d >= d of each half extent)

@@ -412,7 +412,7 @@ class SceneBuilder:
             post_step.append(boxes)
             features["boxes"] = boxes.count
             arrays["box_half_extents"] = np.asarray([b.half_extents for b in self._boxes], float)
-        features["object_faces"] = faces is not None and bool(self._spheres or self._capsules or self._boxes)
+        features["object_faces"] = any(c is not None and c.mesh is not None for c in (spheres, capsules, boxes))
         if self._plane is not None:
             plane = PlaneCollider(*self._plane, free=system.free)
             post_step.append(plane)

@@ -33,6 +33,9 @@ OVER_RELAX = 1.5
 # A face's test costs about ten springs' force: the break-even of a serial gather (a serial one
 # also meets the faces in a fixed order, so a run repeats itself exactly).
 SERIAL_FACES = runtime.SERIAL_WORK // 10
+# The least weight of free corners at a point the march pushes (their changes are at most
+# 1 / this times the point's).
+MIN_FREE_WEIGHT = 0.5
 # Advances per face and object: as many as a vertex gets (see shapes.MAX_ADVANCES).
 MAX_FACE_ADVANCES = 48
 # A face that starts a step deeper inside than this fraction of the object's thinnest size is
@@ -152,14 +155,6 @@ def box_separation(half, a, b, c):
 
 @ti.data_oriented
 class FaceContact:
-    # A box lets a face keep the overlap it started the step with. Pushed out fully, a face
-    # draped over a box's edge (a corner on each side) was lifted off it every step and the
-    # cloth's energy rose (0.15 J of 4.9 J in 20 steps in tests/test_colliders.py's fall).
-    # Spheres and capsules push fully: a chord resting on them dips in only l^2 / (8 r), and
-    # keeping it let overlaps ratchet up each step until a sphere smaller than the spacing,
-    # pressed into the cloth, passed through it (after 23 steps at 3 m/s).
-    KEEPS_START_OVERLAP = False
-
     """Mixin of the object colliders: their faces' pass (see the module's docstring).
 
     The collider provides ``count``, ``path`` (:class:`PathFields`), ``friction``, ``touch``,
@@ -177,6 +172,14 @@ class FaceContact:
     barycentric weight over mass (the smallest changes, in kinetic energy, that move the point
     so). Counted in ``face_contacts_total``.
     """
+
+    # A box lets a face keep the overlap it started the step with. Pushed out fully, a face
+    # draped over a box's edge (a corner on each side) was lifted off it every step and the
+    # cloth's energy rose (0.15 J of 4.9 J in 20 steps in tests/test_colliders.py's fall).
+    # Spheres and capsules push fully: a chord resting on them dips in only l^2 / (8 r), and
+    # keeping it let overlaps ratchet up each step until a sphere smaller than the spacing,
+    # pressed into the cloth, passed through it (after 23 steps at 3 m/s).
+    KEEPS_START_OVERLAP = False
 
     def _init_faces(self, mesh, mass, bounds, thinnest) -> None:
         """``bounds``: each object's half extents along x, y, z about its centre (m, its
@@ -324,11 +327,15 @@ class FaceContact:
     def _push_face(self, y, tri, k, t, w, n, z_world, depth):
         """Move face ``tri``'s point of weights ``w``, ``depth`` (m) below the tangent plane of
         normal ``n`` at the surface point ``z_world``, onto it, give it the contact response,
-        and return how far it moved (m; 0 when all its corners are pinned)."""
+        and return how far it moved (m; 0 when the point is mostly pinned: MIN_FREE_WEIGHT)."""
         inv = ti.Vector([self._inverse_mass(tri[0]), self._inverse_mass(tri[1]), self._inverse_mass(tri[2])])
         denom = (w * w * inv).sum()
+        free_weight = (w * ti.select(inv > 0.0, 1.0, 0.0)).sum()
         moved = 0.0
-        if denom > 0.0:
+        # a point nearer pinned corners than free ones is left to the end's test, which moves
+        # only the free corners below the way out: shared by weight over mass, the free corners'
+        # changes grow as 1 / their weight (a pin beside a moving object threw them at 1e6 m/s)
+        if denom > 0.0 and free_weight >= MIN_FREE_WEIGHT:
             moved = depth
             u = _on_triangle(w, y.v[tri[0]], y.v[tri[1]], y.v[tri[2]])
             v_surface = self.surface_velocity(k, t, z_world - self.path.center(k, t))

@@ -179,6 +179,8 @@ class CapsuleColliders(_TranslatingShapes):
     def triangle_contact(self, k, a, b, c):
         e = self.half_axis[k]
         dist, w, z = segment_to_triangle(-e, e, a, b, c)
+        if segment_crosses_triangle(-e, e, a, b, c):  # the axis passes through: as deep as r
+            dist = 0.0 * dist
         p = w[0] * a + w[1] * b + w[2] * c
         n = (b - a).cross(c - a).normalized()  # on the axis itself: out through the face's normal
         if dist > 0.0:
