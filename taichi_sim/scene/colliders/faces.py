@@ -355,12 +355,13 @@ class FaceContact:
         its slip."""
         c1 = self.path.center(k, t)
         level = ti.min((y.x[tri[0]] - c1).dot(out), ti.min((y.x[tri[1]] - c1).dot(out), (y.x[tri[2]] - c1).dot(out))) + depth
-        v_surface = self.path.velocity(k, t)
         moved = False
         for j in ti.static(range(3)):
             below = level - (y.x[tri[j]] - c1).dot(out)
             if self.free[tri[j]] and below > 0.0:
                 y.x[tri[j]] += below * out
+                # the surface's velocity where the corner is now (a sphere's spin included)
+                v_surface = self.surface_velocity(k, t, y.x[tri[j]] - c1)
                 y.v[tri[j]] = inelastic_friction(y.v[tri[j]], v_surface, out, self.friction[k])
                 moved = True
         if moved:
