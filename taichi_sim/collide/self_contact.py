@@ -312,13 +312,6 @@ class SelfCollision(CandidatePairs):
         if slot < touched.shape[0]:
             touched[slot] = ids
 
-    @ti.func
-    def _inverse_mass(self, i):
-        inv = ti.cast(0.0, self.dx.dtype)
-        if self.system.free[i]:
-            inv = 1.0 / self.system.mass[i]
-        return inv
-
     @ti.kernel
     def _resolve(self, y: ti.template(), first_round: ti.i32, vt: PairList, ee: PairList) -> ti.i32:
         """One Jacobi round over the collected pairs; returns the contacts found. After the
@@ -403,8 +396,8 @@ class SelfCollision(CandidatePairs):
     def _push_apart(self, y, ids, w, n, gap):
         """Separate two sides of a contact by ``gap`` along unit ``n`` and stop their approach:
         vertex ``ids[k]`` moves with weight ``w[k]`` (positive on the side ``n`` points to)."""
-        inv = ti.Vector([self._inverse_mass(ids[0]), self._inverse_mass(ids[1]),
-                         self._inverse_mass(ids[2]), self._inverse_mass(ids[3])])
+        inv = ti.Vector([self.system.inverse_mass(ids[0]), self.system.inverse_mass(ids[1]),
+                         self.system.inverse_mass(ids[2]), self.system.inverse_mass(ids[3])])
         # a vertex within the thickness of the floor is not pushed towards it: it stays, and the
         # other side moves the whole gap (else the layers' contacts would press it through). Only
         # the positions: the velocity impulses keep the true masses, so that momentum is kept

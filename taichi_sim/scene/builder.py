@@ -319,9 +319,9 @@ class SceneBuilder:
         features: dict[str, Any] = {"particles": self._count, "pinned": int(pinned.sum()),
                                     "gravity": False, "drag": False, "springs": 0, "grid_stencil": False,
                                     "dashpots": False, "wind": False, "turbulence": False, "spheres": 0,
-                                    "capsules": 0, "boxes": 0, "object_faces": False, "plane": False, "tearing": False, "emitter": 0,
-                                    "grab": False, "triangles": 0, "self_collision": False, "constraints": 0,
-                                    "kinematic": 0}
+                                    "capsules": 0, "boxes": 0, "object_faces": False, "plane": False,
+                                    "tearing": False, "emitter": 0, "grab": False, "triangles": 0,
+                                    "self_collision": False, "constraints": 0, "kinematic": 0}
         arrays: dict[str, np.ndarray] = {
             "mass": mass, "pinned": pinned,
             "gravity": np.zeros(3) if self._gravity is None else self._gravity,
@@ -394,7 +394,7 @@ class SceneBuilder:
         if self._spheres:
             paths, radii, frictions = zip(*self._spheres)
             spheres = SphereColliders(list(paths), list(radii), list(frictions), system.free,
-                                      continuous=self._continuous_spheres, mesh=faces, mass=system.mass)
+                                      continuous=self._continuous_spheres, mesh=faces, system=system)
             post_step.append(spheres)
             features["spheres"] = spheres.count
             arrays["sphere_radius"] = np.asarray(radii, float)
@@ -402,13 +402,13 @@ class SceneBuilder:
                 arrays["sphere_omega"] = np.stack([p.angular_velocity() for p in paths])
         capsules = boxes = None
         if self._capsules:
-            capsules = CapsuleColliders(self._capsules, system.free, mesh=faces, mass=system.mass)
+            capsules = CapsuleColliders(self._capsules, system.free, mesh=faces, system=system)
             post_step.append(capsules)
             features["capsules"] = capsules.count
             arrays["capsule_radius"] = np.asarray([c.radius for c in self._capsules], float)
             arrays["capsule_half_axis"] = np.asarray([c.half_axis for c in self._capsules], float)
         if self._boxes:
-            boxes = BoxColliders(self._boxes, system.free, mesh=faces, mass=system.mass)
+            boxes = BoxColliders(self._boxes, system.free, mesh=faces, system=system)
             post_step.append(boxes)
             features["boxes"] = boxes.count
             arrays["box_half_extents"] = np.asarray([b.half_extents for b in self._boxes], float)

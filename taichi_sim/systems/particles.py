@@ -150,6 +150,14 @@ class ParticleSystem(ImplicitAPI, System):
             self.constraints.solve(y, self.mass, self.free)
 
     @ti.func
+    def inverse_mass(self, i):
+        """1 / mass (1/kg) of particle i; 0 for a pinned one, which nothing moves."""
+        inv = 0.0 * self.mass[i]
+        if self.free[i]:
+            inv = 1.0 / self.mass[i]
+        return inv
+
+    @ti.func
     def _net_force(self, i, y, mass_i, t):
         """The net force on free particle i (N), constraint force included, in a kernel that
         ran :meth:`_prepare` at the same ``y`` (with constraints it reads only particle i)."""

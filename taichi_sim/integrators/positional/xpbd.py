@@ -11,10 +11,10 @@ from .external import ExplicitForces
 
 FUSED_ITERATIONS = 4  # up to this many sweeps are unrolled into the one kernel of a substep
 # Serial loops below this many particles plus springs (times spare threads;
-# runtime.serial_loops, never on a GPU). On the 2-vCPU development machine a 20-substep step, serial against parallel, took 1.5
-# against 12.6 ms at 32 x 32, 4.6 against 21.6 ms at 64 x 64, 17.4 against 64.2 ms at
-# 128 x 128 (97k springs), 69 against 204 ms at 256 x 256 and 160 against 329 ms at 384 x 384
-# (1.0M springs; f32, benchmarks/bench_serial_loops.py): the colour loops are short and many
+# runtime.serial_loops, never on a GPU). On the 2-vCPU development machine a 20-substep step,
+# serial against parallel, took 1.5 against 12.6 ms at 32 x 32, 4.6 against 21.6 ms at
+# 64 x 64, 17.4 against 64.2 ms at 128 x 128 (97k springs), 69 against 204 ms at 256 x 256
+# and 160 against 329 ms at 384 x 384 (1.0M springs; f32, benchmarks/bench_serial_loops.py): the colour loops are short and many
 # (12 a sweep), so a parallel one is mostly hand-off. Larger cloths were not measured.
 SERIAL_SPRINGS = 2_000_000
 
@@ -126,13 +126,6 @@ class XPBD(Integrator):
         self._velocities(y, dt)
 
     @ti.func
-    def _inverse_mass(self, i):
-        w = ti.cast(0.0, self.system.mass.dtype)
-        if self.system.free[i]:
-            w = 1.0 / self.system.mass[i]
-        return w
-
-    @ti.func
     def _predict(self, y, dt, t):
         self.external.gather(y, t)
         ti.loop_config(serialize=self.serial)
@@ -168,7 +161,7 @@ class XPBD(Integrator):
         k = springs.stiffness[s]
         if springs.is_alive(s) and k > 0.0:
             i, j = springs.ends[s][0], springs.ends[s][1]
-            wi, wj = self._inverse_mass(i), self._inverse_mass(j)
+            wi, wj = self.system.inverse_mass(i), self.system.inverse_mass(j)
             moved = self.delta[i] - self.delta[j]
             d = (y.x[i] - y.x[j]) + moved
             length = d.norm()
@@ -189,7 +182,7 @@ class XPBD(Integrator):
         p = grab.particle[None]
         k = grab.stiffness[None]
         if p >= 0 and k > 0.0:
-            w = self._inverse_mass(p)
+            w = self.system.inverse_mass(p)
             if w > 0.0:
                 alpha = 1.0 / (k * dt * dt)
                 gamma = grab.damping[None] / (k * dt)

@@ -67,11 +67,11 @@ class _TranslatingShapes(FaceContact):
     step's motion along the surface's tangent plane (then back onto the surface if that entered
     it), so it stays on the side it came from and a resting particle still slides, and gets the inelastic, Coulomb-friction response against the shape's
     velocity. A particle that ends inside after starting inside (a reset, a jump) is pushed out
-    along the normal at its end. Given a ``mesh`` (and the ``mass`` field), the triangles are
+    along the normal at its end. Given a ``mesh`` (and the ``system``), the triangles are
     tested too (:class:`FaceContact`).
     """
 
-    def __init__(self, shapes, free, mesh=None, mass=None):
+    def __init__(self, shapes, free, mesh=None, system=None):
         real = runtime.real()
         self.count = K = len(shapes)
         self.shapes = tuple(shapes)
@@ -84,7 +84,7 @@ class _TranslatingShapes(FaceContact):
         self.friction.from_numpy(np.asarray([s.friction for s in shapes], runtime.np_real()))
         self.touch.from_numpy(np.asarray([TOUCH_FRACTION * self.thinnest(s) for s in shapes], runtime.np_real()))
         self.start = StepStart(free.shape[0])
-        self._init_faces(mesh, mass, [self.bounding_box(s) for s in shapes], [self.thinnest(s) for s in shapes])
+        self._init_faces(mesh, system, [self.bounding_box(s) for s in shapes], [self.thinnest(s) for s in shapes])
         self.move_to(0.0)
 
     def restore(self) -> None:
@@ -159,13 +159,13 @@ class _TranslatingShapes(FaceContact):
 class CapsuleColliders(_TranslatingShapes):
     """Capsules (see :class:`Capsule` and :class:`_TranslatingShapes`)."""
 
-    def __init__(self, capsules: list[Capsule], free, mesh=None, mass=None):
+    def __init__(self, capsules: list[Capsule], free, mesh=None, system=None):
         real = runtime.real()
         self.radius = ti.field(real, shape=len(capsules))
         self.half_axis = ti.Vector.field(3, real, shape=len(capsules))
         self.radius.from_numpy(np.asarray([c.radius for c in capsules], runtime.np_real()))
         self.half_axis.from_numpy(np.asarray([c.half_axis for c in capsules], runtime.np_real()))
-        super().__init__(capsules, free, mesh, mass)
+        super().__init__(capsules, free, mesh, system)
 
     @staticmethod
     def thinnest(capsule: Capsule) -> float:
@@ -227,10 +227,10 @@ class BoxColliders(_TranslatingShapes):
 
     KEEPS_START_OVERLAP = True
 
-    def __init__(self, boxes: list[Box], free, mesh=None, mass=None):
+    def __init__(self, boxes: list[Box], free, mesh=None, system=None):
         self.half = ti.Vector.field(3, runtime.real(), shape=len(boxes))
         self.half.from_numpy(np.asarray([b.half_extents for b in boxes], runtime.np_real()))
-        super().__init__(boxes, free, mesh, mass)
+        super().__init__(boxes, free, mesh, system)
 
     @staticmethod
     def thinnest(box: Box) -> float:

@@ -8,6 +8,7 @@ from ... import runtime
 from .contact import inelastic_friction
 from .faces import FaceContact, sphere_to_triangle
 from .path import PathFields, SpherePath
+from .shapes import TOUCH_FRACTION
 from .step_start import StepStart
 
 
@@ -35,11 +36,12 @@ class SphereColliders(FaceContact):
         continuous: False tests only the end positions of vertices (the old projection, which
             lets a sphere that moves more than its radius per step pass through): kept to compare.
         mesh: the cloth's :class:`~taichi_sim.mesh.TriangleMesh`, or None (vertices only);
-        mass: the system's (n,) mass field (kg), needed with a mesh.
+        system: the :class:`~taichi_sim.systems.particles.ParticleSystem` (its inverse masses
+            share the faces' pushes), needed with a mesh.
     """
 
     def __init__(self, paths: list[SpherePath], radii: list[float], frictions: list[float], free,
-                 continuous: bool = True, mesh=None, mass=None):
+                 continuous: bool = True, mesh=None, system=None):
         real = runtime.real()
         self.count = K = len(paths)
         self.paths = list(paths)
@@ -54,8 +56,8 @@ class SphereColliders(FaceContact):
         self.paths0 = tuple(self.paths)
         self.path.upload(self.paths)
         self.touch = ti.field(real, shape=K)
-        self.touch.from_numpy(np.asarray([1e-4 * r for r in radii], runtime.np_real()))
-        self._init_faces(mesh if continuous else None, mass, [(r, r, r) for r in radii], radii)
+        self.touch.from_numpy(np.asarray([TOUCH_FRACTION * r for r in radii], runtime.np_real()))
+        self._init_faces(mesh if continuous else None, system, [(r, r, r) for r in radii], radii)
         self.move_to(0.0)
 
     def set_speed(self, speed: float) -> None:
@@ -103,11 +105,6 @@ class SphereColliders(FaceContact):
     @ti.func
     def triangle_contact(self, k, a, b, c):
         return sphere_to_triangle(self.radius[k], a, b, c)
-
-    @ti.func
-    def end_overlap(self, k, a, b, c, side):
-        d, _, n, _ = sphere_to_triangle(self.radius[k], a, b, c)
-        return -d, n
 
     @ti.func
     def surface_velocity(self, k, t, r):
