@@ -48,7 +48,8 @@ SHOWCASE: tuple[Showcase, ...] = (
     Showcase("cloth-sphere", "a cloth drops onto a sphere above the ground",
              _clip("cloth-sphere", ["symplectic_euler"], params={"nx": 24, "ny": 24})),
     Showcase("cloth-spin", "a cloth dropped onto a spinning sphere: friction drags it round until "
-             "it slides off", _clip("cloth-spin", ["symplectic_euler"], params={"nx": 24, "ny": 24})),
+             "it slides off, without passing through itself (self-collision)",
+             _clip("cloth-spin", ["symplectic_euler"], params={"nx": 24, "ny": 24})),
     Showcase("cloth-tear", "a sphere drops through a cloth held at two sides and tears it",
              _clip("cloth-tear", ["symplectic_euler"])),
     Showcase("cloth-fold", "a cloth dropped edge-first piles up in folds without passing through "

@@ -8,6 +8,9 @@ import numpy as np
 # Pinned vertices cannot move with a zone: in the zone's rigid fit they weigh this many times
 # the zone's free mass, so a zone holding a still pin stays (almost exactly) still.
 PINNED_WEIGHT = 1e9
+# A zone ending inside the floor or an object is moved out one surface at a time (an object's
+# deepest point each time, which may leave another just inside): at most this many moves.
+MAX_LIFTS = 16
 
 
 class ImpactZones:
@@ -18,15 +21,19 @@ class ImpactZones:
         free: (n,) nonzero for particles that move; pinned ones keep their own motion, unless
             their zone cannot be resolved without moving them (see :meth:`rigidify`).
         floor: ``(point, unit normal)`` of a ground plane no zone may end below, or None.
+        push_out: None, or a callable taking (m, 3) end positions (m) of a zone's moving
+            vertices and returning the translation (3,) that moves the deepest of them inside
+            an object onto its surface (zero when none is inside).
     """
 
-    def __init__(self, mass: np.ndarray, free: np.ndarray, floor=None):
+    def __init__(self, mass: np.ndarray, free: np.ndarray, floor=None, push_out=None):
         self.mass = np.asarray(mass, float)
         self.free = np.asarray(free) != 0
         self.parent: dict[int, int] = {}
         self.refit_all = False  # merge_all was called: every zone moves at the next rigidify
         self.stuck: set[int] = set()  # vertices of touches inside one zone: their zones carry their pins
         self.floor = None if floor is None else (np.asarray(floor[0], float), np.asarray(floor[1], float))
+        self.push_out = push_out
 
     def clear(self) -> None:
         """Forget the zones (a new step)."""
@@ -99,7 +106,9 @@ class ImpactZones:
         With a ``floor``, a zone whose motion would end partly below it is moved up along its
         normal until its lowest vertex is on it: still one rigid motion, so still no touch inside
         (its moving vertices only: pins it does not carry stay, and a touch that leaves inside it
-        makes it carry them in the next round). Velocities are left to the plane's collider.
+        makes it carry them in the next round). With ``push_out``, a zone ending partly inside
+        an object is moved out the same way, along the normal at its deepest point, alternating
+        with the floor (up to MAX_LIFTS moves). Velocities are left to the colliders.
 
         Args:
             touches: (m, 4) vertex ids of touching pairs (may be empty).
@@ -130,12 +139,29 @@ class ImpactZones:
             carries_pins = carry_all or self._root(int(ids[0])) in carrying
             moves = np.ones_like(free) if carries_pins else free
             end = c0 + h * v_cm + r_end
-            if self.floor is not None:
-                depth = ((end[moves] - self.floor[0]) @ self.floor[1]).min(initial=0.0)
-                end -= depth * self.floor[1]
+            end += self._lift(end[moves])
             x1[ids[moves]] = end[moves]
             v1[ids[moves]] = (w_cm + np.cross(spin, r_end))[moves]
         return x1, v1
+
+
+    def _lift(self, points: np.ndarray) -> np.ndarray:
+        """The translation (3,) that moves ``points`` (m, 3) out of the floor and the objects."""
+        shift = np.zeros(3)
+        if len(points) == 0:
+            return shift
+        for _ in range(MAX_LIFTS):
+            if self.floor is not None:
+                depth = ((points + shift - self.floor[0]) @ self.floor[1]).min()
+                if depth < 0.0:
+                    shift -= depth * self.floor[1]
+            if self.push_out is None:
+                break
+            out = self.push_out(points + shift)
+            if not np.any(out != 0.0):
+                break
+            shift += out
+        return shift
 
 
 def _centre(m: np.ndarray, x: np.ndarray) -> np.ndarray:

@@ -31,6 +31,7 @@ from .ccd import edge_edge_hit, vertex_triangle_hit
 from .closest_points import closest_barycentric, segment_parameters
 from .hash_grid import PrimitiveHash
 from .impact_zones import ImpactZones
+from .objects import KeepsOutOfObjects
 
 DELTA_FRACTION = 1e-3  # a touch: closer than this fraction of the thickness at some moment of the step
 MAX_ZONE_ROUNDS = 32  # fail-safe rounds per step before the whole cloth moves as one zone
@@ -40,7 +41,7 @@ TouchList = ti.types.ndarray(dtype=ti.math.ivec4, ndim=1)
 
 
 @ti.data_oriented
-class SelfCollision(CandidatePairs):
+class SelfCollision(CandidatePairs, KeepsOutOfObjects):
     """The post-step self-contact stage of a cloth (call it as ``stage(state, t, h)``).
 
     Args:
@@ -54,12 +55,15 @@ class SelfCollision(CandidatePairs):
             a vertex near it into it, a vertex the contact rounds left below it is lifted back
             onto it, and a zone that would end below it is moved up: the stage does not undo the
             plane's work.
+        obstacles: the scene's object colliders (spheres, capsules, boxes; see
+            :mod:`.objects`): the same rules as the floor's keep the stage's pushes and zones
+            from moving the cloth into them.
     Raises:
         ValueError: naming ``thickness``, ``friction`` or ``iterations``.
     """
 
     def __init__(self, system, mesh, x0: np.ndarray, *, thickness: float, friction: float = 0.0,
-                 iterations: int = 4, floor=None):
+                 iterations: int = 4, floor=None, obstacles=()):
         if not (isinstance(thickness, (int, float)) and math.isfinite(thickness) and thickness > 0):
             raise ValueError(f"thickness must be a finite number > 0 (m), got {thickness!r}")
         if not (isinstance(friction, (int, float)) and math.isfinite(friction) and friction >= 0):
@@ -112,7 +116,10 @@ class SelfCollision(CandidatePairs):
         # the fail-safe's touching pairs (four vertex ids); longer when a round finds more
         self.collided = ti.Vector.ndarray(4, ti.i32, shape=TOUCHES_PER_VERTEX * n)
         self.collided_count = ti.field(ti.i32, shape=())
-        self.zones = ImpactZones(system.mass.to_numpy(), system.free.to_numpy(), floor=floor)
+        self.obstacles = tuple(obstacles)
+        self.time = ti.field(real, shape=())  # the step's end (s): where the objects are
+        self.zones = ImpactZones(system.mass.to_numpy(), system.free.to_numpy(), floor=floor,
+                                 push_out=self._push_zone_out if self.obstacles else None)
         self.floor_point = ti.Vector.field(3, real, shape=())
         self.floor_normal = ti.Vector.field(3, real, shape=())  # zero: no floor
         if floor is not None:
@@ -161,6 +168,7 @@ class SelfCollision(CandidatePairs):
         if self.t_end is None or abs((t - h) - self.t_end) > 1e-9 * max(1.0, abs(t)):
             self._estimate_start(state, h)
         self._mark_intact()
+        self.time[None] = t
         self.blocked[None] = 0
         self._broad_phase(state)
         found = 1
@@ -170,6 +178,8 @@ class SelfCollision(CandidatePairs):
             if found == 0:
                 break
         lifted = self._lift_to_floor(state)
+        if self.obstacles:
+            lifted += self._lift_out_of_obstacles(state)
         clean = found == 0 and lifted == 0 and self.blocked[None] == 0
         self._fail_safe(state, h, rounds_clean=clean)
         self._keep_end(state)
@@ -407,11 +417,13 @@ class SelfCollision(CandidatePairs):
         for k in ti.static(range(4)):
             if w[k] * n.dot(up) < 0.0 and (y.x[ids[k]] - self.floor_point[None]).dot(up) < self.thickness[None]:
                 inv_x[k] = 0.0
+            if self._held_by_obstacle(y.x[ids[k]], w[k] * n):  # the same for objects
+                inv_x[k] = 0.0
         denom = (w * w * inv).sum()
         denom_x = (w * w * inv_x).sum()
         if denom > 0.0:
             ti.atomic_add(self.contacts[None], 1)
-            if denom_x == 0.0:  # pins and the floor hold both sides: left to the fail-safe
+            if denom_x == 0.0:  # pins, the floor or objects hold both sides: left to the fail-safe
                 ti.atomic_add(self.blocked[None], 1)
             rel = ti.Vector.zero(self.dx.dtype, 3)
             for k in ti.static(range(4)):

@@ -431,8 +431,9 @@ class SceneBuilder:
             # the start is checked for coincident points and flat triangles all the same.
             check_contact_mesh(x0, mesh.triangles_np, thickness, rest=np.concatenate(self._rest_x))
             floor = None if plane is None else (plane.point_np, plane.normal_np)
+            obstacles = [c for c in (spheres, capsules, boxes) if c is not None]
             post_step.append(SelfCollision(system, mesh, x0, thickness=thickness, friction=friction,
-                                           iterations=iterations, floor=floor))
+                                           iterations=iterations, floor=floor, obstacles=obstacles))
             features["self_collision"] = True
         if springs is not None and springs.tearable:
             post_step.append(Tearing(springs))

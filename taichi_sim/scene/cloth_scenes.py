@@ -261,9 +261,10 @@ CLOTH_SCENES = (
                 with_defaults(CLOTH_PARAMS, pin="none", sphere=True, plane=True, sphere_friction=0.3),
                 build_cloth, default_dt=1e-3, default_integrator="symplectic_euler", **_CLOTH_SIZE),
     ScenePreset("cloth-spin", "a cloth dropped onto a sphere spinning about the vertical axis: "
-                "friction drags it round until it slides off",
+                "friction drags it round until it slides off (self-collision on)",
                 with_defaults(CLOTH_PARAMS, pin="none", sphere=True, plane=True, sphere_friction=1.0,
-                              sphere_spin=10.0, sphere_x=0.15, plane_friction=0.3, restitution=0.0),
+                              sphere_spin=10.0, sphere_x=0.15, plane_friction=0.3, restitution=0.0,
+                              self_collision=True),
                 build_cloth, default_dt=1e-3, default_integrator="symplectic_euler", **_CLOTH_SIZE),
     ScenePreset("cloth-tear", "a cloth held at two sides, torn by a sphere dropping through it",
                 with_defaults(CLOTH_PARAMS, pin="sides", sphere=True, sphere_y=1.5, sphere_radius=0.2,

@@ -8,6 +8,7 @@ import taichi as ti
 from ... import runtime
 from .contact import inelastic_friction
 from .faces import FaceContact, box_separation, segment_crosses_triangle, segment_to_triangle
+from .obstacle import Obstacle
 from .path import PathFields, SpherePath
 from .step_start import StepStart
 
@@ -57,7 +58,7 @@ class Box:
 
 
 @ti.data_oriented
-class _TranslatingShapes(FaceContact):
+class _TranslatingShapes(FaceContact, Obstacle):
     """What capsules and boxes share: paths, step starts, the march and the response.
 
     In a shape's frame a free particle goes from a = p0 - c(t - h) to b = p1 - c(t). Starting

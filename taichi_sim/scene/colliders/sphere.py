@@ -7,13 +7,14 @@ import taichi as ti
 from ... import runtime
 from .contact import inelastic_friction
 from .faces import FaceContact, sphere_to_triangle
+from .obstacle import Obstacle
 from .path import PathFields, SpherePath
 from .shapes import TOUCH_FRACTION
 from .step_start import StepStart
 
 
 @ti.data_oriented
-class SphereColliders(FaceContact):
+class SphereColliders(FaceContact, Obstacle):
     """Spheres that particles cannot enter, however fast they move.
 
     After each accepted step, in each sphere's frame a free particle goes from p0 - c(t - h) to
@@ -109,6 +110,18 @@ class SphereColliders(FaceContact):
     @ti.func
     def surface_velocity(self, k, t, r):
         return self.path.velocity(k, t) + self.path.omega[k].cross(r)
+
+    @ti.func
+    def distance(self, k, q):
+        return q.norm() - self.radius[k]
+
+    @ti.func
+    def normal(self, k, q):
+        n = 0.0 * q
+        n[1] = 1.0  # at the centre itself: out along y
+        if q.norm() > 0.0:
+            n = q.normalized()
+        return n
 
     @ti.kernel
     def _collide(self, y: ti.template(), x_start: ti.template(), t: float, h: float, continuous: ti.template()):

@@ -1,0 +1,32 @@
+"""What the cloth's self-contact stage asks of an object collider: where its surface is."""
+
+import taichi as ti
+
+from ...collide.objects import FAR
+
+
+@ti.data_oriented
+class Obstacle:
+    """Mixin of the object colliders (spheres, capsules, boxes), read by
+    :class:`~taichi_sim.collide.SelfCollision`, which must not push the cloth into an object.
+
+    A collider using it has ``count`` objects on ``path`` (:class:`~.path.PathFields`) and the
+    ``ti.func``s ``distance(k, q)`` (signed, m, negative inside) and ``normal(k, q)`` (outward
+    unit) at q, a point in object k's frame, and ``surface_velocity(k, t, r)`` (m/s)."""
+
+    @ti.func
+    def nearest_surface(self, x, t):
+        """(signed distance (m, negative inside), outward unit normal, surface velocity (m/s))
+        of the nearest of this collider's objects to the point ``x`` (m) at time ``t`` (s);
+        (FAR, +y, 0) when it has none."""
+        best = FAR * 1.0  # a variable of the default float type
+        normal = ti.Vector([0.0, 1.0, 0.0])
+        velocity = ti.Vector([0.0, 0.0, 0.0])
+        for k in range(self.count):
+            q = x - self.path.center(k, t)
+            d = self.distance(k, q)
+            if d < best:
+                best = d
+                normal = self.normal(k, q)
+                velocity = self.surface_velocity(k, t, q)
+        return best, normal, velocity
