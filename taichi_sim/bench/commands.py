@@ -410,7 +410,7 @@ def advise_main(args) -> int:
     from ..cli import scene_assignments
     from ..scene.params import resolve
     from ..scene.presets import check_scene_memory
-    from .advise import recommend, scene_omegas, stability_table
+    from .advise import check, recommend, scene_omegas, stability_table
 
     preset = scene_preset(args.scene)
     params = scene_assignments(args.assignments)
@@ -436,6 +436,7 @@ def advise_main(args) -> int:
         return 0
     with common.progress_bar(len(table), "pilot runs", False) as bar:
         rows = recommend(scene, table, args.target_error, args.t_end, integrators, progress=bar)
+    checked = check(scene, table, rows, args.target_error, args.t_end)
     print(f"\nFor a position error of {args.target_error:g} m at t = {args.t_end:g} s (pilot runs, Richardson "
           f"estimate; see `taichi_sim.bench.advise`):")
     print(common.format_table(
@@ -443,6 +444,7 @@ def advise_main(args) -> int:
         [[r["integrator"], r["order"], r.get("h"), r.get("limited_by"), r.get("steps"), r.get("cost"),
           r.get("wall_s"), r["status"] if r["status"] == "ok" else f"{r['status']}: {r.get('note', '')}"]
          for r in rows]))
+    print(checked)
     best = next((r for r in rows if r["status"] == "ok"), None)
     if best is None:
         print("no fixed-step integrator could be recommended", file=sys.stderr)
