@@ -144,7 +144,6 @@ class ImpactZones:
             v1[ids[moves]] = (w_cm + np.cross(spin, r_end))[moves]
         return x1, v1
 
-
     def _lift(self, points: np.ndarray) -> np.ndarray:
         """The translation (3,) that moves ``points`` (m, 3) out of the floor and the objects."""
         shift = np.zeros(3)

@@ -19,6 +19,8 @@ the stage's own pushes would undo that.
 import numpy as np
 import taichi as ti
 
+from ..scene.colliders.contact import inelastic_friction
+
 FAR = 1e30  # the distance (m) from a point when there is no object
 
 
@@ -60,9 +62,7 @@ class KeepsOutOfObjects:
                 d, normal, surface = self._nearest_obstacle(y.x[i])
                 if d < 0.0:
                     y.x[i] -= d * normal
-                    approach = (y.v[i] - surface).dot(normal)
-                    if approach < 0.0:
-                        y.v[i] -= approach * normal
+                    y.v[i] = inelastic_friction(y.v[i], surface, normal, 0.0)
                     lifted += 1
         return lifted
 

@@ -42,8 +42,9 @@ class ProjectiveDynamics(Integrator):
     gained energy step after step (highest rise 310 J over its 401 J in 2 s at 10 iterations,
     f64; none from the drift). Starting from the lower of g(y) and g(x0 + h v0), every
     iteration lowering g, the step ends with g no higher than at either, for one extra pass
-    over the springs a step. Against the exact backward Euler step (64 x 64, 0.5 s, k = 1e2 to
-    1e8) the error was the same or lower than from y alone (README, "Position-level methods").
+    over the springs a step. Against the exact backward Euler step (64 x 64, 0.5 s) the error
+    was the same or lower than from y alone at k = 1e2 to 1e6, and 2-3 % higher at k = 1e8,
+    where both were 0.8 m off (README, "Position-level methods").
 
     What it converges to: every iteration lowers g, and g's minimiser is the backward Euler
     step of the springs with spring forces exact; so with enough ``iterations`` (or a
@@ -222,36 +223,37 @@ class ProjectiveDynamics(Integrator):
             y.x[i] = target
         inertial = 0.0
         drift = 0.0
-        ti.loop_config(serialize=self.system.serial_loops)
-        for i in range(self.system.particle_count):
-            if self.system.free[i]:
-                drift += 0.5 * self.system.mass[i] / (h * h) \
-                    * (self.drifted[i] - self.inertial[i]).norm_sqr()
-            if ti.static(self.has_grab):
-                if i == self.grab.particle[None]:
-                    k, c, target = self.grab.stiffness[None], self.grab.damping[None], self.grab.target[None]
-                    for drifting in ti.static((False, True)):
-                        x = self.drifted[i] if ti.static(drifting) else self.inertial[i]
-                        g = 0.5 * k * (x - target).norm_sqr() + 0.5 * c / h * (x - self.start[i]).norm_sqr()
-                        if ti.static(drifting):
-                            drift += g
-                        else:
-                            inertial += g
-        if ti.static(self.has_springs):
-            springs = self.springs
+        if ti.static(self.has_springs or self.has_grab):  # else nothing is solved: no choice to make
             ti.loop_config(serialize=self.system.serial_loops)
-            for s in range(springs.spring_count):
-                if springs.is_alive(s):
-                    i, j = springs.ends[s][0], springs.ends[s][1]
-                    k, c, rest = springs.stiffness[s], springs.damping[s], springs.rest[s]
-                    d0 = self.start[i] - self.start[j]
-                    for drifting in ti.static((False, True)):
-                        d = self.drifted[i] - self.drifted[j] if ti.static(drifting) else self.inertial[i] - self.inertial[j]
-                        g = 0.5 * k * (d.norm() - rest) ** 2 + 0.5 * c / h * (d - d0).norm_sqr()
-                        if ti.static(drifting):
-                            drift += g
-                        else:
-                            inertial += g
+            for i in range(self.system.particle_count):
+                if self.system.free[i]:
+                    drift += 0.5 * self.system.mass[i] / (h * h) \
+                        * (self.drifted[i] - self.inertial[i]).norm_sqr()
+                if ti.static(self.has_grab):
+                    if i == self.grab.particle[None]:
+                        k, c, target = self.grab.stiffness[None], self.grab.damping[None], self.grab.target[None]
+                        for drifting in ti.static((False, True)):
+                            x = self.drifted[i] if ti.static(drifting) else self.inertial[i]
+                            g = 0.5 * k * (x - target).norm_sqr() + 0.5 * c / h * (x - self.start[i]).norm_sqr()
+                            if ti.static(drifting):
+                                drift += g
+                            else:
+                                inertial += g
+            if ti.static(self.has_springs):
+                springs = self.springs
+                ti.loop_config(serialize=self.system.serial_loops)
+                for s in range(springs.spring_count):
+                    if springs.is_alive(s):
+                        i, j = springs.ends[s][0], springs.ends[s][1]
+                        k, c, rest = springs.stiffness[s], springs.damping[s], springs.rest[s]
+                        d0 = self.start[i] - self.start[j]
+                        for drifting in ti.static((False, True)):
+                            d = self.drifted[i] - self.drifted[j] if ti.static(drifting) else self.inertial[i] - self.inertial[j]
+                            g = 0.5 * k * (d.norm() - rest) ** 2 + 0.5 * c / h * (d - d0).norm_sqr()
+                            if ti.static(drifting):
+                                drift += g
+                            else:
+                                inertial += g
         return inertial, drift
 
     @ti.kernel

@@ -14,8 +14,9 @@ FUSED_ITERATIONS = 4  # up to this many sweeps are unrolled into the one kernel 
 # runtime.serial_loops, never on a GPU). On the 2-vCPU development machine a 20-substep step,
 # serial against parallel, took 1.5 against 12.6 ms at 32 x 32, 4.6 against 21.6 ms at
 # 64 x 64, 17.4 against 64.2 ms at 128 x 128 (97k springs), 69 against 204 ms at 256 x 256
-# and 160 against 329 ms at 384 x 384 (1.0M springs; f32, benchmarks/bench_serial_loops.py): the colour loops are short and many
-# (12 a sweep), so a parallel one is mostly hand-off. Larger cloths were not measured.
+# and 160 against 329 ms at 384 x 384 (1.0M springs; f32, benchmarks/bench_serial_loops.py):
+# the colour loops are short and many (12 a sweep), so a parallel one is mostly hand-off.
+# Larger cloths were not measured.
 SERIAL_SPRINGS = 2_000_000
 
 
