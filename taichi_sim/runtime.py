@@ -91,12 +91,17 @@ def usable_cpus() -> int:
         return os.cpu_count() or 1
 
 
+def cpu_backend() -> bool:
+    """Whether Taichi runs kernels on the CPU (LLVM x64 or arm64)."""
+    return _current["backend"] in ("x64", "arm64")
+
+
 def serial_loops(items: int, break_even: int | None = None) -> bool:
     """Whether a loop over ``items`` (with work about the same per item) should run on one
     thread: only on a CPU backend, and only when ``items`` times the spare threads is below
     ``break_even`` (default :data:`SERIAL_WORK`). On a GPU a serial loop is one GPU thread:
     never."""
-    if _current["backend"] not in ("x64", "arm64"):
+    if not cpu_backend():
         return False
     limit = SERIAL_WORK if break_even is None else break_even
     return _current["threads"] <= 1 or items * (_current["threads"] - 1) < limit

@@ -34,13 +34,29 @@ def test_serial_and_parallel_loops_give_the_same_trajectory_bit_for_bit(f64, mon
     for serial in (True, False):
         monkeypatch.setattr(runtime, "SERIAL_WORK", 10 ** 12 if serial else 0)
         monkeypatch.setattr(xpbd, "SERIAL_SPRINGS", 10 ** 12 if serial else 0)
+        # the grid's spring pass is serial on every CPU; parallel as on a GPU
+        monkeypatch.setattr(runtime, "cpu_backend", lambda: serial)
         scene = ts.build_scene("cloth", {"nx": 12, "ny": 12, "wind": True})
         method = create_integrator(integrator, scene.system)
         assert scene.system.serial_loops is serial
         assert all(term.serial_loops is serial for term in scene.system.terms)
+        assert scene.springs.serial_pass is serial
         if integrator == "xpbd":
             assert method.serial is serial
         result = ts.run(scene, method, dt=dt, steps=30)
         assert result.status.value == "ok"
         runs.append(scene.state.to_numpy())
     assert np.array_equal(runs[0][0], runs[1][0]) and np.array_equal(runs[0][1], runs[1][1])
+
+
+def test_a_grid_s_springs_leave_the_system_s_choice_to_its_particles(monkeypatch):
+    """A grid's spring pass runs serial on a CPU anyway, so only the particles count towards
+    the system's choice; a spring list (a cloth that tears) counts its springs."""
+    monkeypatch.setitem(runtime._current, "threads", 2)
+    grid = ts.build_scene("cloth", {"nx": 12, "ny": 12})
+    listed = ts.build_scene("cloth", {"nx": 12, "ny": 12, "tear": True})
+    assert grid.springs.serial_pass and not listed.springs.serial_pass
+    particles = grid.system.particle_count
+    monkeypatch.setattr(runtime, "SERIAL_WORK", particles + 1)  # past the particles, short of the springs
+    assert ts.build_scene("cloth", {"nx": 12, "ny": 12}).system.serial_loops
+    assert not ts.build_scene("cloth", {"nx": 12, "ny": 12, "tear": True}).system.serial_loops

@@ -45,6 +45,11 @@ class ForceTerm:
     """Whether the term's whole-system pass (``precompute``) runs on one thread; set by the
     system the term belongs to (see :func:`taichi_sim.runtime.serial_loops`)."""
 
+    serial_pass = False
+    """Whether the term's whole-system pass runs on one thread on a CPU whatever the system
+    chooses (a grid's springs, whose pass vectorises only there); the system then leaves the
+    term's items out of its own choice."""
+
     precomputes = False
     """Whether the term can split its force into a pass over the whole system and a cheap sum
     per particle: ``@ti.func precompute(y)`` (a loop at the top level of the calling kernel that

@@ -19,6 +19,9 @@ from .term import Springs
 # The forward half of the 12-neighbour stencil (structural, shear, flex): every spring of a
 # cloth grid is one of these offsets from one of its ends.
 STENCIL = ((1, 0), (0, 1), (1, 1), (1, -1), (2, 0), (0, 2))
+# Zero rows and columns around the slot buffer, as far as the stencil reaches back (i - 2,
+# j - 2 .. j + 1): a point's gather then reads every offset's incoming slot without a bounds test.
+PAD_I, PAD_J = 2, 2
 
 
 @dataclass(frozen=True)
@@ -86,6 +89,7 @@ class GridSprings(Springs):
     def __init__(self, particle_count, ends, rest_length, stiffness, damping, kind, *, layout: GridLayout):
         self.layout = layout
         shape = (len(layout.offsets), layout.nx, layout.ny)
+        lay_nx, lay_ny = layout.nx, layout.ny
         real = runtime.real()
         # (k, r, c) of the spring in each slot, zero where there is none
         self.slot_parameters = ti.Vector.field(3, real, shape=shape)
@@ -94,8 +98,27 @@ class GridSprings(Springs):
         # values are set), reading 6 numbers instead of 3 per spring is 15-20 % faster.
         self.offset_parameters = ti.Vector.field(3, real, shape=len(layout.offsets))
         self.uniform = ti.field(ti.i32, shape=())
-        # the force of each slot's spring on its starting point (i, j)
-        self.slot_force = ti.Vector.field(3, real, shape=shape)
+        # the force of each slot's spring on its starting point (i, j), at [o, i + PAD_I, j + PAD_J];
+        # slots without a spring are never written and stay zero
+        self.slot_force = ti.Vector.field(3, real, shape=(shape[0], lay_nx + PAD_I, lay_ny + 2 * PAD_J))
+        # The spring pass runs on one thread on a CPU whatever the size: Taichi compiles a
+        # parallel loop's body as a function called per iteration, where the same inner loops
+        # do not vectorise, and on the 2-vCPU development machine the serial pass was 3-4
+        # times as fast as the parallel one at every size up to 512 x 512.
+        self.serial_pass = runtime.cpu_backend()
+        # The grid's positions and velocities, copied in at each force evaluation of the serial
+        # pass. Taichi puts fields allocated between two kernel launches in one memory tree, and
+        # a loop that reads one tree and writes another re-reads the tree's base address every
+        # iteration (the writes might move it, as far as the compiler knows), which stops the
+        # vectorising; the pass therefore reads these copies, in the slots' tree, and the copy
+        # costs a tenth of what it saves (28 against 320 us at 128 x 128, f32).
+        self.grid_x = self.grid_v = None
+        if self.serial_pass:
+            self.grid_x = ti.Vector.field(3, real, shape=layout.nx * layout.ny)
+            if np.any(np.asarray(damping) != 0):
+                self.grid_v = ti.Vector.field(3, real, shape=layout.nx * layout.ny)
+        # the grid is every particle (a cloth scene): the gather needs no range test
+        self.covers_all = layout.first == 0 and layout.nx * layout.ny == particle_count
         super().__init__(particle_count, ends, rest_length, stiffness, damping, kind)
 
     def _allocate_force_buffer(self) -> None:
@@ -130,37 +153,117 @@ class GridSprings(Springs):
 
     @ti.func
     def precompute(self, y):
-        """Every slot's spring force at ``y`` (one pass over the grid points)."""
+        """Every slot's spring force at ``y``. On a CPU (:attr:`serial_pass`): rows of the grid
+        in the outer loop, and for each offset a branch-free inner loop over the points of the
+        row that have that spring, which the compiler turns into SIMD code (the loop it
+        replaced, one point and its six offsets per iteration with a bounds test each, did not
+        vectorise and took 2-3 times as long). Elsewhere (a GPU): one thread per grid point."""
         first, nx, ny = ti.static(self.layout.first, self.layout.nx, self.layout.ny)
-        ti.loop_config(serialize=self.serial_loops)
-        for i, j in ti.ndrange(nx, ny):
-            p = first + i * ny + j
-            xp = y.x[p]
-            vp = y.v[p]
-            for o in ti.static(range(len(self.layout.offsets))):
-                oi, oj = ti.static(self.layout.offsets[o])
-                g = ti.Vector.zero(y.x.dtype, 3)
-                if i + oi < nx and 0 <= j + oj < ny:
-                    q = p + oi * ny + oj
-                    c = self.offset_parameters[o]
-                    if not self.uniform[None]:
-                        c = self.slot_parameters[o, i, j]
-                    g = self.pair_force(xp - y.x[q], vp - y.v[q], c[0], c[1], c[2])
-                self.slot_force[o, i, j] = g
+        if ti.static(self.serial_pass):
+            ti.loop_config(serialize=True)
+            for p in range(nx * ny):
+                self.grid_x[p] = y.x[first + p]
+                if ti.static(self.damped):
+                    self.grid_v[p] = y.v[first + p]
+            ti.loop_config(serialize=True)
+            for i in range(nx):
+                for o in ti.static(range(len(self.layout.offsets))):
+                    if i + ti.static(self.layout.offsets[o][0]) < nx:
+                        # two loops rather than a test per spring, which would stop the vectorising
+                        if self.uniform[None]:
+                            self._offset_row(i, o, False)
+                        else:
+                            self._offset_row(i, o, True)
+        else:
+            for i, j in ti.ndrange(nx, ny):
+                p = first + i * ny + j
+                for o in ti.static(range(len(self.layout.offsets))):
+                    oi, oj = ti.static(self.layout.offsets[o])
+                    if i + oi < nx and 0 <= j + oj < ny:
+                        q = p + oi * ny + oj
+                        c = self.offset_parameters[o]
+                        if not self.uniform[None]:
+                            c = self.slot_parameters[o, i, j]
+                        dv = ti.Vector.zero(y.x.dtype, 3)
+                        if ti.static(self.damped):
+                            dv = y.v[p] - y.v[q]
+                        self.slot_force[o, i + PAD_I, j + PAD_J] = self.pair_force(y.x[p] - y.x[q], dv,
+                                                                                  c[0], c[1], c[2])
+
+    @ti.func
+    def _offset_row(self, i, o: ti.template(), per_slot: ti.template()):
+        """Row i's springs at offset o into their slots, with the offset's shared (k, r, c) or,
+        ``per_slot``, each slot's own."""
+        ny = ti.static(self.layout.ny)
+        oi, oj = ti.static(self.layout.offsets[o])
+        # read before the loop: a read inside it, which might alias the slots it writes, would
+        # keep it from vectorising
+        shared = self.offset_parameters[o]
+        for j in range(ti.static(max(0, -oj)), ti.static(ny - max(0, oj))):
+            p = i * ny + j
+            q = p + oi * ny + oj
+            c = shared
+            if ti.static(per_slot):
+                c = self.slot_parameters[o, i, j]
+            dv = ti.Vector.zero(self.grid_x.dtype, 3)
+            if ti.static(self.damped):
+                dv = self.grid_v[p] - self.grid_v[q]
+            self.slot_force[o, i + PAD_I, j + PAD_J] = self.pair_force(self.grid_x[p] - self.grid_x[q], dv,
+                                                                      c[0], c[1], c[2])
 
     @ti.func
     def precomputed_force(self, i, y, mass_i, t):
         """The springs' force on particle i (N): the slots starting at its grid point minus the
-        slots ending there."""
+        slots ending there (the padding holds zeros where the grid has no spring)."""
         first, nx, ny = ti.static(self.layout.first, self.layout.nx, self.layout.ny)
         f = ti.Vector.zero(y.x.dtype, 3)
         p = i - first
-        if 0 <= p < nx * ny:
+        if ti.static(self.covers_all) or 0 <= p < nx * ny:
             gi = p // ny
             gj = p - gi * ny
             for o in ti.static(range(len(self.layout.offsets))):
                 oi, oj = ti.static(self.layout.offsets[o])
-                f += self.slot_force[o, gi, gj]
-                if gi >= oi and 0 <= gj - oj < ny:
-                    f -= self.slot_force[o, gi - oi, gj - oj]
+                f += self.slot_force[o, gi + PAD_I, gj + PAD_J] - self.slot_force[o, gi + PAD_I - oi, gj + PAD_J - oj]
         return f
+
+    @ti.func
+    def energy_and_strain(self, y):
+        """(the springs' energy (J), their largest strain |d|/r - 1 (0 if none)) at ``y``: the
+        blow-up guard's reading, in vectorised row passes that read ``y`` and write nothing
+        (a non-finite position gives a non-finite energy, which the guard catches too)."""
+        nx, ny = ti.static(self.layout.nx, self.layout.ny)
+        energy = ti.cast(0.0, y.x.dtype)
+        worst = ti.cast(0.0, y.x.dtype)
+        ti.loop_config(serialize=self.serial_pass)
+        for i in range(nx):
+            for o in ti.static(range(len(self.layout.offsets))):
+                oi, oj = ti.static(self.layout.offsets[o])
+                if i + oi < nx:
+                    if self.uniform[None]:
+                        e, w = self._offset_row_energy(y, i, o, False)
+                        energy += e
+                        ti.atomic_max(worst, w)
+                    else:
+                        e, w = self._offset_row_energy(y, i, o, True)
+                        energy += e
+                        ti.atomic_max(worst, w)
+        return energy, worst
+
+    @ti.func
+    def _offset_row_energy(self, y, i, o: ti.template(), per_slot: ti.template()):
+        """(energy (J), largest strain) of row i's springs at offset o."""
+        first, ny = ti.static(self.layout.first, self.layout.ny)
+        oi, oj = ti.static(self.layout.offsets[o])
+        shared = self.offset_parameters[o]
+        energy = ti.cast(0.0, y.x.dtype)
+        worst = ti.cast(0.0, y.x.dtype)
+        for j in range(ti.static(max(0, -oj)), ti.static(ny - max(0, oj))):
+            p = first + i * ny + j
+            c = shared
+            if ti.static(per_slot):
+                c = self.slot_parameters[o, i, j]
+            length = (y.x[p] - y.x[p + oi * ny + oj]).norm()
+            energy += 0.5 * c[0] * (length - c[1]) * (length - c[1])
+            # springs with k = 0 or r = 0 (an empty slot) have no strain
+            worst = ti.max(worst, ti.select(c[0] > 0.0 and c[1] > 0.0, length / ti.max(c[1], 1e-30) - 1.0, 0.0))
+        return energy, worst

@@ -155,15 +155,14 @@ class Springs(SpringJacobians, ForceTerm):
         d = x_i - x_j and dv = v_i - v_j: -(k (1 - r/|d|) + c (dv . d)/|d|^2) d, the same force as
         :meth:`force` with one square root and one division; zero when |d| = 0. Exactly odd in
         (d, dv), so both ends get exactly opposite forces."""
-        g = ti.Vector([0.0, 0.0, 0.0])  # the default float: the run's precision
         length2 = d.dot(d)
-        if length2 > 0.0:
-            inverse = 1.0 / ti.sqrt(length2)
-            scale = k * (1.0 - rest * inverse)
-            if ti.static(self.damped):
-                scale += c * dv.dot(d) * (inverse * inverse)
-            g = -scale * d
-        return g
+        # a select, not a branch, so that loops over springs vectorise; with d = 0 the force is
+        # -k d = 0 whatever 1/|d| would have been
+        inverse = ti.select(length2 > 0.0, 1.0 / ti.sqrt(length2), 0.0)
+        scale = k * (1.0 - rest * inverse)
+        if ti.static(self.damped):
+            scale += c * dv.dot(d) * (inverse * inverse)
+        return -scale * d
 
     @ti.func
     def precompute(self, y):
@@ -264,6 +263,22 @@ class Springs(SpringJacobians, ForceTerm):
                 strain = (y.x[i] - y.x[self.other[e]]).norm() / self.rest[s] - 1.0
                 worst = ti.max(worst, strain)
         return worst
+
+    @ti.func
+    def energy_and_strain_at(self, i, y):
+        """(:meth:`energy_at`, :meth:`strain_at`) in one pass over i's springs, one length each:
+        what the blow-up guard's check reads."""
+        total = ti.cast(0.0, y.x.dtype)
+        worst = ti.cast(0.0, y.x.dtype)
+        for e in range(self.offsets[i], self.offsets[i + 1]):
+            s = self.incident[e]
+            if self.is_alive(s):
+                k, r = self.stiffness[s], self.rest[s]
+                length = (y.x[i] - y.x[self.other[e]]).norm()
+                total += 0.25 * k * (length - r) * (length - r)
+                if k > 0.0 and r > 0.0:
+                    worst = ti.max(worst, length / r - 1.0)
+        return total, worst
 
     @ti.func
     def dissipation_at(self, i, y, free_i):
