@@ -26,12 +26,17 @@ _current: dict = {"arch": None, "precision": None, "backend": None, "threads": 1
 SERIAL_WORK = 300_000
 """Items (particles plus springs) times spare threads below which a hot loop runs on one
 thread (:func:`serial_loops`). On the 2-vCPU development machine a parallel loop costs about
-30-80 us of thread hand-off and gains little (the two vCPUs share one core): a cloth's
-symplectic Euler step, serial against parallel, took 39 against 121 us at 32 x 32 (7k items),
-103 against 183 us at 64 x 64, 365 against 424 us at 128 x 128 (113k items) and 794 against
-824 us at 192 x 192 (256k); at 256 x 256 (456k items) parallel won, 1286 against 1410 us (f32,
-``benchmarks/bench_serial_loops.py``, alternated rounds, medians). Machines with more threads
-were not measured: that the break-even shrinks as 1 / (threads - 1) is a guess."""
+30-80 us of thread hand-off and gains little (the two vCPUs share one core). Measured when it
+was set, a cloth's symplectic Euler step, serial against parallel: 39 against 121 us at
+32 x 32 (7k items), 365 against 424 us at 128 x 128 (113k) and 794 against 824 us at 192 x 192
+(256k); at 256 x 256 (456k) parallel won, 1286 against 1410 us. Since the grid's springs are
+summed in a serial, vectorised pass of their own (``GridSprings.serial_pass``) they no longer
+count, and a grid cloth's items are its particles: serial against parallel, 46 against 133 us
+at 32 x 32, 290 against 435 at 128 x 128, 1055 against 1308 at 256 x 256 (65k particles, now
+serial), and 4570 against 4168 at 512 x 512 (262k, serial: a loss of 9 % in that run, a gain
+of 21 % in another) (f32, ``benchmarks/bench_serial_loops.py``, alternated rounds, medians).
+Machines with more threads were not measured: that the break-even shrinks as
+1 / (threads - 1) is a guess."""
 
 
 def init(arch: str = "cpu", precision: str = "f64", *, debug: bool = False,

@@ -23,6 +23,15 @@ STENCIL = ((1, 0), (0, 1), (1, 1), (1, -1), (2, 0), (0, 2))
 # j - 2 .. j + 1): a point's gather then reads every offset's incoming slot without a bounds test.
 PAD_I, PAD_J = 2, 2
 
+# Grid points from which an f64 grid's spring pass runs in parallel on a CPU, without the
+# vectorising. In f32 the serial, vectorised pass won at every size measured (a symplectic
+# Euler step on the 2-vCPU development machine, serial against parallel pass: 288 against
+# 561-674 us at 128 x 128, 1.04 against 1.6-1.8 ms at 256 x 256, 4.4-4.6 against 5.6-7.7 ms
+# at 512 x 512). In f64 a vector holds half as many springs and the pass moves twice the
+# bytes: serial won at 128 x 128 (407 against 647 us) but lost at 256 x 256 (2.2-2.5 against
+# 1.7-2.2 ms) and 512 x 512 (10.2 against 7.2-8.4 ms); the break-even lies between.
+SERIAL_PASS_F64_POINTS = 40_000
+
 
 @dataclass(frozen=True)
 class GridLayout:
@@ -101,11 +110,11 @@ class GridSprings(Springs):
         # the force of each slot's spring on its starting point (i, j), at [o, i + PAD_I, j + PAD_J];
         # slots without a spring are never written and stay zero
         self.slot_force = ti.Vector.field(3, real, shape=(shape[0], lay_nx + PAD_I, lay_ny + 2 * PAD_J))
-        # The spring pass runs on one thread on a CPU whatever the size: Taichi compiles a
-        # parallel loop's body as a function called per iteration, where the same inner loops
-        # do not vectorise, and on the 2-vCPU development machine the serial pass was 3-4
-        # times as fast as the parallel one at every size up to 512 x 512.
-        self.serial_pass = runtime.cpu_backend()
+        # On a CPU the spring pass runs on one thread: Taichi compiles a parallel loop's body as
+        # a function called per iteration, where the same inner loops do not vectorise (see
+        # SERIAL_PASS_F64_POINTS for the exception).
+        self.serial_pass = runtime.cpu_backend() and (
+            real == ti.f32 or layout.nx * layout.ny < SERIAL_PASS_F64_POINTS)
         # The grid's positions and velocities, copied in at each force evaluation of the serial
         # pass. Taichi puts fields allocated between two kernel launches in one memory tree, and
         # a loop that reads one tree and writes another re-reads the tree's base address every
