@@ -4,11 +4,12 @@
 Run from the repository root (outside pytest):
 
     .venv/bin/python benchmarks/bench_serial_loops.py [--sizes 32,64,128,256] [--precision f32]
-        [--integrators symplectic_euler,xpbd] [--rounds 7] [--threads N]
+        [--integrators symplectic_euler,xpbd] [--rounds 7] [--threads N] [--pass]
 
 For every size and integrator, two cloths are built, one whose loops are forced serial and one
 forced parallel (the break-even is patched for each build, nothing else differs; a grid's
-spring pass is serial on a CPU in both, see ``GridSprings.serial_pass``), warmed up,
+spring pass is as the default puts it in both, see ``GridSprings.serial_pass``; with
+``--pass`` the grid's spring pass is forced serial or parallel instead), warmed up,
 then timed in alternating rounds of raw ``integrator.step`` calls (``ti.sync`` around each
 round): the medians over rounds, per step, and serial / parallel. Symplectic Euler steps at
 1e-5 s, XPBD at 1/60 s with its default 20 substeps. The 1-minute load average is printed
@@ -23,20 +24,26 @@ import taichi as ti
 
 import taichi_sim as ts
 from taichi_sim import runtime
+from taichi_sim.forces.springs import grid
 from taichi_sim.integrators.positional import xpbd
 
 STEP = {"symplectic_euler": 1e-5, "xpbd": 1 / 60}
 
 
-def build(n: int, name: str, serial: bool):
-    """A cloth and its integrator with every hot loop serial or every one parallel."""
-    saved = runtime.SERIAL_WORK, xpbd.SERIAL_SPRINGS
-    runtime.SERIAL_WORK = xpbd.SERIAL_SPRINGS = 10 ** 12 if serial else 0
+def build(n: int, name: str, serial: bool, grid_pass: bool = False):
+    """A cloth and its integrator with every hot loop serial or every one parallel; with
+    ``grid_pass``, the grid's spring pass serial or parallel instead (the system's loops as
+    the default break-even puts them)."""
+    saved = runtime.SERIAL_WORK, xpbd.SERIAL_SPRINGS, grid.SERIAL_PASS_F32_POINTS, grid.SERIAL_PASS_F64_POINTS
+    if grid_pass:
+        grid.SERIAL_PASS_F32_POINTS = grid.SERIAL_PASS_F64_POINTS = 10 ** 12 if serial else 0
+    else:
+        runtime.SERIAL_WORK = xpbd.SERIAL_SPRINGS = 10 ** 12 if serial else 0
     try:
         scene = ts.build_scene("cloth", {"nx": n, "ny": n})
         integrator = ts.create_integrator(name, scene.system)
     finally:
-        runtime.SERIAL_WORK, xpbd.SERIAL_SPRINGS = saved
+        runtime.SERIAL_WORK, xpbd.SERIAL_SPRINGS, grid.SERIAL_PASS_F32_POINTS, grid.SERIAL_PASS_F64_POINTS = saved
     return scene, integrator
 
 
@@ -47,6 +54,8 @@ def main() -> None:
     parser.add_argument("--integrators", default="symplectic_euler,xpbd")
     parser.add_argument("--rounds", type=int, default=7)
     parser.add_argument("--threads", type=int, default=None)
+    parser.add_argument("--pass", dest="grid_pass", action="store_true",
+                        help="compare the grid's spring pass serial and parallel instead")
     args = parser.parse_args()
     ts.init(arch="cpu", precision=args.precision, cpu_max_num_threads=args.threads)
     print(f"load average (1 min): {os.getloadavg()[0]:.2f}; {args.precision}; "
@@ -56,7 +65,7 @@ def main() -> None:
     for n in (int(s) for s in args.sizes.split(",")):
         for name in args.integrators.split(","):
             h = STEP[name]
-            pair = {serial: build(n, name, serial) for serial in (True, False)}
+            pair = {serial: build(n, name, serial, args.grid_pass) for serial in (True, False)}
             for scene, integrator in pair.values():
                 for _ in range(3):
                     integrator.step(scene.state, 0.0, h)
@@ -83,6 +92,9 @@ def main() -> None:
             # what the default break-even picks for this cloth
             picks_serial = (runtime.serial_loops(items) if name != "xpbd" else
                             runtime.serial_loops(items, xpbd.SERIAL_SPRINGS))
+            if args.grid_pass:  # what GridSprings picks for this grid
+                limit = grid.SERIAL_PASS_F32_POINTS if args.precision == "f32" else grid.SERIAL_PASS_F64_POINTS
+                picks_serial = n * n < limit
             chosen = "serial" if picks_serial else "parallel"
             print(f"{n:>5} {name:<18} {items:>8} {serial_t:>15.0f} {parallel_t:>17.0f} "
                   f"{serial_t / parallel_t:>16.2f} {chosen:>8}", flush=True)

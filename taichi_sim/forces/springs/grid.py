@@ -24,13 +24,14 @@ STENCIL = ((1, 0), (0, 1), (1, 1), (1, -1), (2, 0), (0, 2))
 PAD_I, PAD_J = 2, 2
 
 # Grid points from which an f64 grid's spring pass runs in parallel on a CPU, without the
-# vectorising. In f32 the serial, vectorised pass won at every size measured (a symplectic
-# Euler step on the 2-vCPU development machine, serial against parallel pass: 288 against
-# 561-674 us at 128 x 128, 1.04 against 1.6-1.8 ms at 256 x 256, 4.4-4.6 against 5.6-7.7 ms
-# at 512 x 512). In f64 a vector holds half as many springs and the pass moves twice the
-# bytes: serial won at 128 x 128 (407 against 647 us) but lost at 256 x 256 (2.2-2.5 against
-# 1.7-2.2 ms) and 512 x 512 (10.2 against 7.2-8.4 ms); the break-even lies between.
+# vectorising. A symplectic Euler step on the 2-vCPU development machine with the pass serial
+# against parallel (benchmarks/bench_serial_loops.py --pass, 2026-11-25): in f32, 296 against
+# 710 us at 128 x 128, 1.03 against 1.53 ms at 256 x 256 and 4.5 against 7.8 ms at 512 x 512,
+# so f32 has no limit. In f64 a vector holds half as many springs and the pass moves twice the
+# bytes: 427 against 747 us at 128 x 128, a toss-up at 256 x 256 (2.3 against 2.7 ms in that
+# run, 2.2-2.5 against 1.7-2.2 ms in others) and 10.6 against 8.4 ms at 512 x 512.
 SERIAL_PASS_F64_POINTS = 40_000
+SERIAL_PASS_F32_POINTS = 10**12
 
 
 @dataclass(frozen=True)
@@ -113,8 +114,8 @@ class GridSprings(Springs):
         # On a CPU the spring pass runs on one thread: Taichi compiles a parallel loop's body as
         # a function called per iteration, where the same inner loops do not vectorise (see
         # SERIAL_PASS_F64_POINTS for the exception).
-        self.serial_pass = runtime.cpu_backend() and (
-            real == ti.f32 or layout.nx * layout.ny < SERIAL_PASS_F64_POINTS)
+        limit = SERIAL_PASS_F32_POINTS if real == ti.f32 else SERIAL_PASS_F64_POINTS
+        self.serial_pass = runtime.cpu_backend() and layout.nx * layout.ny < limit
         # The grid's positions and velocities, copied in at each force evaluation of the serial
         # pass. Taichi puts fields allocated between two kernel launches in one memory tree, and
         # a loop that reads one tree and writes another re-reads the tree's base address every
@@ -248,29 +249,24 @@ class GridSprings(Springs):
             for o in ti.static(range(len(self.layout.offsets))):
                 oi, oj = ti.static(self.layout.offsets[o])
                 if i + oi < nx:
-                    if self.uniform[None]:
-                        e, w = self._offset_row_energy(y, i, o, False)
-                        energy += e
-                        ti.atomic_max(worst, w)
-                    else:
-                        e, w = self._offset_row_energy(y, i, o, True)
-                        energy += e
-                        ti.atomic_max(worst, w)
+                    e, w = self._offset_row_energy(y, i, o)
+                    energy += e
+                    ti.atomic_max(worst, w)
         return energy, worst
 
     @ti.func
-    def _offset_row_energy(self, y, i, o: ti.template(), per_slot: ti.template()):
-        """(energy (J), largest strain) of row i's springs at offset o."""
+    def _offset_row_energy(self, y, i, o: ti.template()):
+        """(energy (J), largest strain) of row i's springs at offset o. It reads each slot's
+        own (k, r, c) whether or not they are uniform: one loop rather than two keeps the
+        kernel small (Taichi lowers each kernel's Python anew in every process, cache or no
+        cache), and the check runs once per hundred steps."""
         first, ny = ti.static(self.layout.first, self.layout.ny)
         oi, oj = ti.static(self.layout.offsets[o])
-        shared = self.offset_parameters[o]
         energy = ti.cast(0.0, y.x.dtype)
         worst = ti.cast(0.0, y.x.dtype)
         for j in range(ti.static(max(0, -oj)), ti.static(ny - max(0, oj))):
             p = first + i * ny + j
-            c = shared
-            if ti.static(per_slot):
-                c = self.slot_parameters[o, i, j]
+            c = self.slot_parameters[o, i, j]
             length = (y.x[p] - y.x[p + oi * ny + oj]).norm()
             energy += 0.5 * c[0] * (length - c[1]) * (length - c[1])
             # springs with k = 0 or r = 0 (an empty slot) have no strain
