@@ -107,6 +107,7 @@ class GridSprings(Springs):
         # offset's slots all hold springs with the same values (a cloth, unless per-spring
         # values are set), reading 6 numbers instead of 3 per spring is 15-20 % faster.
         self.offset_parameters = ti.Vector.field(3, real, shape=len(layout.offsets))
+        self.offset_steps = ti.Vector.field(2, ti.i32, shape=len(layout.offsets))  # (oi, oj)
         self.uniform = ti.field(ti.i32, shape=())
         # the force of each slot's spring on its starting point (i, j), at [o, i + PAD_I, j + PAD_J];
         # slots without a spring are never written and stay zero
@@ -151,14 +152,16 @@ class GridSprings(Springs):
             uniform = uniform and full and bool(same)
             per_offset[o] = mine[0]
         # one kernel for all three: each from_numpy or field write would compile its own
-        self._upload_grid(table, per_offset, int(uniform))
+        self._upload_grid(table, per_offset, np.asarray(lay.offsets, np.int32).reshape(-1, 2), int(uniform))
 
     @ti.kernel
-    def _upload_grid(self, table: ti.types.ndarray(ndim=4), per_offset: ti.types.ndarray(ndim=2), uniform: ti.i32):
+    def _upload_grid(self, table: ti.types.ndarray(ndim=4), per_offset: ti.types.ndarray(ndim=2),
+                     steps: ti.types.ndarray(dtype=ti.i32, ndim=2), uniform: ti.i32):
         for o, i, j in self.slot_parameters:
             self.slot_parameters[o, i, j] = ti.Vector([table[o, i, j, 0], table[o, i, j, 1], table[o, i, j, 2]])
         for o in self.offset_parameters:
             self.offset_parameters[o] = ti.Vector([per_offset[o, 0], per_offset[o, 1], per_offset[o, 2]])
+            self.offset_steps[o] = ti.Vector([steps[o, 0], steps[o, 1]])
         self.uniform[None] = uniform
 
     @ti.func
@@ -177,13 +180,12 @@ class GridSprings(Springs):
                     self.grid_v[p] = y.v[first + p]
             ti.loop_config(serialize=True)
             for i in range(nx):
-                for o in ti.static(range(len(self.layout.offsets))):
-                    if i + ti.static(self.layout.offsets[o][0]) < nx:
-                        # two loops rather than a test per spring, which would stop the vectorising
-                        if self.uniform[None]:
-                            self._offset_row(i, o, False)
-                        else:
-                            self._offset_row(i, o, True)
+                if self.uniform[None]:
+                    for o in ti.static(range(len(self.layout.offsets))):
+                        if i + ti.static(self.layout.offsets[o][0]) < nx:
+                            self._offset_row(i, o)
+                else:
+                    self._row_per_slot(i)
         else:
             for i, j in ti.ndrange(nx, ny):
                 p = first + i * ny + j
@@ -201,25 +203,40 @@ class GridSprings(Springs):
                                                                                   c[0], c[1], c[2])
 
     @ti.func
-    def _offset_row(self, i, o: ti.template(), per_slot: ti.template()):
-        """Row i's springs at offset o into their slots, with the offset's shared (k, r, c) or,
-        ``per_slot``, each slot's own."""
+    def _offset_row(self, i, o: ti.template()):
+        """Row i's springs at offset o into their slots, with the offset's shared (k, r, c)."""
         ny = ti.static(self.layout.ny)
         oi, oj = ti.static(self.layout.offsets[o])
         # read before the loop: a read inside it, which might alias the slots it writes, would
         # keep it from vectorising
-        shared = self.offset_parameters[o]
+        c = self.offset_parameters[o]
         for j in range(ti.static(max(0, -oj)), ti.static(ny - max(0, oj))):
             p = i * ny + j
             q = p + oi * ny + oj
-            c = shared
-            if ti.static(per_slot):
-                c = self.slot_parameters[o, i, j]
             dv = ti.Vector.zero(self.grid_x.dtype, 3)
             if ti.static(self.damped):
                 dv = self.grid_v[p] - self.grid_v[q]
             self.slot_force[o, i + PAD_I, j + PAD_J] = self.pair_force(self.grid_x[p] - self.grid_x[q], dv,
                                                                       c[0], c[1], c[2])
+
+    @ti.func
+    def _row_per_slot(self, i):
+        """Row i's springs with each slot's own (k, r, c): one loop over the offsets at run
+        time, which does not vectorise (neither did one per offset, which reading per-slot
+        values stopped too) but keeps the kernel small."""
+        nx, ny = ti.static(self.layout.nx, self.layout.ny)
+        for o in range(ti.static(len(self.layout.offsets))):
+            oi, oj = self.offset_steps[o][0], self.offset_steps[o][1]
+            if i + oi < nx:
+                for j in range(ti.max(0, -oj), ny - ti.max(0, oj)):
+                    p = i * ny + j
+                    q = p + oi * ny + oj
+                    c = self.slot_parameters[o, i, j]
+                    dv = ti.Vector.zero(self.grid_x.dtype, 3)
+                    if ti.static(self.damped):
+                        dv = self.grid_v[p] - self.grid_v[q]
+                    self.slot_force[o, i + PAD_I, j + PAD_J] = self.pair_force(
+                        self.grid_x[p] - self.grid_x[q], dv, c[0], c[1], c[2])
 
     @ti.func
     def precomputed_force(self, i, y, mass_i, t):
@@ -246,25 +263,24 @@ class GridSprings(Springs):
         worst = ti.cast(0.0, y.x.dtype)
         ti.loop_config(serialize=self.serial_pass)
         for i in range(nx):
-            for o in ti.static(range(len(self.layout.offsets))):
-                oi, oj = ti.static(self.layout.offsets[o])
-                if i + oi < nx:
+            for o in range(ti.static(len(self.layout.offsets))):
+                if i + self.offset_steps[o][0] < nx:
                     e, w = self._offset_row_energy(y, i, o)
                     energy += e
                     ti.atomic_max(worst, w)
         return energy, worst
 
     @ti.func
-    def _offset_row_energy(self, y, i, o: ti.template()):
+    def _offset_row_energy(self, y, i, o):
         """(energy (J), largest strain) of row i's springs at offset o. It reads each slot's
         own (k, r, c) whether or not they are uniform: one loop rather than two keeps the
         kernel small (Taichi lowers each kernel's Python anew in every process, cache or no
         cache), and the check runs once per hundred steps."""
         first, ny = ti.static(self.layout.first, self.layout.ny)
-        oi, oj = ti.static(self.layout.offsets[o])
+        oi, oj = self.offset_steps[o][0], self.offset_steps[o][1]
         energy = ti.cast(0.0, y.x.dtype)
         worst = ti.cast(0.0, y.x.dtype)
-        for j in range(ti.static(max(0, -oj)), ti.static(ny - max(0, oj))):
+        for j in range(ti.max(0, -oj), ny - ti.max(0, oj)):
             p = first + i * ny + j
             c = self.slot_parameters[o, i, j]
             length = (y.x[p] - y.x[p + oi * ny + oj]).norm()
