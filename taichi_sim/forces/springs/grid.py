@@ -256,8 +256,9 @@ class GridSprings(Springs):
     @ti.func
     def energy_and_strain(self, y):
         """(the springs' energy (J), their largest strain |d|/r - 1 (0 if none)) at ``y``: the
-        blow-up guard's reading, in vectorised row passes that read ``y`` and write nothing
-        (a non-finite position gives a non-finite energy, which the guard catches too)."""
+        blow-up guard's reading, in row passes over each spring once (the list term's gather
+        meets each spring from both ends) that read ``y`` and write nothing (a non-finite
+        position gives a non-finite energy, which the guard catches too)."""
         nx, ny = ti.static(self.layout.nx, self.layout.ny)
         energy = ti.cast(0.0, y.x.dtype)
         worst = ti.cast(0.0, y.x.dtype)
