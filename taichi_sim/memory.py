@@ -26,8 +26,8 @@ MAX_INDEX = 2**31 - 1
 
 # Bytes per item at a real of r bytes (4 for f32, 8 for f64): fixed bytes + reals * r.
 # A particle: numpy x0, v0, positions and their build copies; the state, the guard's snapshot,
-# mass and flags, and the grid stencil's copy of the positions and velocities (6 reals). A spring: numpy ends, kinds, rest lengths and their temporaries; Taichi's
-# ends, gather lists, rest length, stiffness, damping, tearing, and the force buffer of a
+# mass and flags, and the grid stencil's copy of the positions and velocities (6 reals). A
+# spring: numpy ends, kinds, rest lengths and their temporaries; Taichi's ends, gather lists, rest length, stiffness, damping, tearing, and the force buffer of a
 # whole-system evaluation (3 reals; the grid stencil's slots hold 3 parameters and 3 force
 # components instead). A triangle: numpy and Taichi
 # vertex ids and the per-particle incidence lists.

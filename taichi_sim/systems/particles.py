@@ -343,12 +343,14 @@ class ParticleSystem(ImplicitAPI, System):
                 kinetic += 0.5 * self.mass[i] * y.v[i].norm_sqr()
                 free_i = self.free[i]
                 for term in ti.static(self.terms):
-                    if ti.static(hasattr(term, "energy_and_strain_at") and not hasattr(term, "energy_and_strain")):
+                    if ti.static(hasattr(term, "energy_and_strain")):
+                        pass  # summed over the whole system below
+                    elif ti.static(hasattr(term, "energy_and_strain_at")):
                         u, strain = term.energy_and_strain_at(i, y)
                         potential += u
                         spring_energy += u
                         ti.atomic_max(worst, strain)
-                    elif ti.static(hasattr(term, "energy_at") and not hasattr(term, "energy_and_strain")):
+                    elif ti.static(hasattr(term, "energy_at")):
                         u = term.energy_at(i, y, free_i)
                         potential += u
                         if ti.static(term.name == "gravity"):

@@ -99,19 +99,18 @@ class GridSprings(Springs):
     def __init__(self, particle_count, ends, rest_length, stiffness, damping, kind, *, layout: GridLayout):
         self.layout = layout
         shape = (len(layout.offsets), layout.nx, layout.ny)
-        lay_nx, lay_ny = layout.nx, layout.ny
         real = runtime.real()
         # (k, r, c) of the spring in each slot, zero where there is none
         self.slot_parameters = ti.Vector.field(3, real, shape=shape)
-        # (k, r, c) of every spring of each offset, used instead while `uniform` is 1: when each
-        # offset's slots all hold springs with the same values (a cloth, unless per-spring
-        # values are set), reading 6 numbers instead of 3 per spring is 15-20 % faster.
+        # (k, r, c) of every spring of each offset, used instead while `uniform` is 1 (each
+        # offset's slots all hold springs with the same values: a cloth, unless per-spring
+        # values are set): the serial pass vectorises only with these, not with per-slot reads.
         self.offset_parameters = ti.Vector.field(3, real, shape=len(layout.offsets))
         self.offset_steps = ti.Vector.field(2, ti.i32, shape=len(layout.offsets))  # (oi, oj)
         self.uniform = ti.field(ti.i32, shape=())
         # the force of each slot's spring on its starting point (i, j), at [o, i + PAD_I, j + PAD_J];
         # slots without a spring are never written and stay zero
-        self.slot_force = ti.Vector.field(3, real, shape=(shape[0], lay_nx + PAD_I, lay_ny + 2 * PAD_J))
+        self.slot_force = ti.Vector.field(3, real, shape=(shape[0], layout.nx + PAD_I, layout.ny + 2 * PAD_J))
         # On a CPU the spring pass runs on one thread: Taichi compiles a parallel loop's body as
         # a function called per iteration, where the same inner loops do not vectorise (see
         # SERIAL_PASS_F64_POINTS for the exception).
@@ -204,7 +203,11 @@ class GridSprings(Springs):
 
     @ti.func
     def _offset_row(self, i, o: ti.template()):
-        """Row i's springs at offset o into their slots, with the offset's shared (k, r, c)."""
+        """Row i's springs at offset o into their slots, with the offset's shared (k, r, c).
+        It spells out the slot's store that :meth:`_row_per_slot` and the parallel pass also
+        spell out: with the store in a shared function taking the offset and the two particle
+        ids as arguments, this loop lost most of its vectorising (a symplectic step at 128 x 128
+        took 436-607 us against 285)."""
         ny = ti.static(self.layout.ny)
         oi, oj = ti.static(self.layout.offsets[o])
         # read before the loop: a read inside it, which might alias the slots it writes, would

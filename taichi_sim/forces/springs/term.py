@@ -254,20 +254,9 @@ class Springs(SpringJacobians, ForceTerm):
         return total
 
     @ti.func
-    def strain_at(self, i, y):
-        """The largest strain |d|/r - 1 of i's live springs with k > 0 and r > 0 (0 if none)."""
-        worst = ti.cast(0.0, y.x.dtype)
-        for e in range(self.offsets[i], self.offsets[i + 1]):
-            s = self.incident[e]
-            if self.is_alive(s) and self.stiffness[s] > 0.0 and self.rest[s] > 0.0:
-                strain = (y.x[i] - y.x[self.other[e]]).norm() / self.rest[s] - 1.0
-                worst = ti.max(worst, strain)
-        return worst
-
-    @ti.func
     def energy_and_strain_at(self, i, y):
-        """(:meth:`energy_at`, :meth:`strain_at`) in one pass over i's springs, one length each:
-        what the blow-up guard's check reads."""
+        """(:meth:`energy_at`, the largest strain |d|/r - 1 of i's live springs with k > 0 and
+        r > 0, or 0 if none) in one pass over i's springs: what the blow-up guard's check reads."""
         total = ti.cast(0.0, y.x.dtype)
         worst = ti.cast(0.0, y.x.dtype)
         for e in range(self.offsets[i], self.offsets[i + 1]):
