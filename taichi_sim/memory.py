@@ -26,18 +26,18 @@ MAX_INDEX = 2**31 - 1
 
 # Bytes per item at a real of r bytes (4 for f32, 8 for f64): fixed bytes + reals * r.
 # A particle: numpy x0, v0, positions and their build copies; the state, the guard's snapshot,
-# mass and flags, and the grid stencil's copy of the positions and velocities (6 reals). A
-# spring: numpy ends, kinds, rest lengths and their temporaries; Taichi's ends, gather lists, rest length, stiffness, damping, tearing, and the force buffer of a
+# mass and flags. A spring: numpy ends, kinds, rest lengths and their temporaries; Taichi's
+# ends, gather lists, rest length, stiffness, damping, tearing, and the force buffer of a
 # whole-system evaluation (3 reals; the grid stencil's slots hold 3 parameters and 3 force
 # components instead). A triangle: numpy and Taichi
 # vertex ids and the per-particle incidence lists.
-_PARTICLE_FIXED, _PARTICLE_REALS = 200, 20
+_PARTICLE_FIXED, _PARTICLE_REALS = 200, 14
 _SPRING_FIXED, _SPRING_REALS = 230, 10
 _TRIANGLE_FIXED, _TRIANGLE_REALS = 80, 2
 
 # Scratch of each integrator, in copies of the state (6 reals per particle): its RK stages and
 # stage inputs, candidates, snapshots.
-_SCRATCH_STATES = {"euler": 1, "trapezoid": 3, "midpoint": 3, "rk4": 6, "symplectic_euler": 1,
+_SCRATCH_STATES = {"euler": 1, "trapezoid": 3, "midpoint": 3, "rk4": 5, "symplectic_euler": 1,
                    "rk45": 11, "rkf45": 10}
 # The implicit methods: Newton's point, force, rhs, delta, guess, CG's vectors and 3 x 3 diagonal
 # blocks (about 40 reals per particle) and the cached spring Jacobian blocks (10 reals + 2 ids

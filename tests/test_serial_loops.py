@@ -1,9 +1,11 @@
 """Hot loops on one thread for small systems: the choice, and that it changes no result."""
 import numpy as np
 import pytest
+import taichi as ti
 
 import taichi_sim as ts
 from taichi_sim import runtime
+from taichi_sim.loops import anchor
 from taichi_sim.integrators import create_integrator
 from taichi_sim.integrators.positional import xpbd
 
@@ -23,10 +25,14 @@ def test_the_choice_depends_on_the_backend_the_threads_and_the_size(monkeypatch)
         assert not choose(gpu, 2, 1)  # a serial loop on a GPU is one GPU thread
 
 
-@pytest.mark.parametrize("integrator", ["symplectic_euler", "rk4", "xpbd", "projective_dynamics"])
-def test_serial_and_parallel_loops_give_the_same_trajectory_bit_for_bit(f64, monkeypatch, integrator):
+@pytest.mark.parametrize("integrator,wind", [
+    ("symplectic_euler", True), ("symplectic_euler", False), ("rk4", True), ("rk4", False),
+    ("euler", False), ("xpbd", True), ("projective_dynamics", True)])
+def test_serial_and_parallel_loops_give_the_same_trajectory_bit_for_bit(f64, monkeypatch, integrator, wind):
     """No loop that runs serial for small systems reduces into a shared value or reads what
-    another iteration writes, so the order of its iterations cannot change a bit."""
+    another iteration writes, so the order of its iterations cannot change a bit; nor do the
+    anchors that let the serial loops vectorise (without wind every force is local after the
+    spring pass, and symplectic Euler takes its one-loop, anchored update)."""
     if runtime._current["threads"] <= 1:
         pytest.skip("one thread: every loop runs serial")
     dt = 1 / 60 if integrator in ("xpbd", "projective_dynamics") else 1e-3
@@ -36,7 +42,7 @@ def test_serial_and_parallel_loops_give_the_same_trajectory_bit_for_bit(f64, mon
         monkeypatch.setattr(xpbd, "SERIAL_SPRINGS", 10 ** 12 if serial else 0)
         # the grid's spring pass is serial on every CPU; parallel as on a GPU
         monkeypatch.setattr(runtime, "cpu_backend", lambda: serial)
-        scene = ts.build_scene("cloth", {"nx": 12, "ny": 12, "wind": True})
+        scene = ts.build_scene("cloth", {"nx": 12, "ny": 12, "wind": wind})
         method = create_integrator(integrator, scene.system)
         assert scene.system.serial_loops is serial
         assert all(term.serial_loops is serial for term in scene.system.terms)
@@ -60,3 +66,27 @@ def test_a_grid_s_springs_leave_the_system_s_choice_to_its_particles(monkeypatch
     monkeypatch.setattr(runtime, "SERIAL_WORK", particles + 1)  # past the particles, short of the springs
     assert ts.build_scene("cloth", {"nx": 12, "ny": 12}).system.serial_loops
     assert not ts.build_scene("cloth", {"nx": 12, "ny": 12, "tear": True}).system.serial_loops
+
+
+def test_an_anchor_changes_no_field_of_any_shape(f64):
+    """An anchor stores a field's first element to itself: every field keeps its values."""
+    fields = [ti.field(ti.f64, shape=()), ti.Vector.field(3, ti.f64, shape=7),
+              ti.field(ti.i32, shape=(3, 4)), ti.Vector.field(2, ti.f64, shape=(2, 3, 4))]
+    values = [np.asarray(4.5), np.arange(21.0).reshape(7, 3), np.arange(12).reshape(3, 4),
+              np.linspace(-1.0, 1.0, 48).reshape(2, 3, 4, 2)]
+    for field, value in zip(fields, values):
+        field.from_numpy(value)
+
+    @ti.kernel
+    def anchored_double():
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            for field in ti.static(fields):
+                anchor(field)
+            for i in range(7):
+                fields[1][i] = 2.0 * fields[1][i]
+
+    anchored_double()
+    values[1] = 2.0 * values[1]
+    for field, value in zip(fields, values):
+        assert np.array_equal(field.to_numpy(), value)

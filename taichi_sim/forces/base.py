@@ -41,6 +41,13 @@ class ForceTerm:
     first. True unless a term says otherwise (gravity, drag, the grab pull), so that a new
     term is safe by default."""
 
+    def anchored_fields(self) -> tuple:
+        """The fields the term's per-particle force (``force``, or ``precomputed_force`` for a
+        term that precomputes) reads, for a serial loop to look their memory trees up once
+        before it (:mod:`taichi_sim.loops`); a field left out only costs a re-read per
+        particle. Default: none."""
+        return ()
+
     serial_loops = False
     """Whether the term's whole-system pass (``precompute``) runs on one thread; set by the
     system the term belongs to (see :func:`taichi_sim.runtime.serial_loops`)."""

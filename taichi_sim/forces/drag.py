@@ -22,6 +22,9 @@ class Drag(ForceTerm):
     def get(self) -> float:
         return float(self.k[None])
 
+    def anchored_fields(self) -> tuple:
+        return (self.k,)
+
     @ti.func
     def force(self, i, y, mass_i, t):
         return -self.k[None] * y.v[i]

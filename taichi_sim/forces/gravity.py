@@ -30,6 +30,9 @@ class Gravity(ZeroJacobian, ForceTerm):
     def get(self) -> np.ndarray:
         return np.asarray(self.g[None].to_numpy(), dtype=float)
 
+    def anchored_fields(self) -> tuple:
+        return (self.g,)
+
     @ti.func
     def force(self, i, y, mass_i, t):
         return mass_i * self.g[None]

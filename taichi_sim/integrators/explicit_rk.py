@@ -2,6 +2,7 @@
 
 import taichi as ti
 
+from ..loops import anchor
 from ..state import State, finite
 from ..systems.base import System
 from .base import Integrator, Status, StepReport
@@ -12,13 +13,14 @@ from .tableau import EULER, MIDPOINT, RK4, TRAPEZOID, ButcherTableau
 class ExplicitRK(Integrator):
     """Explicit RK over a tableau. Subclasses set ``tableau`` (and ``name``, ``description``).
 
-    The tableau's coefficients are compile-time constants: each stage's combination
-    y + h sum_j a_ij k_j is one kernel in which zero coefficients vanish, and the final update
-    also counts non-finite particles so divergence is caught without an extra pass.
+    The tableau's coefficients are compile-time constants, so zero ones vanish. On a system
+    that offers :meth:`~taichi_sim.systems.ParticleSystem.eval_f_stages` (particles) the whole
+    step is one kernel launch (:class:`StagePlan`); otherwise each stage's input and the final
+    update are kernels of their own, the update also counting non-finite particles.
     """
 
     tableau: ButcherTableau
-    fuse_stages = True  # one launch per stage where the system offers it (see _staged_step)
+    fuse_stages = True  # one launch per step where the system offers it (see _staged_step)
     takes_constraints = True
 
     def __init_subclass__(cls, **kwargs):
@@ -27,12 +29,14 @@ class ExplicitRK(Integrator):
 
     def __init__(self, system: System):
         super().__init__(system)
-        self.stages = [system.make_state() for _ in range(self.tableau.stage_count)]
-        self.stage_input = system.make_state() if self.tableau.stage_count > 1 else None
+        count = self.tableau.stage_count
+        self.stages = [system.make_state() for _ in range(count)]
+        self.stage_input = system.make_state() if count > 1 else None
+        self._plans = {}
 
     def step(self, state: State, t: float, h: float) -> StepReport:
         tab = self.tableau
-        if self.fuse_stages and hasattr(self.system, "eval_f_staged"):
+        if self.fuse_stages and hasattr(self.system, "eval_f_stages"):
             return self._staged_step(state, t, h)
         for i in range(tab.stage_count):
             if i == 0:
@@ -45,41 +49,16 @@ class ExplicitRK(Integrator):
         return StepReport(accepted=True, h=h, next_h=h, f_evals=tab.stage_count, status=status)
 
     def _staged_step(self, state: State, t: float, h: float) -> StepReport:
-        """The step with each stage's input and the final update folded into the force
-        evaluations' kernels (:meth:`~taichi_sim.systems.ParticleSystem.eval_f_staged`): one
-        launch of two loops per stage. As each particle's k_i is computed, the same thread
-        writes its entry of the next stage's input y + h sum_j a_(i+1)j k_j (into the other of
-        two buffers, so that no particle's input changes while a neighbour may read it), and
-        in the last stage its final update. Nothing is read back: non-finite values are left
-        to the blow-up guard's next check, as for symplectic Euler."""
-        tab = self.tableau
-        count = tab.stage_count
-        combine = self._combinations(state)
-        # The last stage reads the stage input, so it may update the state as it goes; a
-        # single stage reads the state itself, which only local terms make safe.
-        fused_final = count > 1 or self.system.sums_locally()
-        for i in range(count):
-            y = state if i == 0 else self._buffers[i % 2]
-            after = combine[i] if (i < count - 1 or fused_final) else None
-            self.system.eval_f_staged(y, t + tab.c[i] * h, self.stages[i], h, after=after)
-        if not fused_final:
-            self._advance(state, h)
-        return StepReport(accepted=True, h=h, next_h=h, f_evals=count, status=Status.OK)
-
-    def _combinations(self, state: State) -> list:
-        """What each stage's kernel writes after k_i: the next stage's input, or (last) the new
-        state. Kept for the last state seen: each is a kernel's template argument, so a new one
-        compiles new kernels."""
-        if getattr(self, "_combined_for", None) is not state:
-            tab = self.tableau
-            if not hasattr(self, "_buffers"):  # stage inputs alternate between two states
-                second = self.system.make_state() if tab.stage_count > 2 else self.stage_input
-                self._buffers = (second, self.stage_input)
-            self._stage_combinations = [
-                StageCombination(state, self.stages, tab.a[i + 1], self._buffers[(i + 1) % 2])
-                for i in range(tab.stage_count - 1)] + [StageCombination(state, self.stages, tab.b, state)]
-            self._combined_for = state
-        return self._stage_combinations
+        """The whole step in one kernel launch
+        (:meth:`~taichi_sim.systems.ParticleSystem.eval_f_stages`, run on a :class:`StagePlan`).
+        Nothing is read back: non-finite values are left to the blow-up guard's next check, as
+        for symplectic Euler."""
+        plan = self._plans.get(id(state))
+        if plan is None:
+            # a kernel compiles per plan (per state stepped); keep the state alive with it
+            plan = self._plans[id(state)] = (StagePlan(self, state), state)
+        self.system.eval_f_stages(plan[0], t, h)
+        return StepReport(accepted=True, h=h, next_h=h, f_evals=self.tableau.stage_count, status=Status.OK)
 
     @ti.kernel
     def _stage_input(self, y: ti.template(), i: ti.template(), h: float):
@@ -104,20 +83,49 @@ class ExplicitRK(Integrator):
 
 
 @ti.data_oriented
-class StageCombination:
-    """target = y + h sum_j w_j k_j, one particle at a time (``apply(p, h)``), with the weights
-    w as compile-time constants (the stages with zero weight, not yet computed, are not read).
-    ``target`` may be ``y`` itself (the final update): each particle reads its own entries
-    before writing them."""
+class StagePlan:
+    """What :meth:`~taichi_sim.systems.ParticleSystem.eval_f_stages` runs for one step of
+    ``rk`` on ``y``: stage 0 at ``y``, the later stages at ``rk.stage_input``, each derivative
+    k_s into ``rk.stages[s]``; after stage s (:meth:`after`) a loop of its own writes
+    y + h sum_j a_(s+1)j k_j into the stage input or, after the last, y + h sum_j b_j k_j
+    into ``y`` (each particle reads its own entries before writing them). The weights are
+    compile-time constants, so stages with a zero weight are not read."""
 
-    def __init__(self, y: State, stages: list, weights: tuple, target: State):
-        self.y, self.stages, self.weights, self.target = y, stages, tuple(weights), target
+    def __init__(self, rk: "ExplicitRK", y: State):
+        tab = rk.tableau
+        self.y, self.derivatives = y, tuple(rk.stages)
+        self.inputs = (y,) + (rk.stage_input,) * (tab.stage_count - 1)
+        self.outputs = self.derivatives
+        self.c = tuple(tab.c)
+        self.targets = self.inputs[1:] + (y,)
+        self.weights = tuple(tuple(row) for row in tab.a[1:]) + (tuple(tab.b),)
+        self.particle_count = y.particle_count
+        self.serial = getattr(rk.system, "serial_loops", False)
+        self.fields = sum((state_parts(state) for state in dict.fromkeys(self.inputs + self.derivatives)), ())
 
     @ti.func
-    def apply(self, p, h):
+    def after(self, s: ti.template(), h):
+        """The combination after stage s. On a CPU it is a serial loop with every memory tree
+        anchored (:mod:`taichi_sim.loops`), which vectorises it: fused into the derivative
+        loop, as they once were, the combinations stayed scalar and took a third of an rk4
+        step."""
+        if ti.static(self.serial):
+            ti.loop_config(serialize=True)
+            for _ in range(1):
+                for field in ti.static(self.fields):
+                    anchor(field)
+                for p in range(self.particle_count):
+                    self._combine(s, p, h)
+        else:
+            for p in range(self.particle_count):
+                self._combine(s, p, h)
+
+    @ti.func
+    def _combine(self, s: ti.template(), p, h):
         for part in ti.static(range(len(state_parts(self.y)))):
-            ti.static(state_parts(self.target)[part])[p] = (
-                ti.static(state_parts(self.y)[part])[p] + h * weighted_stages(self.stages, self.weights, part, p))
+            ti.static(state_parts(self.targets[s])[part])[p] = (
+                ti.static(state_parts(self.y)[part])[p]
+                + h * weighted_stages(self.derivatives, self.weights[s], part, p))
 
 
 def state_parts(state: State) -> tuple:

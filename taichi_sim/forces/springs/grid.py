@@ -14,6 +14,7 @@ import numpy as np
 import taichi as ti
 
 from ... import runtime
+from ...loops import anchor
 from .term import Springs
 
 # The forward half of the 12-neighbour stencil (structural, shear, flex): every spring of a
@@ -116,23 +117,15 @@ class GridSprings(Springs):
         # SERIAL_PASS_F64_POINTS for the exception).
         limit = SERIAL_PASS_F32_POINTS if real == ti.f32 else SERIAL_PASS_F64_POINTS
         self.serial_pass = runtime.cpu_backend() and layout.nx * layout.ny < limit
-        # The grid's positions and velocities, copied in at each force evaluation of the serial
-        # pass. Taichi puts fields allocated between two kernel launches in one memory tree, and
-        # a loop that reads one tree and writes another re-reads the tree's base address every
-        # iteration (the writes might move it, as far as the compiler knows), which stops the
-        # vectorising; the pass therefore reads these copies, in the slots' tree, and the copy
-        # costs a tenth of what it saves (28 against 320 us at 128 x 128, f32).
-        self.grid_x = self.grid_v = None
-        if self.serial_pass:
-            self.grid_x = ti.Vector.field(3, real, shape=layout.nx * layout.ny)
-            if np.any(np.asarray(damping) != 0):
-                self.grid_v = ti.Vector.field(3, real, shape=layout.nx * layout.ny)
         # the grid is every particle (a cloth scene): the gather needs no range test
         self.covers_all = layout.first == 0 and layout.nx * layout.ny == particle_count
         super().__init__(particle_count, ends, rest_length, stiffness, damping, kind)
 
     def _allocate_force_buffer(self) -> None:
         pass  # the slots are the buffer
+
+    def anchored_fields(self) -> tuple:
+        return (self.slot_force,)
 
     def _upload_columns(self, rest_length, stiffness, damping, tear_strain) -> None:
         super()._upload_columns(rest_length, stiffness, damping, tear_strain)
@@ -169,22 +162,23 @@ class GridSprings(Springs):
         in the outer loop, and for each offset a branch-free inner loop over the points of the
         row that have that spring, which the compiler turns into SIMD code (the loop it
         replaced, one point and its six offsets per iteration with a bounds test each, did not
-        vectorise and took 2-3 times as long). Elsewhere (a GPU): one thread per grid point."""
+        vectorise and took 2-3 times as long). Each row first anchors the fields its loops use
+        (:mod:`taichi_sim.loops`): without, the state's base address is re-read for every
+        spring and the loops stay scalar (the pass used to copy the state next to the slots
+        for the same end, which cost a tenth of a step). Elsewhere (a GPU): one thread per grid
+        point."""
         first, nx, ny = ti.static(self.layout.first, self.layout.nx, self.layout.ny)
         if ti.static(self.serial_pass):
             ti.loop_config(serialize=True)
-            for p in range(nx * ny):
-                self.grid_x[p] = y.x[first + p]
-                if ti.static(self.damped):
-                    self.grid_v[p] = y.v[first + p]
-            ti.loop_config(serialize=True)
             for i in range(nx):
+                for field in ti.static(self._row_fields(y)):
+                    anchor(field)
                 if self.uniform[None]:
                     for o in ti.static(range(len(self.layout.offsets))):
                         if i + ti.static(self.layout.offsets[o][0]) < nx:
-                            self._offset_row(i, o)
+                            self._offset_row(y, i, o)
                 else:
-                    self._row_per_slot(i)
+                    self._row_per_slot(y, i)
         else:
             for i, j in ti.ndrange(nx, ny):
                 p = first + i * ny + j
@@ -201,45 +195,46 @@ class GridSprings(Springs):
                         self.slot_force[o, i + PAD_I, j + PAD_J] = self.pair_force(y.x[p] - y.x[q], dv,
                                                                                   c[0], c[1], c[2])
 
+    def _row_fields(self, y) -> tuple:
+        return (y.x, self.slot_force, self.offset_parameters, self.slot_parameters) + ((y.v,) if self.damped else ())
+
     @ti.func
-    def _offset_row(self, i, o: ti.template()):
+    def _offset_row(self, y, i, o: ti.template()):
         """Row i's springs at offset o into their slots, with the offset's shared (k, r, c).
         It spells out the slot's store that :meth:`_row_per_slot` and the parallel pass also
         spell out: with the store in a shared function taking the offset and the two particle
         ids as arguments, this loop lost most of its vectorising (a symplectic step at 128 x 128
         took 436-607 us against 285)."""
-        ny = ti.static(self.layout.ny)
+        first, ny = ti.static(self.layout.first, self.layout.ny)
         oi, oj = ti.static(self.layout.offsets[o])
-        # read before the loop: a read inside it, which might alias the slots it writes, would
-        # keep it from vectorising
         c = self.offset_parameters[o]
         for j in range(ti.static(max(0, -oj)), ti.static(ny - max(0, oj))):
-            p = i * ny + j
+            p = first + i * ny + j
             q = p + oi * ny + oj
-            dv = ti.Vector.zero(self.grid_x.dtype, 3)
+            dv = ti.Vector.zero(y.x.dtype, 3)
             if ti.static(self.damped):
-                dv = self.grid_v[p] - self.grid_v[q]
-            self.slot_force[o, i + PAD_I, j + PAD_J] = self.pair_force(self.grid_x[p] - self.grid_x[q], dv,
+                dv = y.v[p] - y.v[q]
+            self.slot_force[o, i + PAD_I, j + PAD_J] = self.pair_force(y.x[p] - y.x[q], dv,
                                                                       c[0], c[1], c[2])
 
     @ti.func
-    def _row_per_slot(self, i):
+    def _row_per_slot(self, y, i):
         """Row i's springs with each slot's own (k, r, c): one loop over the offsets at run
         time, which does not vectorise (neither did one per offset, which reading per-slot
         values stopped too) but keeps the kernel small."""
-        nx, ny = ti.static(self.layout.nx, self.layout.ny)
+        first, nx, ny = ti.static(self.layout.first, self.layout.nx, self.layout.ny)
         for o in range(ti.static(len(self.layout.offsets))):
             oi, oj = self.offset_steps[o][0], self.offset_steps[o][1]
             if i + oi < nx:
                 for j in range(ti.max(0, -oj), ny - ti.max(0, oj)):
-                    p = i * ny + j
+                    p = first + i * ny + j
                     q = p + oi * ny + oj
                     c = self.slot_parameters[o, i, j]
-                    dv = ti.Vector.zero(self.grid_x.dtype, 3)
+                    dv = ti.Vector.zero(y.x.dtype, 3)
                     if ti.static(self.damped):
-                        dv = self.grid_v[p] - self.grid_v[q]
+                        dv = y.v[p] - y.v[q]
                     self.slot_force[o, i + PAD_I, j + PAD_J] = self.pair_force(
-                        self.grid_x[p] - self.grid_x[q], dv, c[0], c[1], c[2])
+                        y.x[p] - y.x[q], dv, c[0], c[1], c[2])
 
     @ti.func
     def precomputed_force(self, i, y, mass_i, t):

@@ -149,6 +149,9 @@ class Springs(SpringJacobians, ForceTerm):
         # The force of spring s on its first end, ends[s][0] (the second gets the opposite).
         self.spring_force = ti.Vector.field(3, runtime.real(), shape=self.spring_count)
 
+    def anchored_fields(self) -> tuple:
+        return (self.offsets, self.incident, self.ends, self.spring_force)
+
     @ti.func
     def pair_force(self, d, dv, k, rest, c):
         """Force (N) on end i of a spring (stiffness k, rest length r, dashpot c) with
