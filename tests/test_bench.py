@@ -13,7 +13,7 @@ import taichi_sim as ts
 from taichi_sim import theory
 from taichi_sim.bench import common
 from taichi_sim.bench.stability import StabilitySystem, run_stability
-from taichi_sim.bench.throughput import summarize
+from taichi_sim.bench.throughput import check_targets, summarize
 from taichi_sim.bench.workprec import QUICK_PROBLEMS, Problem, run_work_precision
 from taichi_sim.cli import main
 from taichi_sim.integrators import INTEGRATORS
@@ -266,6 +266,24 @@ def test_summary_ratios():
     (entry,) = summarize(rows)
     assert entry["ratio_vs_taichi"] == 2.0 and entry["rk4_over_symplectic"] == 3.5
     assert entry["warp_unavailable"] == "warp-lang is not installed" and "ratio_vs_warp" not in entry
+
+
+def test_the_throughput_targets_are_checked_at_every_size_they_name():
+    """Twice the Taichi example at 64, 128 and 256, 1.5 times elsewhere; run() within 5 % and
+    rk4 within 4.5 symplectic steps at every size; f64 entries are not targets."""
+    summary = [
+        {"precision": "f32", "n": 32, "ratio_vs_taichi": 1.6, "run_overhead": 0.01, "rk4_over_symplectic": 2.0},
+        {"precision": "f32", "n": 128, "ratio_vs_taichi": 1.9, "run_overhead": 0.06, "rk4_over_symplectic": 4.4},
+        {"precision": "f32", "n": 512, "ratio_vs_taichi": 1.6, "run_overhead": 0.02, "rk4_over_symplectic": 4.6},
+        {"precision": "f64", "n": 128, "ratio_vs_taichi": 0.5, "run_overhead": 0.5, "rk4_over_symplectic": 9.0},
+    ]
+    met = {t["target"]: t["met"] for t in check_targets(summary)}
+    assert len(met) == 9 and not any("f64" in name for name in met)
+    assert met["symplectic Euler >= 1.5 x the Taichi example's particle-steps/s (f32, 32 x 32)"]
+    assert not met["symplectic Euler >= 2 x the Taichi example's particle-steps/s (f32, 128 x 128)"]
+    assert not met["run() (the simulate path) adds <= 5 % to the bare loop (f32, 128 x 128)"]
+    assert met["rk4 time per step <= 4.5 x symplectic Euler's (f32, 128 x 128)"]
+    assert not met["rk4 time per step <= 4.5 x symplectic Euler's (f32, 512 x 512)"]
 
 
 def test_importing_the_bench_does_not_initialise_taichi():
