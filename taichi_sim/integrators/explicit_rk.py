@@ -85,23 +85,35 @@ class ExplicitRK(Integrator):
 @ti.data_oriented
 class StagePlan:
     """What :meth:`~taichi_sim.systems.ParticleSystem.eval_f_stages` runs for one step of
-    ``rk`` on ``y``: stage 0 at ``y``, the later stages at ``rk.stage_input``, each derivative
-    k_s into ``rk.stages[s]``; after stage s (:meth:`after`) a loop of its own writes
-    y + h sum_j a_(s+1)j k_j into the stage input or, after the last, y + h sum_j b_j k_j
-    into ``y`` (each particle reads its own entries before writing them). The weights are
-    compile-time constants, so stages with a zero weight are not read."""
+    ``rk`` on ``y`` (a particle system's state): stage 0 at ``y``, the later stages at
+    ``rk.stage_input``, each stage's accelerations a_s (the v part of its derivative k_s) into
+    ``rk.stages[s].v``; after stage s (:meth:`after`) a loop of its own writes
+    y + h sum_j w_j k_j into the stage input (w_j = a_(s+1)j) or, after the last stage
+    (w_j = b_j), into ``y`` (each particle reads its own entries before writing them).
+
+    The x part of k_j, the velocity of stage j's input, is not stored: that input's velocity
+    was y.v + h sum_l a_jl a_l, so sum_j w_j k_j.x = (sum_j w_j) y.v + h sum_l (w^T A)_l a_l
+    for a free particle and 0 for a pinned one. The same sum up to rounding, with a third less
+    memory traffic in the loops (rk4 at 512 x 512: 4.25-4.43 symplectic steps against
+    4.52). Every weight is a compile-time constant, so stages with a zero weight are not read."""
 
     def __init__(self, rk: "ExplicitRK", y: State):
         tab = rk.tableau
-        self.y, self.derivatives = y, tuple(rk.stages)
+        self.y, self.derivatives, self.free = y, tuple(rk.stages), rk.system.free
         self.inputs = (y,) + (rk.stage_input,) * (tab.stage_count - 1)
         self.outputs = self.derivatives
         self.c = tuple(tab.c)
         self.targets = self.inputs[1:] + (y,)
         self.weights = tuple(tuple(row) for row in tab.a[1:]) + (tuple(tab.b),)
+        matrix = tab.matrix()
+        self.velocity_weights = tuple(float(sum(w)) for w in self.weights)
+        self.acceleration_weights = tuple(
+            tuple(float(sum(w[j] * matrix[j, l] for j in range(len(w)))) for l in range(tab.stage_count))
+            for w in self.weights)
         self.particle_count = y.particle_count
-        self.serial = getattr(rk.system, "serial_loops", False)
-        self.fields = sum((state_parts(state) for state in dict.fromkeys(self.inputs + self.derivatives)), ())
+        self.serial = rk.system.serial_loops
+        inputs = tuple(dict.fromkeys(self.inputs))
+        self.fields = sum(((state.x, state.v) for state in inputs), ()) + tuple(k.v for k in self.derivatives) + (self.free,)
 
     @ti.func
     def after(self, s: ti.template(), h):
@@ -122,10 +134,15 @@ class StagePlan:
 
     @ti.func
     def _combine(self, s: ti.template(), p, h):
-        for part in ti.static(range(len(state_parts(self.y)))):
-            ti.static(state_parts(self.targets[s])[part])[p] = (
-                ti.static(state_parts(self.y)[part])[p]
-                + h * weighted_stages(self.derivatives, self.weights[s], part, p))
+        velocity = self.y.v[p]
+        change = ti.Vector.zero(self.y.x.dtype, 3)  # h sum_l (w^T A)_l a_l
+        for l in ti.static(range(len(self.derivatives))):
+            if ti.static(self.acceleration_weights[s][l] != 0.0):
+                change += self.acceleration_weights[s][l] * self.derivatives[l].v[p]
+        mean_velocity = self.velocity_weights[s] * velocity + h * change
+        ti.static(self.targets[s].x)[p] = self.y.x[p] + h * ti.select(
+            self.free[p] != 0, mean_velocity, ti.Vector.zero(self.y.x.dtype, 3))
+        ti.static(self.targets[s].v)[p] = velocity + h * weighted_stages(self.derivatives, self.weights[s], 1, p)
 
 
 def state_parts(state: State) -> tuple:

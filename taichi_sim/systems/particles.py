@@ -174,28 +174,31 @@ class ParticleSystem(ImplicitAPI, System):
         return f
 
     @ti.func
-    def _derivative(self, i, y, out, t):
-        """out's entry i: (v_i, F_i / m_i), zero when i is pinned (after :meth:`_prepare`)."""
+    def _derivative(self, i, y, out, t, accelerations_only: ti.template() = False):
+        """out's entry i: (v_i, F_i / m_i), zero when i is pinned (after :meth:`_prepare`);
+        with ``accelerations_only``, F_i / m_i into ``out.v`` and nothing into ``out.x``."""
         if self.free[i]:
             m = self.mass[i]
-            out.x[i] = y.v[i]
+            if ti.static(not accelerations_only):
+                out.x[i] = y.v[i]
             out.v[i] = self._net_force(i, y, m, t) / m
         else:
-            out.x[i] = ti.Vector.zero(y.x.dtype, 3)
+            if ti.static(not accelerations_only):
+                out.x[i] = ti.Vector.zero(y.x.dtype, 3)
             out.v[i] = ti.Vector.zero(y.x.dtype, 3)
 
     @ti.func
-    def _eval_f_body(self, y, out, t):
+    def _eval_f_body(self, y, out, t, accelerations_only: ti.template() = False):
         self._prepare(y, t)
         if ti.static(self.serial_loops):
             ti.loop_config(serialize=True)
             for _ in range(1):
                 self._anchor(y, out)
                 for i in range(self.particle_count):
-                    self._derivative(i, y, out, t)
+                    self._derivative(i, y, out, t, accelerations_only)
         else:
             for i in range(self.particle_count):
-                self._derivative(i, y, out, t)
+                self._derivative(i, y, out, t, accelerations_only)
 
     @ti.func
     def _anchor(self, y, out):
@@ -216,8 +219,10 @@ class ParticleSystem(ImplicitAPI, System):
         ``plan`` (see :class:`~taichi_sim.integrators.explicit_rk.StagePlan`) gives
         ``inputs`` and ``outputs`` (a state of this system's shape each, per stage), ``c``
         (each stage's time as a fraction of ``h``) and ``@ti.func after(s, h)``, with top-level
-        loops of its own, run once stage s's derivative f(inputs[s], t + c[s] h) is in
-        ``outputs[s]`` (it writes the next stage's input or, last, the new state). Each loop
+        loops of its own, run once stage s's accelerations, the v part of
+        f(inputs[s], t + c[s] h), are in ``outputs[s].v`` (its x part, the input's velocity or
+        zero, is left for the plan to rebuild); ``after`` writes the next stage's input or,
+        last, the new state. Each loop
         finishes before the next starts, so ``after`` may write any state. One launch per
         step saves what each kernel call costs on a CPU (about 35 us here)."""
         self._launcher(("stages", plan), lambda: self._bind_stages(plan))(t, h)
@@ -235,7 +240,7 @@ class ParticleSystem(ImplicitAPI, System):
     def _stages_body(self, plan: ti.template(), t, h):
         for s in ti.static(range(len(plan.inputs))):
             stage_time = t + ti.static(plan.c[s]) * h
-            self._eval_f_body(plan.inputs[s], plan.outputs[s], stage_time)
+            self._eval_f_body(plan.inputs[s], plan.outputs[s], stage_time, True)
             plan.after(s, h)
 
     def sums_locally(self) -> bool:
