@@ -5,9 +5,9 @@ import taichi as ti
 
 import taichi_sim as ts
 from taichi_sim import runtime
-from taichi_sim.loops import anchor
 from taichi_sim.integrators import create_integrator
 from taichi_sim.integrators.positional import xpbd
+from taichi_sim.loops import anchor
 
 
 def test_the_choice_depends_on_the_backend_the_threads_and_the_size(monkeypatch):

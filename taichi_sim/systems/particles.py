@@ -222,9 +222,9 @@ class ParticleSystem(ImplicitAPI, System):
         loops of its own, run once stage s's accelerations, the v part of
         f(inputs[s], t + c[s] h), are in ``outputs[s].v`` (its x part, the input's velocity or
         zero, is left for the plan to rebuild); ``after`` writes the next stage's input or,
-        last, the new state. Each loop
-        finishes before the next starts, so ``after`` may write any state. One launch per
-        step saves what each kernel call costs on a CPU (about 35 us here)."""
+        last, the new state. Each loop finishes before the next starts, so ``after`` may
+        write any state. One launch per step saves what each kernel call costs on a CPU
+        (about 35 us here)."""
         self._launcher(("stages", plan), lambda: self._bind_stages(plan))(t, h)
 
     def _bind_stages(self, plan):

@@ -30,7 +30,9 @@ PAD_I, PAD_J = 2, 2
 # 710 us at 128 x 128, 1.03 against 1.53 ms at 256 x 256 and 4.5 against 7.8 ms at 512 x 512,
 # so f32 has no limit. In f64 a vector holds half as many springs and the pass moves twice the
 # bytes: 427 against 747 us at 128 x 128, a toss-up at 256 x 256 (2.3 against 2.7 ms in that
-# run, 2.2-2.5 against 1.7-2.2 ms in others) and 10.6 against 8.4 ms at 512 x 512.
+# run, 2.2-2.5 against 1.7-2.2 ms in others) and 10.6 against 8.4 ms at 512 x 512. Measured
+# again once the pass read the state directly (no copy): 650 against 750 us, 2.86 against
+# 2.64 ms and 11.8 against 9.5 ms.
 SERIAL_PASS_F64_POINTS = 40_000
 SERIAL_PASS_F32_POINTS = 10**12
 
