@@ -15,7 +15,9 @@ import taichi as ti
 
 from .closest_points import closest_barycentric, segment_parameters
 
-BISECTIONS = 40  # the root's time to 2^-40 of the step: far below any distance that matters
+# the root's time to 2^-40 of the step (far below any distance that matters), or as close as the
+# precision allows: f32 runs out of floats between the ends after about 24 halvings
+BISECTIONS = 40
 NO_TIME = -1.0  # a candidate or collision time that does not exist
 
 
@@ -60,6 +62,8 @@ def _bisect(k, lo, hi):
     f_lo = cubic_at(k, lo)
     for _ in range(BISECTIONS):
         mid = 0.5 * (lo + hi)
+        if mid <= lo or mid >= hi:  # the interval is down to two neighbouring floats
+            break
         f_mid = cubic_at(k, mid)
         if (f_mid < 0.0) == (f_lo < 0.0) and f_mid != 0.0:
             lo, f_lo = mid, f_mid
@@ -144,7 +148,7 @@ def _motion_spread(d0, d1, d2, d3):
 
 
 @ti.func
-def _point_triangle_distance(p, a, b, c):
+def point_triangle_distance(p, a, b, c):
     w = closest_barycentric(p, a, b, c)
     return (p - (w[0] * a + w[1] * b + w[2] * c)).norm()
 
@@ -161,21 +165,38 @@ def vertex_triangle_hit(p0, p1, a0, a1, b0, b1, c0, c1, delta, crossings_only: t
     all moving linearly from their ``0`` to their ``1`` positions, or NO_TIME; and the side
     (+1: the direction of (b - a) x (c - a)) p was on before. ``crossings_only``: see
     :func:`candidate_times`."""
+    spread = _motion_spread(p1 - p0, a1 - a0, b1 - b0, c1 - c0)
+    start = point_triangle_distance(p0, a0, b0, c0)
+    t_hit, side = NO_TIME, 1.0
+    if start - spread <= 2.0 * delta:  # else too far apart at the start to touch, whatever the end
+        t_hit, side = _vertex_triangle_hit(p0, p1, a0, a1, b0, b1, c0, c1, start,
+                                           point_triangle_distance(p1, a1, b1, c1), spread, delta, crossings_only)
+    return t_hit, side
+
+
+@ti.func
+def vertex_triangle_hit_between(p0, p1, a0, a1, b0, b1, c0, c1, start, end, delta, crossings_only: ti.template()):
+    """:func:`vertex_triangle_hit` for a caller that has the vertex's distances (m) to the
+    triangle at the step's ``start`` and ``end`` already."""
+    return _vertex_triangle_hit(p0, p1, a0, a1, b0, b1, c0, c1, start, end,
+                                _motion_spread(p1 - p0, a1 - a0, b1 - b0, c1 - c0), delta, crossings_only)
+
+
+@ti.func
+def _vertex_triangle_hit(p0, p1, a0, a1, b0, b1, c0, c1, start, end, spread, delta, crossings_only: ti.template()):
     t_hit = NO_TIME
     side = 1.0
     # the distance can shrink no faster than the motion's spread: far apart at both ends
     # relative to it, the pair cannot touch in between (the common case, without the cubic)
-    spread = _motion_spread(p1 - p0, a1 - a0, b1 - b0, c1 - c0)
-    start = _point_triangle_distance(p0, a0, b0, c0)
-    if start + _point_triangle_distance(p1, a1, b1, c1) - spread <= 2.0 * delta:
+    if start + end - spread <= 2.0 * delta:
         ea0, eb0, ep0 = b0 - a0, c0 - a0, p0 - a0
         k = coplanarity_cubic(ea0, (b1 - a1) - ea0, eb0, (c1 - a1) - eb0, ep0, (p1 - a1) - ep0)
         times = candidate_times(k, crossings_only)
         for j in range(5):
             t = times[j]
             if t >= 0.0 and (t_hit < 0.0 or t < t_hit) and _counts(t, start, delta, crossings_only):
-                if _point_triangle_distance(p0 + t * (p1 - p0), a0 + t * (a1 - a0), b0 + t * (b1 - b0),
-                                            c0 + t * (c1 - c0)) < delta:
+                if point_triangle_distance(p0 + t * (p1 - p0), a0 + t * (a1 - a0), b0 + t * (b1 - b0),
+                                           c0 + t * (c1 - c0)) < delta:
                     t_hit = t
         if t_hit >= 0.0:
             side = _side_before(k, t_hit)
@@ -186,11 +207,28 @@ def vertex_triangle_hit(p0, p1, a0, a1, b0, b1, c0, c1, delta, crossings_only: t
 def edge_edge_hit(p0, p1, q0, q1, r0, r1, s0, s1, delta, crossings_only: ti.template()):
     """The earliest time in [0, 1] at which segments (p, q) and (r, s), moving linearly, come
     within ``delta`` (m), or NO_TIME; and the side (+1: r - p along (q - p) x (s - r)) before."""
-    t_hit = NO_TIME
-    side = 1.0
     spread = _motion_spread(p1 - p0, q1 - q0, r1 - r0, s1 - s0)
     start = _segment_distance(p0, q0, r0, s0)
-    if start + _segment_distance(p1, q1, r1, s1) - spread <= 2.0 * delta:
+    t_hit, side = NO_TIME, 1.0
+    if start - spread <= 2.0 * delta:  # else too far apart at the start to touch, whatever the end
+        t_hit, side = _edge_edge_hit(p0, p1, q0, q1, r0, r1, s0, s1, start, _segment_distance(p1, q1, r1, s1),
+                                     spread, delta, crossings_only)
+    return t_hit, side
+
+
+@ti.func
+def edge_edge_hit_between(p0, p1, q0, q1, r0, r1, s0, s1, start, end, delta, crossings_only: ti.template()):
+    """:func:`edge_edge_hit` for a caller that has the segments' distances (m) at the step's
+    ``start`` and ``end`` already."""
+    return _edge_edge_hit(p0, p1, q0, q1, r0, r1, s0, s1, start, end,
+                          _motion_spread(p1 - p0, q1 - q0, r1 - r0, s1 - s0), delta, crossings_only)
+
+
+@ti.func
+def _edge_edge_hit(p0, p1, q0, q1, r0, r1, s0, s1, start, end, spread, delta, crossings_only: ti.template()):
+    t_hit = NO_TIME
+    side = 1.0
+    if start + end - spread <= 2.0 * delta:
         ea0, eb0, ep0 = q0 - p0, s0 - r0, r0 - p0
         k = coplanarity_cubic(ea0, (q1 - p1) - ea0, eb0, (s1 - r1) - eb0, ep0, (r1 - p1) - ep0)
         times = candidate_times(k, crossings_only)

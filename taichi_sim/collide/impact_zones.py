@@ -4,6 +4,8 @@ It runs only in steps where contacts were left touching after the contact rounds
 the vertices involved (usually a few dozen), so numpy on the host costs less than kernels would.
 """
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 
 # Pinned vertices cannot move with a zone: in the zone's rigid fit they weigh this many times
 # the zone's free mass, so a zone holding a still pin stays (almost exactly) still.
@@ -29,7 +31,10 @@ class ImpactZones:
     def __init__(self, mass: np.ndarray, free: np.ndarray, floor=None, push_out=None):
         self.mass = np.asarray(mass, float)
         self.free = np.asarray(free) != 0
-        self.parent: dict[int, int] = {}
+        # each vertex's zone, named by one of its vertices; -1: in no zone. Arrays and a graph's
+        # connected components rather than a union-find in Python: the zones of a 64 x 64 fold
+        # reach thousands of vertices and are merged again every round
+        self.zone = np.full(len(self.mass), -1, np.int64)
         self.refit_all = False  # merge_all was called: every zone moves at the next rigidify
         self.stuck: set[int] = set()  # vertices of touches inside one zone: their zones carry their pins
         self.floor = None if floor is None else (np.asarray(floor[0], float), np.asarray(floor[1], float))
@@ -37,17 +42,9 @@ class ImpactZones:
 
     def clear(self) -> None:
         """Forget the zones (a new step)."""
-        self.parent.clear()
+        self.zone.fill(-1)
         self.refit_all = False
         self.stuck.clear()
-
-    def _root(self, i: int) -> int:
-        parent = self.parent
-        parent.setdefault(i, i)
-        while parent[i] != i:
-            parent[i] = parent[parent[i]]
-            i = parent[i]
-        return i
 
     def merge(self, touches: np.ndarray) -> None:
         """Join the zones of the four vertices of each touching pair ((m, 4) vertex ids). A touch
@@ -55,31 +52,39 @@ class ImpactZones:
         one call that only this call's merging puts in one zone are not: one crossing is often
         found as several touches over the same vertices)."""
         touches = np.asarray(touches, np.int64).reshape(-1, 4)
-        before = {int(j): self._root(int(j)) for j in np.unique(touches) if int(j) in self.parent}
-        for ids in touches:
-            if all(int(j) in before for j in ids) and len({before[int(j)] for j in ids}) == 1:
-                self.stuck.add(int(ids[0]))
-        for ids in touches:
-            r = self._root(int(ids[0]))
-            for j in ids[1:]:
-                s = self._root(int(j))
-                if s != r:
-                    self.parent[s] = r
+        if len(touches) == 0:
+            return
+        before = self.zone[touches]
+        inside = (before >= 0).all(axis=1) & (before == before[:, :1]).all(axis=1)
+        self.stuck.update(int(i) for i in touches[inside, 0])
+        n = len(self.zone)
+        in_zone = np.flatnonzero(self.zone >= 0)
+        # the graph: each touch's vertices joined to its first, each zone's to the vertex naming it
+        rows = np.concatenate([np.repeat(touches[:, 0], 3), in_zone])
+        cols = np.concatenate([touches[:, 1:].ravel(), self.zone[in_zone]])
+        graph = coo_matrix((np.ones(len(rows), np.int8), (rows, cols)), shape=(n, n))
+        _, component = connected_components(graph, directed=False)
+        members = np.union1d(in_zone, touches.ravel())
+        first = np.full(n, n, np.int64)  # each component named by its lowest vertex
+        np.minimum.at(first, component[members], members)
+        self.zone[members] = first[component[members]]
 
     def merge_all(self) -> None:
         """One zone of every vertex: the last resort, which no touch survives (the whole cloth,
         pins included, moves rigidly over the step)."""
-        self.parent = {i: 0 for i in range(len(self.mass))}
+        self.zone.fill(0)
         self.refit_all = True
 
     def zones(self, roots=None) -> list[np.ndarray]:
-        """The vertex ids of each zone (of those whose root is in ``roots``, when given)."""
-        groups: dict[int, list[int]] = {}
-        for i in list(self.parent):
-            root = self._root(i)
-            if roots is None or root in roots:
-                groups.setdefault(root, []).append(i)
-        return [np.array(sorted(g), np.int64) for g in groups.values()]
+        """The vertex ids of each zone (of those named in ``roots``, when given), each sorted."""
+        members = np.flatnonzero(self.zone >= 0)
+        if roots is not None:
+            members = members[np.isin(self.zone[members], np.fromiter(roots, np.int64))]
+        order = np.argsort(self.zone[members], kind="stable")  # stable: ids stay sorted in a zone
+        members = members[order]
+        labels = self.zone[members]
+        cuts = np.flatnonzero(np.diff(labels)) + 1
+        return np.split(members, cuts) if len(members) else []
 
     def rigidify(self, touches: np.ndarray, x0: np.ndarray, x1: np.ndarray, v1: np.ndarray, h: float):
         """Merge ``touches`` into the zones, then move every zone they reached rigidly from its
@@ -119,9 +124,9 @@ class ImpactZones:
         """
         self.merge(touches)
         carry_all = self.refit_all
-        roots = None if self.refit_all else {self._root(int(i)) for i in np.asarray(touches).ravel()}
+        roots = None if self.refit_all else set(self.zone[np.asarray(touches, np.int64).ravel()].tolist())
         self.refit_all = False
-        carrying = {self._root(i) for i in self.stuck}
+        carrying = set(self.zone[list(self.stuck)].tolist())
         x1, v1 = np.array(x1, float), np.array(v1, float)
         x0 = np.asarray(x0, float)
         for ids in self.zones(roots):
@@ -136,7 +141,7 @@ class ImpactZones:
             # the end velocities get their own rigid part (at the end positions): the displacement
             # also holds position fixes (a plane's projection) that must not become velocity
             w_cm, spin = _rigid_part(m, r_end, v1[ids])
-            carries_pins = carry_all or self._root(int(ids[0])) in carrying
+            carries_pins = carry_all or int(self.zone[ids[0]]) in carrying
             moves = np.ones_like(free) if carries_pins else free
             end = c0 + h * v_cm + r_end
             end += self._lift(end[moves])

@@ -27,7 +27,8 @@ import taichi as ti
 
 from .. import runtime
 from .candidates import CandidatePairs, PairList
-from .ccd import edge_edge_hit, vertex_triangle_hit
+from .ccd import (edge_edge_hit, edge_edge_hit_between, point_triangle_distance, vertex_triangle_hit,
+                  vertex_triangle_hit_between)
 from .closest_points import closest_barycentric, segment_parameters
 from .hash_grid import PrimitiveHash
 from .impact_zones import ImpactZones
@@ -365,16 +366,19 @@ class SelfCollision(CandidatePairs, KeepsOutOfObjects):
         if area1 > 1e-12 and area0 > 1e-12:
             n1 /= area1
             n0 /= area0
-            t_hit, side = vertex_triangle_hit(p0, p1, a0, a1, b0, b1, c0, c1, self.delta[None], False)
+            w = closest_barycentric(p1, a1, b1, c1)
+            q1 = w[0] * a1 + w[1] * b1 + w[2] * c1
+            end = (p1 - q1).norm()
+            t_hit, side = vertex_triangle_hit_between(p0, p1, a0, a1, b0, b1, c0, c1,
+                                                      point_triangle_distance(p0, a0, b0, c0), end,
+                                                      self.delta[None], False)
             if t_hit < 0.0:  # no touch during the step: the side is where it started
                 s0 = (p0 - a0).dot(n0)
                 side = 1.0
                 if s0 < 0.0 or (s0 == 0.0 and (p1 - a1).dot(n1) < 0.0):
                     side = -1.0
             s1 = (p1 - a1).dot(n1)
-            w = closest_barycentric(p1, a1, b1, c1)
-            q1 = w[0] * a1 + w[1] * b1 + w[2] * c1
-            near = (p1 - q1).norm() < thick
+            near = end < thick
             gap = thick - side * s1
             if (near or t_hit >= 0.0) and gap > 0.0:
                 self._push_apart(y, ti.Vector([i, tri[0], tri[1], tri[2]]),
@@ -388,8 +392,8 @@ class SelfCollision(CandidatePairs, KeepsOutOfObjects):
         u1, u0 = segment_parameters(p1, q1, r1, s1), segment_parameters(p0, q0, r0, s0)
         d1 = (p1 + u1[0] * (q1 - p1)) - (r1 + u1[1] * (s1 - r1))  # from edge b's closest point to a's
         d0 = (p0 + u0[0] * (q0 - p0)) - (r0 + u0[1] * (s0 - r0))
-        t_hit, side = edge_edge_hit(p0, p1, q0, q1, r0, r1, s0, s1, self.delta[None], False)
-        dist0 = d0.norm()
+        dist0, dist1 = d0.norm(), d1.norm()
+        t_hit, side = edge_edge_hit_between(p0, p1, q0, q1, r0, r1, s0, s1, dist0, dist1, self.delta[None], False)
         n = d0 / ti.max(dist0, 1e-30)  # the side a started on, seen from b
         valid = dist0 > 1e-12
         if t_hit >= 0.0:
@@ -400,7 +404,7 @@ class SelfCollision(CandidatePairs, KeepsOutOfObjects):
             if length > 1e-6 * (q1 - p1).norm() * (s1 - r1).norm():
                 n = -side * cross / length
                 valid = True
-        if valid and (t_hit >= 0.0 or d1.norm() < thick):
+        if valid and (t_hit >= 0.0 or dist1 < thick):
             gap = thick - d1.dot(n)
             if gap > 0.0:
                 self._push_apart(y, ti.Vector([ea[0], ea[1], eb[0], eb[1]]),
