@@ -171,6 +171,28 @@ def test_a_zone_no_new_touch_reaches_keeps_its_motion(rng):
     assert np.abs(x_c[:4] - x_b[:4]).max() > 1e-3
 
 
+def test_a_zone_that_gains_a_few_vertices_gives_them_its_motion_and_moves_no_other(rng):
+    mass, x0, x1, v1 = rigid_zone_case(rng)
+    zones = ImpactZones(mass, np.ones(12, int))
+    x_a, v_a = zones.rigidify(np.array([[0, 1, 2, 3], [2, 3, 4, 5]]), x0, x1, v1, 0.1)  # zone 0..5
+    x_b, v_b = zones.rigidify(np.array([[5, 6, 7, 0]]), x0, x_a, v_a, 0.1)  # gains 6 and 7
+    assert np.array_equal(x_b[:6], x_a[:6])  # its vertices keep their places: their pairs need no new look
+    zone = np.arange(8)
+    d0 = np.linalg.norm(x0[zone, None] - x0[None, zone], axis=2)
+    assert np.linalg.norm(x_b[zone, None] - x_b[None, zone], axis=2) == pytest.approx(d0, abs=1e-12)
+    m = mass[zone, None]
+    assert (m * v_b[zone]).sum(0) == pytest.approx((m * v_a[zone]).sum(0))  # momentum kept
+    assert (m * v_b[zone] ** 2).sum() <= (m * v_a[zone] ** 2).sum() * (1 + 1e-12)  # no energy added
+    assert np.array_equal(x_b[8:], x1[8:])
+    # a zone whose earlier motion holds less than half of it is fitted again: every vertex moves
+    zones = ImpactZones(mass, np.ones(12, int))
+    x_a, v_a = zones.rigidify(np.array([[0, 1, 2, 3]]), x0, x1, v1, 0.1)
+    x_c, _ = zones.rigidify(np.array([[4, 5, 6, 7], [8, 9, 10, 11], [7, 8, 3, 4]]), x0, x_a, v_a, 0.1)
+    assert np.abs(x_c[:4] - x_a[:4]).max() > 1e-3
+    d0 = np.linalg.norm(x0[:, None] - x0[None], axis=2)
+    assert np.linalg.norm(x_c[:, None] - x_c[None], axis=2) == pytest.approx(d0, abs=1e-12)
+
+
 def test_no_four_points_of_a_zone_become_coplanar_during_its_step(rng):
     mass, x0, x1, v1 = rigid_zone_case(rng)
     x_new, _ = ImpactZones(mass, np.ones(12, int)).rigidify(np.array([[0, 1, 2, 3], [2, 3, 4, 5]]), x0, x1, v1, 0.1)

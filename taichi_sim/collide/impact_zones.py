@@ -13,6 +13,11 @@ PINNED_WEIGHT = 1e9
 # A zone ending inside the floor or an object is moved out one surface at a time (an object's
 # deepest point each time, which may leave another just inside): at most this many moves.
 MAX_LIFTS = 16
+# A zone whose vertices mostly (this share or more) already move by one rigid motion of an earlier
+# round gives that motion to the vertices it gained, instead of being fitted again: only those
+# move, so the next round looks only at their pairs. Fitted again, every vertex of a zone of
+# thousands moves a little and all their pairs are collected and tested again, round after round.
+ADOPT_SHARE = 0.5
 
 
 class ImpactZones:
@@ -35,6 +40,10 @@ class ImpactZones:
         # connected components rather than a union-find in Python: the zones of a 64 x 64 fold
         # reach thousands of vertices and are merged again every round
         self.zone = np.full(len(self.mass), -1, np.int64)
+        # the rigid motion each vertex was last given this step (an index into ``motions``: the
+        # zone's start centre c0, its translation and rotation, end = c0 + T + R (x0 - c0)), -1: none
+        self.motion_of = np.full(len(self.mass), -1, np.int64)
+        self.motions: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         self.refit_all = False  # merge_all was called: every zone moves at the next rigidify
         self.stuck: set[int] = set()  # vertices of touches inside one zone: their zones carry their pins
         self.floor = None if floor is None else (np.asarray(floor[0], float), np.asarray(floor[1], float))
@@ -43,6 +52,8 @@ class ImpactZones:
     def clear(self) -> None:
         """Forget the zones (a new step)."""
         self.zone.fill(-1)
+        self.motion_of.fill(-1)
+        self.motions.clear()
         self.refit_all = False
         self.stuck.clear()
 
@@ -93,7 +104,11 @@ class ImpactZones:
         A zone no touch reached keeps the rigid motion an earlier call gave it: the fit of a
         rigid displacement (rotation chord plus translation) is not that displacement again (its
         turn changes), so fitting it again would alter a motion nothing called into question and
-        move vertices whose pairs the next round would then have to look at again.
+        move vertices whose pairs the next round would then have to look at again. For the
+        same reason a zone of which ADOPT_SHARE or more already moves by one motion of an earlier
+        call gives that motion to the vertices it gained (:meth:`_adopt`) rather than being
+        fitted again, where it holds no pins and that motion ends them outside the floor and the
+        objects: the momentum of its displacements is then the earlier fit's, not its own.
 
         Each zone's motion keeps the linear and angular momentum of its vertices' displacements
         over the step, (x1 - x0) / h: the end positions are the exact rigid transform
@@ -130,6 +145,9 @@ class ImpactZones:
         x1, v1 = np.array(x1, float), np.array(v1, float)
         x0 = np.asarray(x0, float)
         for ids in self.zones(roots):
+            carries_pins = carry_all or int(self.zone[ids[0]]) in carrying
+            if not (carries_pins or carry_all) and self._adopt(ids, x0, x1, v1):
+                continue
             free = self.free[ids]
             m = self.mass[ids].copy()
             if not free.all():
@@ -137,17 +155,46 @@ class ImpactZones:
             c0 = _centre(m, x0[ids])
             r = x0[ids] - c0
             v_cm, omega = _rigid_part(m, r, (x1[ids] - x0[ids]) / h)
-            r_end = r @ _rotation(h * omega).T
+            rotation = _rotation(h * omega)
+            r_end = r @ rotation.T
             # the end velocities get their own rigid part (at the end positions): the displacement
             # also holds position fixes (a plane's projection) that must not become velocity
             w_cm, spin = _rigid_part(m, r_end, v1[ids])
-            carries_pins = carry_all or int(self.zone[ids[0]]) in carrying
             moves = np.ones_like(free) if carries_pins else free
-            end = c0 + h * v_cm + r_end
-            end += self._lift(end[moves])
+            shift = self._lift((c0 + h * v_cm + r_end)[moves])
+            end = c0 + h * v_cm + shift + r_end
             x1[ids[moves]] = end[moves]
             v1[ids[moves]] = (w_cm + np.cross(spin, r_end))[moves]
+            self.motions.append((c0, h * v_cm + shift, rotation))
+            self.motion_of[ids] = -1
+            self.motion_of[ids[moves]] = len(self.motions) - 1
         return x1, v1
+
+    def _adopt(self, ids: np.ndarray, x0: np.ndarray, x1: np.ndarray, v1: np.ndarray) -> bool:
+        """Give zone ``ids`` the rigid motion most of its vertices (ADOPT_SHARE or more) already
+        have, moving only the others, and its velocities their own rigid part at the end
+        positions (momentum kept, kinetic energy never raised); returns False, changing nothing,
+        where it does not apply: no such motion, pins, or an end inside the floor or an object."""
+        motion = self.motion_of[ids]
+        known = motion[motion >= 0]
+        if len(known) == 0 or not self.free[ids].all():
+            return False
+        counts = np.bincount(known)
+        best = int(counts.argmax())
+        if counts[best] < ADOPT_SHARE * len(ids):
+            return False
+        c0, translation, rotation = self.motions[best]
+        gained = ids[motion != best]
+        end = c0 + translation + (x0[gained] - c0) @ rotation.T
+        if np.any(self._lift(end) != 0.0):
+            return False
+        x1[gained] = end
+        self.motion_of[gained] = best
+        m = self.mass[ids]
+        r_end = x1[ids] - _centre(m, x1[ids])
+        w_cm, spin = _rigid_part(m, r_end, v1[ids])
+        v1[ids] = w_cm + np.cross(spin, r_end)
+        return True
 
     def _lift(self, points: np.ndarray) -> np.ndarray:
         """The translation (3,) that moves ``points`` (m, 3) out of the floor and the objects."""
