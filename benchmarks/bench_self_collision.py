@@ -16,6 +16,7 @@ Run from the repository root (outside pytest):
 
     .venv/bin/python benchmarks/bench_self_collision.py [--sizes 32,64] [--integrator implicit_euler]
         [--dt 0.016666666666666666] [--warmup 30] [--steps 60] [--collision-iterations K]
+        [--set thickness=0.005]
 """
 import argparse
 import collections
@@ -70,6 +71,8 @@ def main() -> None:
     parser.add_argument("--profile", action="store_true", help="also print Taichi's per-kernel times")
     parser.add_argument("--collision-iterations", type=int, default=None,
                         help="contact rounds per step (default: the scene's)")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="a scene parameter, as simulate's --set (repeatable): e.g. thickness=0.005")
     args = parser.parse_args()
     ts.init(arch="cpu", precision="f32", kernel_profiler=args.profile)
     print(f"cloth-fold, {args.integrator}, dt = {args.dt:.4g} s, f32; ms per step over {args.steps} steps "
@@ -79,6 +82,9 @@ def main() -> None:
         params = {"nx": n, "ny": n}
         if args.collision_iterations is not None:
             params["collision_iterations"] = args.collision_iterations
+        for item in args.set:
+            key, _, value = item.partition("=")
+            params[key] = float(value)
         scene = ts.build_scene("cloth-fold", params)
         (stage,) = [e for e in scene.post_step if isinstance(e, SelfCollision)]
         integrator = ts.create_integrator(args.integrator, scene.system)
