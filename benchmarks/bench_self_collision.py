@@ -16,10 +16,11 @@ Run from the repository root (outside pytest):
 
     .venv/bin/python benchmarks/bench_self_collision.py [--sizes 32,64] [--integrator implicit_euler]
         [--dt 0.016666666666666666] [--warmup 30] [--steps 60] [--collision-iterations K]
-        [--set thickness=0.005]
+        [--set thickness=0.005] [--passes K]
 """
 import argparse
 import collections
+import statistics
 import time
 
 import taichi as ti
@@ -71,6 +72,9 @@ def main() -> None:
     parser.add_argument("--profile", action="store_true", help="also print Taichi's per-kernel times")
     parser.add_argument("--collision-iterations", type=int, default=None,
                         help="contact rounds per step (default: the scene's)")
+    parser.add_argument("--passes", type=int, default=0, metavar="K",
+                        help="then time K passes over the candidate pairs of the last step (a contact round, "
+                             "a continuous detection), each from the state its stage started from; medians")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="a scene parameter, as simulate's --set (repeatable): e.g. thickness=0.005")
     args = parser.parse_args()
@@ -105,6 +109,17 @@ def main() -> None:
             return step(*a, **k)
 
         integrator.step = counted
+        before_collection = {}
+        if args.passes:  # the state each step's stage collects its pairs from; the last is timed
+            collect = stage._broad_phase
+
+            def kept(state, only_changed=False, append=False):
+                if not only_changed:
+                    before_collection.update(x=state.x.to_numpy(), v=state.v.to_numpy(),
+                                             x_start=stage.x_start.to_numpy())
+                return collect(state, only_changed, append)
+
+            stage._broad_phase = kept
         ts.run(scene, integrator, dt=args.dt, steps=args.warmup + args.steps)
         ms = {k: 1e3 * v / args.steps for k, v in timer.seconds.items()}
         stage_ms = ms.get("broad", 0) + ms.get("rounds", 0) + ms.get("fail-safe", 0)
@@ -115,6 +130,35 @@ def main() -> None:
               f"  {stage_ms / ms['step']:8.1f}x")
         if args.profile:
             ti.profiler.print_kernel_profiler_info()
+        if args.passes:
+            time_passes(scene.state, stage, before_collection, args.passes)
+
+
+def time_passes(state, stage, snapshot: dict, passes: int) -> None:
+    """Median times of one contact round (every pair looked at) and one continuous detection
+    over the candidate pairs of the last step's stage, each pass from the state that stage
+    started from (positions at the step's start and end, before any contact)."""
+    x, v, x_start = snapshot["x"], snapshot["v"], snapshot["x_start"]
+    rounds, detections = [], []
+    for k in range(passes + 2):  # two to warm up
+        state.x.from_numpy(x)
+        state.v.from_numpy(v)
+        stage.x_start.from_numpy(x_start)
+        stage._broad_phase(state)
+        ti.sync()
+        start = time.perf_counter()
+        stage._resolve(state, 1, stage.vt_pairs, stage.ee_pairs)
+        ti.sync()
+        middle = time.perf_counter()
+        stage._detect(state, stage.vt_pairs, stage.ee_pairs, stage.collided)
+        ti.sync()
+        if k >= 2:
+            rounds.append(middle - start)
+            detections.append(time.perf_counter() - middle)
+    vt, ee = stage.pair_count.to_numpy()
+    print(f"      passes over the last step's {vt} v-t and {ee} e-e pairs: contact round "
+          f"{1e3 * statistics.median(rounds):.1f} ms, continuous detection {1e3 * statistics.median(detections):.1f} ms "
+          f"(medians of {passes})")
 
 
 if __name__ == "__main__":
