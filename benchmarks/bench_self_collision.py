@@ -88,7 +88,7 @@ def main() -> None:
             params["collision_iterations"] = args.collision_iterations
         for item in args.set:
             key, _, value = item.partition("=")
-            params[key] = float(value)
+            params[key] = value  # checked and converted by the scene, as simulate's --set
         scene = ts.build_scene("cloth-fold", params)
         (stage,) = [e for e in scene.post_step if isinstance(e, SelfCollision)]
         integrator = ts.create_integrator(args.integrator, scene.system)
@@ -114,9 +114,10 @@ def main() -> None:
             collect = stage._broad_phase
 
             def kept(state, only_changed=False, append=False):
-                if not only_changed:
+                # the step's first collection only: the fail-safe's last resort collects again
+                if not only_changed and before_collection.get("step") != taken[0]:
                     before_collection.update(x=state.x.to_numpy(), v=state.v.to_numpy(),
-                                             x_start=stage.x_start.to_numpy())
+                                             x_start=stage.x_start.to_numpy(), step=taken[0])
                 return collect(state, only_changed, append)
 
             stage._broad_phase = kept

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 import taichi as ti
 
-from taichi_sim.collide.ccd import edge_edge_hit, vertex_triangle_hit
+from taichi_sim.collide.ccd import (_segment_distance, edge_edge_hit, edge_edge_hit_between, point_triangle_distance,
+                                   vertex_triangle_hit, vertex_triangle_hit_between)
 from taichi_sim.collide.impact_zones import ImpactZones
 
 DELTA = 1e-6
@@ -94,6 +95,46 @@ def test_apart_all_step_is_never_a_touch(f64, kind, rng):
     for crossings_only in (True, False):
         t_hit, _ = hits(kind, start, end, crossings_only)
         assert (t_hit < 0).all()
+
+
+@pytest.mark.parametrize("kind", ["vt", "ee"])
+def test_given_the_distances_the_tests_answer_the_same(f64, kind, rng):
+    """The contact rounds pass the distances they computed (``*_hit_between``); the answers must
+    be those of the tests that compute them, which reject a pair far apart at the start first."""
+    cases = [touching_motions(kind, rng, CASES)[:2], separated_motions(kind, rng, CASES),
+             (rng.normal(size=(CASES, 4, 3)), rng.normal(size=(CASES, 4, 3)))]
+    start, end = (np.concatenate([case[k] for case in cases]) for k in (0, 1))
+    m = len(start)
+    x0 = ti.Vector.field(3, ti.f64, shape=(m, 4))
+    x1 = ti.Vector.field(3, ti.f64, shape=(m, 4))
+    out = ti.Vector.field(4, ti.f64, shape=m)
+    x0.from_numpy(start)
+    x1.from_numpy(end)
+
+    @ti.kernel
+    def run(only: ti.template()):
+        for c in range(m):
+            a0, a1, b0, b1, c0, c1, d0, d1 = x0[c, 0], x1[c, 0], x0[c, 1], x1[c, 1], x0[c, 2], x1[c, 2], x0[c, 3], x1[c, 3]
+            if ti.static(kind == "vt"):
+                t, side = vertex_triangle_hit(a0, a1, b0, b1, c0, c1, d0, d1, DELTA, only)
+                u, other = vertex_triangle_hit_between(a0, a1, b0, b1, c0, c1, d0, d1, point_triangle_distance(a0, b0, c0, d0),
+                                                       point_triangle_distance(a1, b1, c1, d1), DELTA, only)
+                out[c] = ti.Vector([t, side, u, other])
+            else:
+                t, side = edge_edge_hit(a0, a1, b0, b1, c0, c1, d0, d1, DELTA, only)
+                u, other = edge_edge_hit_between(a0, a1, b0, b1, c0, c1, d0, d1, _segment_distance(a0, b0, c0, d0),
+                                                 _segment_distance(a1, b1, c1, d1), DELTA, only)
+                out[c] = ti.Vector([t, side, u, other])
+
+    for crossings_only in (True, False):
+        run(crossings_only)
+        result = out.to_numpy()
+        # the same answer: touch or not, the same side, the same time up to round-off (the
+        # compiler may fuse the cubic's products differently where the code is inlined)
+        assert np.array_equal(result[:, 0] >= 0, result[:, 2] >= 0)
+        assert np.array_equal(result[:, 1], result[:, 3])
+        assert np.abs(result[:, 0] - result[:, 2]).max() < 1e-9
+        assert (result[:CASES, 0] >= 0).all() and (result[CASES:2 * CASES, 0] < 0).all()  # both kinds met
 
 
 def test_a_contact_that_ends_exactly_coplanar_is_a_touch_whatever_the_round_off(f32):
@@ -191,6 +232,31 @@ def test_a_zone_that_gains_a_few_vertices_gives_them_its_motion_and_moves_no_oth
     assert np.abs(x_c[:4] - x_a[:4]).max() > 1e-3
     d0 = np.linalg.norm(x0[:, None] - x0[None], axis=2)
     assert np.linalg.norm(x_c[:, None] - x_c[None], axis=2) == pytest.approx(d0, abs=1e-12)
+
+
+def test_a_zone_holding_a_pin_or_ending_in_the_floor_is_fitted_again_not_given_a_motion(rng):
+    mass, x0, x1, v1 = rigid_zone_case(rng)
+    free = np.ones(12, int)
+    free[0] = 0  # a still pin
+    x1[0] = x0[0]
+    zones = ImpactZones(mass, free)
+    x_a, v_a = zones.rigidify(np.array([[0, 1, 2, 3], [2, 3, 4, 5]]), x0, x1, v1, 0.1)
+    x_b, _ = zones.rigidify(np.array([[5, 6, 7, 1]]), x0, x_a, v_a, 0.1)
+    assert np.abs(x_b[1:6] - x_a[1:6]).max() > 1e-6  # fitted again with 6 and 7: its turn changed
+    assert np.array_equal(x_b[0], x0[0])  # the pin stays
+    # the motion of zone 0..5 would end 6 and 7 below the floor: the zone is fitted again and lifted
+    mass, x0, x1, v1 = rigid_zone_case(rng)
+    x0[:, 1] = 10.0 + rng.uniform(0.0, 0.5, 12)
+    x0[6:8, 1] = 9.0
+    x1 = x0 + [0.0, -9.5, 0.0]
+    zones = ImpactZones(mass, np.ones(12, int), floor=([0, 0, 0], [0, 1.0, 0]))
+    x_a, v_a = zones.rigidify(np.array([[0, 1, 2, 3], [2, 3, 4, 5]]), x0, x1, v1, 0.1)
+    assert x_a[:6, 1].min() > 0.0 and x1[6:8, 1].max() < 0.0
+    x_b, _ = zones.rigidify(np.array([[5, 6, 7, 1]]), x0, x_a, v_a, 0.1)
+    zone = np.arange(8)
+    assert x_b[zone, 1].min() == pytest.approx(0.0, abs=1e-12)  # its lowest vertex on the floor
+    d0 = np.linalg.norm(x0[zone, None] - x0[None, zone], axis=2)
+    assert np.linalg.norm(x_b[zone, None] - x_b[None, zone], axis=2) == pytest.approx(d0, abs=1e-12)
 
 
 def test_no_four_points_of_a_zone_become_coplanar_during_its_step(rng):

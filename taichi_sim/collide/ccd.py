@@ -16,7 +16,8 @@ import taichi as ti
 from .closest_points import closest_barycentric, segment_parameters
 
 # the root's time to 2^-40 of the step (far below any distance that matters), or as close as the
-# precision allows: f32 runs out of floats between the ends after about 24 halvings
+# precision allows: in f32 no float is left between the ends after about 24 halvings for a root
+# near the end of the step (more for one near its start, where floats are denser)
 BISECTIONS = 40
 NO_TIME = -1.0  # a candidate or collision time that does not exist
 

@@ -21,7 +21,7 @@ ADOPT_SHARE = 0.5
 
 
 class ImpactZones:
-    """Groups of vertices that move as one rigid body over a step (union-find over touches).
+    """Groups of vertices that move as one rigid body over a step (connected components of touches).
 
     Args:
         mass: (n,) particle masses (kg).
@@ -146,7 +146,7 @@ class ImpactZones:
         x0 = np.asarray(x0, float)
         for ids in self.zones(roots):
             carries_pins = carry_all or int(self.zone[ids[0]]) in carrying
-            if not (carries_pins or carry_all) and self._adopt(ids, x0, x1, v1):
+            if not carries_pins and self._adopt(ids, x0, x1, v1):
                 continue
             free = self.free[ids]
             m = self.mass[ids].copy()
