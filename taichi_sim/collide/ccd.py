@@ -185,22 +185,13 @@ def vertex_triangle_hit_between(p0, p1, a0, a1, b0, b1, c0, c1, start, end, delt
 
 @ti.func
 def _vertex_triangle_hit(p0, p1, a0, a1, b0, b1, c0, c1, start, end, spread, delta, crossings_only: ti.template()):
-    t_hit = NO_TIME
-    side = 1.0
+    t_hit, side = NO_TIME, 1.0
     # the distance can shrink no faster than the motion's spread: far apart at both ends
     # relative to it, the pair cannot touch in between (the common case, without the cubic)
     if start + end - spread <= 2.0 * delta:
         ea0, eb0, ep0 = b0 - a0, c0 - a0, p0 - a0
         k = coplanarity_cubic(ea0, (b1 - a1) - ea0, eb0, (c1 - a1) - eb0, ep0, (p1 - a1) - ep0)
-        times = candidate_times(k, crossings_only)
-        for j in range(5):
-            t = times[j]
-            if t >= 0.0 and (t_hit < 0.0 or t < t_hit) and _counts(t, start, delta, crossings_only):
-                if point_triangle_distance(p0 + t * (p1 - p0), a0 + t * (a1 - a0), b0 + t * (b1 - b0),
-                                           c0 + t * (c1 - c0)) < delta:
-                    t_hit = t
-        if t_hit >= 0.0:
-            side = _side_before(k, t_hit)
+        t_hit, side = _earliest_touch(k, p0, p1, a0, a1, b0, b1, c0, c1, start, delta, crossings_only, True)
     return t_hit, side
 
 
@@ -227,18 +218,34 @@ def edge_edge_hit_between(p0, p1, q0, q1, r0, r1, s0, s1, start, end, delta, cro
 
 @ti.func
 def _edge_edge_hit(p0, p1, q0, q1, r0, r1, s0, s1, start, end, spread, delta, crossings_only: ti.template()):
-    t_hit = NO_TIME
-    side = 1.0
-    if start + end - spread <= 2.0 * delta:
+    t_hit, side = NO_TIME, 1.0
+    if start + end - spread <= 2.0 * delta:  # see _vertex_triangle_hit
         ea0, eb0, ep0 = q0 - p0, s0 - r0, r0 - p0
         k = coplanarity_cubic(ea0, (q1 - p1) - ea0, eb0, (s1 - r1) - eb0, ep0, (r1 - p1) - ep0)
-        times = candidate_times(k, crossings_only)
-        for j in range(5):
-            t = times[j]
-            if t >= 0.0 and (t_hit < 0.0 or t < t_hit) and _counts(t, start, delta, crossings_only):
-                if _segment_distance(p0 + t * (p1 - p0), q0 + t * (q1 - q0), r0 + t * (r1 - r0),
-                                     s0 + t * (s1 - s0)) < delta:
-                    t_hit = t
-        if t_hit >= 0.0:
-            side = _side_before(k, t_hit)
+        t_hit, side = _earliest_touch(k, p0, p1, q0, q1, r0, r1, s0, s1, start, delta, crossings_only, False)
+    return t_hit, side
+
+
+@ti.func
+def _earliest_touch(k, a0, a1, b0, b1, c0, c1, d0, d1, start, delta, crossings_only: ti.template(),
+                    vertex_triangle: ti.template()):
+    """The earliest of cubic ``k``'s candidate times at which the four points, moving linearly,
+    are closer than ``delta`` as a vertex a and a triangle (b, c, d), or as two segments (a, b)
+    and (c, d); NO_TIME if none. And the side before it (see :func:`_side_before`)."""
+    t_hit = NO_TIME
+    side = 1.0
+    times = candidate_times(k, crossings_only)
+    for j in range(5):
+        t = times[j]
+        if t >= 0.0 and (t_hit < 0.0 or t < t_hit) and _counts(t, start, delta, crossings_only):
+            a, b, c, d = a0 + t * (a1 - a0), b0 + t * (b1 - b0), c0 + t * (c1 - c0), d0 + t * (d1 - d0)
+            distance = 0.0
+            if ti.static(vertex_triangle):
+                distance = point_triangle_distance(a, b, c, d)
+            else:
+                distance = _segment_distance(a, b, c, d)
+            if distance < delta:
+                t_hit = t
+    if t_hit >= 0.0:
+        side = _side_before(k, t_hit)
     return t_hit, side
