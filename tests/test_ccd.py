@@ -234,6 +234,27 @@ def test_a_zone_that_gains_a_few_vertices_gives_them_its_motion_and_moves_no_oth
     assert np.linalg.norm(x_c[:, None] - x_c[None], axis=2) == pytest.approx(d0, abs=1e-12)
 
 
+def test_a_zone_turning_into_the_floor_stops_on_it_instead_of_being_lifted(rng):
+    # a flat strip on the floor whose right half rises: the fit tilts it, its left end into the floor
+    n = 8
+    mass = np.full(n, 0.01)
+    x0 = np.stack([np.linspace(0.0, 0.2, n), np.full(n, 0.005), np.zeros(n)], axis=1)
+    x1 = x0.copy()
+    x1[n // 2:, 1] += 0.05
+    v1 = (x1 - x0) / 0.1
+    touches = np.array([[0, 1, 2, 3], [3, 4, 5, 6], [5, 6, 7, 0]])
+    free_fit, _ = ImpactZones(mass, np.ones(n, int)).rigidify(touches, x0, x1, v1, 0.1)
+    assert free_fit[:, 1].min() < -1e-3  # the whole fit ends its left end 1 cm deep
+    x_new, _ = ImpactZones(mass, np.ones(n, int), floor=([0, 0, 0], [0, 1.0, 0])).rigidify(touches, x0, x1, v1, 0.1)
+    assert x_new[:, 1].min() == pytest.approx(0.0, abs=1e-12)  # its lowest vertex on the floor
+    d0 = np.linalg.norm(x0[:, None] - x0[None], axis=2)
+    assert np.linalg.norm(x_new[:, None] - x_new[None], axis=2) == pytest.approx(d0, abs=1e-12)
+    # cut short, not lifted: no vertex ends higher than the whole fit lifted onto the floor, and
+    # the rising end ends lower (the lift raised every vertex by the left end's depth)
+    lifted = free_fit[:, 1] - free_fit[:, 1].min()
+    assert (x_new[:, 1] <= lifted + 1e-12).all() and x_new[:, 1].max() < lifted.max() - 1e-3
+
+
 def test_a_zone_holding_a_pin_or_ending_in_the_floor_is_fitted_again_not_given_a_motion(rng):
     mass, x0, x1, v1 = rigid_zone_case(rng)
     free = np.ones(12, int)
@@ -244,7 +265,7 @@ def test_a_zone_holding_a_pin_or_ending_in_the_floor_is_fitted_again_not_given_a
     x_b, _ = zones.rigidify(np.array([[5, 6, 7, 1]]), x0, x_a, v_a, 0.1)
     assert np.abs(x_b[1:6] - x_a[1:6]).max() > 1e-6  # fitted again with 6 and 7: its turn changed
     assert np.array_equal(x_b[0], x0[0])  # the pin stays
-    # the motion of zone 0..5 would end 6 and 7 below the floor: the zone is fitted again and lifted
+    # the motion of zone 0..5 would end 6 and 7 below the floor: the zone is fitted again and stops on it
     mass, x0, x1, v1 = rigid_zone_case(rng)
     x0[:, 1] = 10.0 + rng.uniform(0.0, 0.5, 12)
     x0[6:8, 1] = 9.0

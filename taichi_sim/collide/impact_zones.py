@@ -18,6 +18,9 @@ MAX_LIFTS = 16
 # move, so the next round looks only at their pairs. Fitted again, every vertex of a zone of
 # thousands moves a little and all their pairs are collected and tested again, round after round.
 ADOPT_SHARE = 0.5
+# Halvings of the share of a zone's motion that ends it on the floor (see _stop_at_floor): 2^-20
+# of a step's motion of a few centimetres is far below the thickness.
+FLOOR_BISECTIONS = 20
 
 
 class ImpactZones:
@@ -123,12 +126,13 @@ class ImpactZones:
         last resort (:meth:`merge_all`) move their pins with them, off their paths for this
         step, as no touch may remain (the pins' owner puts them back on their paths).
 
-        With a ``floor``, a zone whose motion would end partly below it is moved up along its
-        normal until its lowest vertex is on it: still one rigid motion, so still no touch inside
-        (its moving vertices only: pins it does not carry stay, and a touch that leaves inside it
-        makes it carry them in the next round). With ``push_out``, a zone ending partly inside
-        an object is moved out the same way, along the normal at its deepest point, alternating
-        with the floor (up to MAX_LIFTS moves). Velocities are left to the colliders.
+        With a ``floor``, a zone whose motion would end partly below it moves only the share of
+        its motion that ends its lowest vertex on it (:meth:`_stop_at_floor`): still one rigid
+        motion, so still no touch inside (its moving vertices only: pins it does not carry stay,
+        and a touch that leaves inside it makes it carry them in the next round). With
+        ``push_out``, a zone ending partly inside an object is moved out of it, along the normal
+        at its deepest point, alternating with the floor (up to MAX_LIFTS moves). Velocities are
+        left to the colliders.
 
         Args:
             touches: (m, 4) vertex ids of touching pairs (may be empty).
@@ -153,19 +157,18 @@ class ImpactZones:
             if not free.all():
                 m[~free] = PINNED_WEIGHT * max(float(m[free].sum()), 1.0)
             c0 = _centre(m, x0[ids])
-            r = x0[ids] - c0
-            v_cm, omega = _rigid_part(m, r, (x1[ids] - x0[ids]) / h)
-            rotation = _rotation(h * omega)
-            r_end = r @ rotation.T
+            v_cm, omega = _rigid_part(m, x0[ids] - c0, (x1[ids] - x0[ids]) / h)
+            moves = np.ones_like(free) if carries_pins else free
+            translation, rotation = self._stop_at_floor(c0, h * v_cm, h * omega, x0[ids[moves]])
+            r_end = (x0[ids] - c0) @ rotation.T
             # the end velocities get their own rigid part (at the end positions): the displacement
             # also holds position fixes (a plane's projection) that must not become velocity
             w_cm, spin = _rigid_part(m, r_end, v1[ids])
-            moves = np.ones_like(free) if carries_pins else free
-            shift = self._lift((c0 + h * v_cm + r_end)[moves])
-            end = c0 + h * v_cm + shift + r_end
+            shift = self._lift((c0 + translation + r_end)[moves])
+            end = c0 + translation + shift + r_end
             x1[ids[moves]] = end[moves]
             v1[ids[moves]] = (w_cm + np.cross(spin, r_end))[moves]
-            self.motions.append((c0, h * v_cm + shift, rotation))
+            self.motions.append((c0, translation + shift, rotation))
             self.motion_of[ids] = -1
             self.motion_of[ids[moves]] = len(self.motions) - 1
         return x1, v1
@@ -195,6 +198,44 @@ class ImpactZones:
         w_cm, spin = _rigid_part(m, r_end, v1[ids])
         v1[ids] = w_cm + np.cross(spin, r_end)
         return True
+
+    def _stop_at_floor(self, c0: np.ndarray, translation: np.ndarray, turn: np.ndarray, x0: np.ndarray):
+        """The zone's motion (``translation`` (3,) and rotation vector ``turn`` (3,) about ``c0``)
+        cut short where it would end any of its moving vertices (start positions ``x0``, (m, 3))
+        below the floor: the share of it, found by bisection, that ends them on it or above, as
+        a rigid body that stops where it meets the ground. Returns (translation, rotation matrix).
+
+        Why not the whole motion lifted back up (as :meth:`_lift` does for objects): a zone lying
+        on the floor turns a little with the cloth falling onto it, and a turn of a few degrees
+        ends one side of a zone 20 cm across a centimetre or more deep; lifted back, the whole
+        zone rose that much (up to 5.4 cm), step after step, pulling its rim's springs with it.
+        32 x 32 XPBD folds at 1/60 s gained energy so (peaks of 91-1832 J from 66 J in six runs,
+        springs stretched up to 10-fold, more runs diverged); cut short, seven runs peaked at
+        88-161 J."""
+        rotation = _rotation(turn)
+        if self.floor is None or len(x0) == 0:
+            return translation, rotation
+        point, normal = self.floor
+        r = x0 - c0
+
+        def lowest(share: float, rotation: np.ndarray) -> float:
+            return float(((c0 + share * translation + r @ rotation.T - point) @ normal).min())
+
+        # a zone that starts below it (round-off, a vertex pressed in) may end no lower than it
+        # started; what is left below is lifted by :meth:`_lift`, by no more than the start's depth
+        level = min(0.0, lowest(0.0, np.eye(3)))
+        if lowest(1.0, rotation) >= level:
+            return translation, rotation
+        inside, outside = 0.0, 1.0
+        for _ in range(FLOOR_BISECTIONS):
+            share = 0.5 * (inside + outside)
+            if lowest(share, _rotation(share * turn)) >= level:
+                inside = share
+            else:
+                outside = share
+        rotation = _rotation(inside * turn)
+        # down onto that level exactly (by at most 2^-FLOOR_BISECTIONS of the motion)
+        return inside * translation - (lowest(inside, rotation) - level) * normal, rotation
 
     def _lift(self, points: np.ndarray) -> np.ndarray:
         """The translation (3,) that moves ``points`` (m, 3) out of the floor and the objects."""
