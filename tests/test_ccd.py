@@ -234,7 +234,7 @@ def test_a_zone_that_gains_a_few_vertices_gives_them_its_motion_and_moves_no_oth
     assert np.linalg.norm(x_c[:, None] - x_c[None], axis=2) == pytest.approx(d0, abs=1e-12)
 
 
-def test_a_zone_turning_into_the_floor_stops_on_it_instead_of_being_lifted(rng):
+def test_a_zone_turning_into_the_floor_stops_on_it_instead_of_being_lifted():
     # a flat strip on the floor whose right half rises: the fit tilts it, its left end into the floor
     n = 8
     mass = np.full(n, 0.01)

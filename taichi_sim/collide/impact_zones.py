@@ -115,9 +115,9 @@ class ImpactZones:
 
         Each zone's motion keeps the linear and angular momentum of its vertices' displacements
         over the step, (x1 - x0) / h: the end positions are the exact rigid transform
-        x_cm + h v_cm + R(h w) r. The end velocities are replaced by their own rigid part at the
-        end positions (the mass-weighted projection onto rigid motions: momentum kept, kinetic
-        energy never raised).
+        x_cm + h v_cm + R(h w) r (a share of it where the floor stops it, see below). The end
+        velocities are replaced by their own rigid part at the end positions (the mass-weighted
+        projection onto rigid motions: momentum kept, kinetic energy never raised).
 
         Pinned vertices keep their own motion, and a zone holding them is fitted with them
         weighing PINNED_WEIGHT times the zone, so that it follows a still pin exactly enough.
