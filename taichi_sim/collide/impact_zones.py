@@ -157,10 +157,11 @@ class ImpactZones:
             if not free.all():
                 m[~free] = PINNED_WEIGHT * max(float(m[free].sum()), 1.0)
             c0 = _centre(m, x0[ids])
-            v_cm, omega = _rigid_part(m, x0[ids] - c0, (x1[ids] - x0[ids]) / h)
+            r = x0[ids] - c0
+            v_cm, omega = _rigid_part(m, r, (x1[ids] - x0[ids]) / h)
             moves = np.ones_like(free) if carries_pins else free
             translation, rotation = self._stop_at_floor(c0, h * v_cm, h * omega, x0[ids[moves]])
-            r_end = (x0[ids] - c0) @ rotation.T
+            r_end = r @ rotation.T
             # the end velocities get their own rigid part (at the end positions): the displacement
             # also holds position fixes (a plane's projection) that must not become velocity
             w_cm, spin = _rigid_part(m, r_end, v1[ids])
@@ -223,7 +224,7 @@ class ImpactZones:
 
         # a zone that starts below it (round-off, a vertex pressed in) may end no lower than it
         # started; what is left below is lifted by :meth:`_lift`, by no more than the start's depth
-        level = min(0.0, lowest(0.0, np.eye(3)))
+        level = min(0.0, float(((x0 - point) @ normal).min()))
         if lowest(1.0, rotation) >= level:
             return translation, rotation
         inside, outside = 0.0, 1.0
