@@ -154,6 +154,10 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--chebyshev-rho", type=float,
                      help="projective_dynamics' Chebyshev acceleration: the spectral radius "
                           "estimate in [0, 1) (default 0: off)")
+    sim.add_argument("--max-residual", type=_positive_float, metavar="R",
+                     help="bound on the relative residual of a method that solves a system per step "
+                          "(default 1e-2): above it implicit_euler and implicit_midpoint end not_converged "
+                          "(exit 1), projective_dynamics, xpbd and the linearised step warn")
     sim.add_argument("--max-energy-growth", type=_positive_float, metavar="F",
                      help="the blow-up guard's energy bound: the run is diverged when its energy "
                           "rises more than F energy scales above the start (default 10)")
@@ -340,6 +344,7 @@ def cmd_list(args) -> int:
 
 def cmd_simulate(args) -> int:
     from . import io, runtime
+    from .convergence import check_max_residual
     from .guard import GuardLimits
     from .theory import stability_warning
     from .integrators import check_options, create_integrator
@@ -362,6 +367,7 @@ def cmd_simulate(args) -> int:
         raise ConfigError(f"--energy-every must be >= 0, got {args.energy_every}")
     if args.save_every is not None and args.save_every < 1:
         raise ConfigError(f"--save-every must be >= 1, got {args.save_every}")
+    check_max_residual(args.max_residual)
     params = scene_assignments(args.assignments)
     limits = GuardLimits() if args.max_energy_growth is None else GuardLimits(energy_growth=args.max_energy_growth)
     io.check_output_path(args.out)
@@ -383,7 +389,7 @@ def cmd_simulate(args) -> int:
         print(f"taichi-sim: warning: {warning}", file=sys.stderr)
     result = run(scene, integrator, dt=dt, steps=args.steps, t_end=args.t_end,
                  energy_every=args.energy_every, progress=None if not args.quiet else False, guard=limits,
-                 curves=curves, save_every=args.save_every)
+                 curves=curves, save_every=args.save_every, max_residual=args.max_residual)
     arrays = io.run_arrays(scene, result, integrator=integrator, dt=dt)
     if curves:
         import numpy as np
@@ -394,6 +400,8 @@ def cmd_simulate(args) -> int:
     path = io.save_npz(args.out, arrays)
     if result.message:
         print(f"taichi-sim: {result.message}", file=sys.stderr)
+    for warning in result.warnings:
+        print(f"taichi-sim: warning: {warning}", file=sys.stderr)
     for event in scene.post_step:
         if getattr(event, "warning", None) and event.warning():
             print(f"taichi-sim: warning: {event.warning()}", file=sys.stderr)
@@ -402,6 +410,13 @@ def cmd_simulate(args) -> int:
         print(f"{scene.name}: {result.steps} steps{rejected} of {integrator_name} to t = {result.t:.6g} s, "
               f"{result.f_evals} f-evals, {result.wall_time:.3f} s on {runtime.backend()}, "
               f"status {result.status.value} -> {path}")
+        if len(result.solver_residual):
+            worst = result.worst_residual
+            verdict = "converged" if worst <= result.max_residual else "NOT converged"
+            print(f"{scene.name}: solver residual at most {worst:.3g} (t = {_residual_time(result):.6g} s) over "
+                  f"{len(result.solver_residual)} sampled steps, bound {result.max_residual:.3g}: {verdict}")
+        elif result.residual_note and integrator.equation is not None:
+            print(f"{scene.name}: solver residual not measured: {result.residual_note}")
         for event in scene.post_step:
             if hasattr(event, "summary"):
                 print(f"{scene.name}: {event.summary()}")
@@ -409,6 +424,13 @@ def cmd_simulate(args) -> int:
             print(f"{scene.name}: largest |C| over the constraints {float(result.constraint_violation.max()):.3g} m "
                   f"over the run, {result.constraint_violation[-1]:.3g} m at the end")
     return 0 if result.status.value == "ok" else 1
+
+
+def _residual_time(result) -> float:
+    import numpy as np
+
+    values = np.nan_to_num(result.solver_residual, nan=-1.0)
+    return float(result.residual_t[int(np.argmax(values))])
 
 
 def _check_history_memory(preset, values, save_every: int, steps: int | None) -> None:

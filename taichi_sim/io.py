@@ -53,6 +53,10 @@ def run_arrays(scene: Scene, result: RunResult, *, integrator: Integrator, dt: f
     }
     if result.constraint_violation is not None:
         data["constraint_violation"] = result.constraint_violation
+    if integrator.equation is not None:  # a method that solves a system per step
+        data["solver_residual"], data["residual_t"] = result.solver_residual, result.residual_t
+        data["max_residual"] = np.float64(result.max_residual)
+        data["residual_note"] = np.str_(result.residual_note)
     if result.x_history is not None:
         data["x_history"], data["t_history"] = result.x_history, result.t_history
     if scene.mesh is not None:  # the cloth's surface, as built (torn ones included)

@@ -3,11 +3,12 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from tqdm import tqdm
 
+from .convergence import ConvergenceMonitor
 from .errors import ConfigError
 from .guard import Guard, GuardLimits
 from .integrators import Integrator, Status, create_integrator
@@ -36,6 +37,11 @@ class RunResult:
         guard_checks: how many times the guard checked the state.
         constraint_violation: for a scene with constraints, the largest |C| (m) over all
             constraints at each energy sample (aligned with ``energy_t``); None otherwise.
+        solver_residual, residual_t: for a method that solves a system per step, its relative
+            residual (:mod:`taichi_sim.convergence`) at the guard's checks and energy samples
+            and their times (s); empty arrays otherwise. residual_note: why a run has none ("").
+        worst_residual: the largest sample (NaN when none); warnings: one-line warnings
+            (a fixed-work method whose residual exceeded ``max_residual``).
         x_history, t_history: with ``save_every``, the positions (S, N, 3) (m) (for a
             first-order system its state, (S, N, dim)) at t = 0, every ``save_every`` accepted
             steps and at the end, and their times (S,) (s); None otherwise.
@@ -58,6 +64,12 @@ class RunResult:
     x_history: np.ndarray | None = None
     t_history: np.ndarray | None = None
     constraint_violation: np.ndarray | None = None
+    solver_residual: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    residual_t: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    residual_note: str = ""
+    worst_residual: float = math.nan
+    max_residual: float = math.nan
+    warnings: tuple = ()
 
 
 def planned_steps(dt: float, t_end: float) -> int:
@@ -92,7 +104,8 @@ def check_run_args(dt: float | None, steps: int | None, t_end: float | None, *,
 def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: int | None = None,
         t_end: float | None = None, energy_every: int | None = None,
         progress: bool | None = False, guard: GuardLimits | None = None,
-        curves: dict | None = None, save_every: int | None = None) -> RunResult:
+        curves: dict | None = None, save_every: int | None = None,
+        max_residual: float | None = None) -> RunResult:
     """Advance ``scene.state`` from t = 0 by ``steps`` accepted steps, or up to ``t_end`` s.
 
     Args:
@@ -136,6 +149,9 @@ def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: 
         driver = CurveDriver(scene, curves)
         driver.apply(0.0)
     watch = Guard(scene, guard)
+    monitor = ConvergenceMonitor(scene, integrator, max_residual)
+    measured = monitor.active
+    warnings = []
     f_evals = 0
     if adaptive:
         if dt is None:
@@ -185,6 +201,8 @@ def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: 
             if driver is not None and driver.apply(t):
                 integrator.reset()
                 watch.rebase(t, done)
+            if measured:
+                monitor.before_step(scene.state)
             report = step(scene.state, t, h)
             f_evals += report.f_evals
             linear_iterations += report.linear_iterations
@@ -220,8 +238,6 @@ def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: 
                 t += report.h
             else:
                 t = done * dt  # no round-off drift over many fixed steps
-            if scene.after_step(t, report.h):
-                integrator.reset()  # an event changed the system (e.g. tore springs)
             due = watch.spend(report.f_evals + report.linear_iterations)
             end = last or done == steps
             if energy_every is not None:
@@ -232,6 +248,22 @@ def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: 
                 sample = has_energy and ((due and t >= next_sample * (1 - 1e-12)) or last)
                 if sample:
                     next_sample = (math.floor(t / sample_interval + 1e-9) + 1) * sample_interval
+            if measured and (due or sample or end):
+                # Before the post-step events: they move the state after the method solved it.
+                residual = monitor.measure(scene.state, t, report.h)
+                if monitor.exceeds(residual):
+                    if monitor.promises_exact:
+                        status = Status.NOT_CONVERGED
+                        failed_step, failed_t = done, t
+                        message = (f"not_converged at step {done} (t = {t:.6g} s) with {integrator.name}, "
+                                   f"h = {report.h:.3g} s: " + monitor.breach_message(residual, t))
+                        break
+                    if not monitor.warned:
+                        monitor.warned = True
+                        warnings.append(f"{integrator.name} did not converge: " + monitor.breach_message(residual, t)
+                                        + "; the run goes on (the state is the method's, not the exact step's)")
+            if scene.after_step(t, report.h):
+                integrator.reset()  # an event changed the system (e.g. tore springs)
             # An energy sample costs about what a check does, so every sample is a check.
             if due or sample or end:
                 breach = watch.check(t, done)
@@ -263,7 +295,10 @@ def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: 
                      energy=np.asarray(energy, float)[kept], energy_t=energy_t[kept],
                      message=message, wall_time=wall, failed_step=failed_step, failed_t=failed_t,
                      guard_checks=watch.checks, x_history=x_history, t_history=t_history,
-                     constraint_violation=None if violation is None else np.asarray(violation, float)[kept])
+                     constraint_violation=None if violation is None else np.asarray(violation, float)[kept],
+                     solver_residual=np.asarray(monitor.values, float), residual_t=np.asarray(monitor.times, float),
+                     residual_note=monitor.reason, worst_residual=monitor.worst, max_residual=monitor.max_residual,
+                     warnings=tuple(warnings))
 
 
 class _History:

@@ -2,8 +2,11 @@
 (Baraff & Witkin) and the implicit midpoint rule, all on the Newton driver of :mod:`.newton`."""
 from __future__ import annotations
 
+from ..equation import EXACT, FIXED_WORK, Equation
 from ...systems.base import System
 from .newton import ImplicitStageMethod
+
+_NEWTON_ADVICE = "raise --newton-iterations or lower --newton-tolerance or --dt"
 
 
 class ImplicitEuler(ImplicitStageMethod):
@@ -35,6 +38,7 @@ class ImplicitEuler(ImplicitStageMethod):
     stage_fraction = 1.0
     default_newton_iterations = 50
     inexact_newton = True
+    equation = Equation("backward_euler", EXACT, advice=_NEWTON_ADVICE)
 
 
 class ImplicitEulerLinearised(ImplicitStageMethod):
@@ -55,6 +59,8 @@ class ImplicitEulerLinearised(ImplicitStageMethod):
     description = "one linearised backward Euler step (Baraff-Witkin); can gain energy on stiff springs"
     stage_fraction = 1.0
     linearised = True
+    equation = Equation("backward_euler", FIXED_WORK,
+                        advice="it takes one linearised Newton step: use implicit_euler or lower --dt")
 
     def __init__(self, system: System, *, linear_solver: str = "cg", cg_tolerance: float | None = None,
                  cg_max_iterations: int = 1000, preconditioner: str | None = None,
@@ -83,3 +89,4 @@ class ImplicitMidpoint(ImplicitStageMethod):
     description = "implicit midpoint rule (Newton iterations; conserves quadratic invariants)"
     stage_fraction = 0.5
     default_newton_iterations = 50
+    equation = Equation("implicit_midpoint", EXACT, advice=_NEWTON_ADVICE)

@@ -129,6 +129,7 @@ class ImplicitStageMethod(Integrator):
     inexact_newton: bool = False  # forcing terms and inexact_newton_tolerance on particle systems
     inexact_newton_tolerance: float = 1e-3
     implicit = True
+    tracks_solved_start = True
 
     def __init__(self, system: System, *, linear_solver: str = "cg", newton_iterations: int | None = None,
                  newton_tolerance: float | None = None, cg_tolerance: float | None = None,
@@ -231,6 +232,9 @@ class ImplicitStageMethod(Integrator):
 
     def _attempt(self, state: State, t: float, h: float) -> StepReport:
         """One try at the step from t by h, without subdividing."""
+        if self.solved_start is not None:  # the last try of a step is the piece it solved
+            self.solved_start.copy_from(state)
+            self.solved_h = h
         tau = self.stage_fraction * h
         t_stage = t + tau
         work = StepWork(h)

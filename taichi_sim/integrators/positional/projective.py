@@ -8,6 +8,7 @@ import taichi as ti
 from ... import runtime
 from ...errors import ConfigError
 from ...systems.base import System
+from ..equation import FIXED_WORK, Equation
 from ..base import Integrator, Status, StepReport
 from ..implicit.common import positive_int
 from .external import ExplicitForces
@@ -75,6 +76,8 @@ class ProjectiveDynamics(Integrator):
     order = 1
     requires_second_order = True
     description = "projective dynamics: local/global backward Euler with one prefactorised matrix"
+    equation = Equation("backward_euler", FIXED_WORK, explicit_external=True, isotropic_dashpots=True,
+                        advice="raise --iterations, set --pd-tolerance, or lower --dt")
 
     def __init__(self, system: System, *, iterations: int = 10, tolerance: float | None = None,
                  chebyshev_rho: float = 0.0):

@@ -4,6 +4,7 @@ import taichi as ti
 
 from ... import runtime
 from ...systems.base import System
+from ..equation import FIXED_WORK, Equation
 from ..base import Integrator, StepReport
 from ..implicit.common import positive_int
 from .colouring import colour_springs
@@ -60,6 +61,9 @@ class XPBD(Integrator):
     order = 1
     requires_second_order = True
     description = "extended position-based dynamics: springs as compliant constraints, substepped"
+    equation = Equation("backward_euler", FIXED_WORK, explicit_external=True,
+                        advice="raise --iterations or --substeps, or lower --dt")
+    tracks_solved_start = True
 
     def __init__(self, system: System, *, substeps: int = 20, iterations: int = 1):
         super().__init__(system)
@@ -95,6 +99,9 @@ class XPBD(Integrator):
     def step(self, state, t: float, h: float) -> StepReport:
         dt = h / self.substeps
         for k in range(self.substeps):
+            if self.solved_start is not None and k == self.substeps - 1:
+                self.solved_start.copy_from(state)  # what the convergence monitor measures
+                self.solved_h = dt
             if self.fused:
                 self._substep(state, dt, t + k * dt)
             else:
