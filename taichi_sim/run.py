@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from tqdm import tqdm
 
+from . import runtime
 from .convergence import ConvergenceMonitor
 from .errors import ConfigError
 from .guard import Guard, GuardLimits
@@ -40,7 +41,9 @@ class RunResult:
         solver_residual, residual_t: for a method that solves a system per step, its relative
             residual (:mod:`taichi_sim.convergence`) at the guard's checks and energy samples
             and their times (s); empty arrays otherwise. residual_note: why a run has none ("").
-        worst_residual: the largest sample (NaN when none); warnings: one-line warnings
+        worst_residual: the largest sample (NaN when none); max_residual: the bound applied
+            (``max_residual``, or more where the precision rounds more: see
+            :meth:`~taichi_sim.convergence.ConvergenceMonitor.check_precision`); warnings: one-line warnings
             (a fixed-work method whose residual exceeded ``max_residual``).
         x_history, t_history: with ``save_every``, the positions (S, N, 3) (m) (for a
             first-order system its state, (S, N, dim)) at t = 0, every ``save_every`` accepted
@@ -150,6 +153,7 @@ def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: 
         driver.apply(0.0)
     watch = Guard(scene, guard)
     monitor = ConvergenceMonitor(scene, integrator, max_residual)
+    monitor.check_precision(scene.state, runtime.precision(), runtime.machine_epsilon())
     measured = monitor.active
     warnings = []
     f_evals = 0
@@ -297,7 +301,7 @@ def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: 
                      guard_checks=watch.checks, x_history=x_history, t_history=t_history,
                      constraint_violation=None if violation is None else np.asarray(violation, float)[kept],
                      solver_residual=np.asarray(monitor.values, float), residual_t=np.asarray(monitor.times, float),
-                     residual_note=monitor.reason, worst_residual=monitor.worst, max_residual=monitor.max_residual,
+                     residual_note=monitor.reason, worst_residual=monitor.worst, max_residual=monitor.bound,
                      warnings=tuple(warnings))
 
 

@@ -203,6 +203,8 @@ class Launcher:
                                                               float((1.0 - uv[0][1]) * self.size[1])]}
         if r.drift is not None:
             status["constraint_violation"] = r.drift
+        if r.residual is not None:
+            status["solver_residual"] = r.residual
         if final:
             status["x"] = x.tolist()
         path = Path(self.status_path)

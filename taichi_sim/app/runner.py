@@ -11,6 +11,7 @@ import time
 
 import numpy as np
 
+from ..convergence import ConvergenceMonitor
 from ..guard import Guard
 from .energy import EnergySample, EnergyTrace
 from ..integrators import Status, create_integrator, integrator_class
@@ -46,6 +47,10 @@ class Runner:
             guard check that passed since the last restart (empty for a system without energy).
         drift: the largest |C| (m) of the scene's constraints at the last check, or None
             without constraints.
+        residual: the relative residual of the last step measured (:mod:`taichi_sim.convergence`:
+            at the guard's checks and the last step of each frame), or None for a method that
+            solves nothing per step (or a scene it cannot measure); converged: whether it is
+            within the bound (a method that promises the exact step freezes when it is not).
         sim_ms: wall time (ms) of the last :meth:`advance`.
         last_good: (n, 3) float64 positions of the last state that passed the blow-up guard
             (:mod:`taichi_sim.guard`, checked at the end of every frame).
@@ -75,6 +80,8 @@ class Runner:
             self._integrators[name] = create_integrator(name, self.scene.system)
         self.integrator = self._integrators[name]
         self.integrator.reset()  # a method switched back to may hold a stale f
+        self.monitor = ConvergenceMonitor(self.scene, self.integrator)
+        self.residual = None
         self._h_next = self.dt
 
     def set_dt(self, dt: float) -> None:
@@ -128,6 +135,11 @@ class Runner:
         self.energy_trace.clear()
         self._sample_energy()
         self.drift = self.scene.constraint_violation()
+        self.residual = None
+
+    @property
+    def converged(self) -> bool:
+        return self.residual is None or not self.monitor.exceeds(self.residual)
 
     def reset(self) -> None:
         """Back to the scene as built (torn springs mended, emitted particles gone), in place:
@@ -165,7 +177,7 @@ class Runner:
         self._pending += duration
         calls = 0
         adaptive = self.integrator.adaptive
-        guard = self.guard
+        guard, monitor = self.guard, self.monitor
         driver, forces_changed = self.driver, False
         while not self.frozen and calls < MAX_CALLS_PER_ADVANCE:
             if adaptive:
@@ -179,6 +191,8 @@ class Runner:
             if driver is not None and driver.apply(self.t):
                 self.integrator.reset()
                 forces_changed = True
+            if monitor.active:
+                monitor.before_step(self.scene.state)
             report = self.integrator.step(self.scene.state, self.t, h)
             calls += 1
             self.f_evals += report.f_evals
@@ -194,9 +208,13 @@ class Runner:
             self.t += report.h
             self._pending -= report.h
             self.steps += 1
+            due = guard.spend(report.f_evals + report.linear_iterations)
+            frame_ends = self._pending < (1e-12 * max(1.0, self.t) if adaptive else self.dt * (1.0 - 1e-9))
+            if monitor.active and (due or frame_ends) and not self._converged_step(report.h):
+                break
             if self.scene.after_step(self.t, report.h):
                 self.integrator.reset()
-            if guard.spend(report.f_evals + report.linear_iterations) and not self._check(report.h):
+            if due and not self._check(report.h):
                 break
         if calls >= MAX_CALLS_PER_ADVANCE:
             self._pending = 0.0
@@ -211,6 +229,15 @@ class Runner:
         (which, after a rejection, may take it in several accepted pieces)."""
         self._pending = 0.0
         self.advance(self._h_next if self.integrator.adaptive else self.dt)
+
+    def _converged_step(self, h: float) -> bool:
+        """Measure the step that just ended (before the post-step events move the state);
+        freezes a method that promises the exact step when it did not converge. False then."""
+        self.residual = self.monitor.measure(self.scene.state, self.t, h)
+        if self.monitor.exceeds(self.residual) and self.monitor.promises_exact:
+            self._freeze(Status.NOT_CONVERGED, self.t, self.monitor.breach_message(self.residual, self.t), h)
+            return False
+        return True
 
     def _grabber_moves(self) -> int:
         grabber = self.scene.grabber

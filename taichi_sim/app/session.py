@@ -406,6 +406,8 @@ class Session:
             state = r.failure if r.frozen else f"E = {energy}"
             if r.drift is not None and not r.frozen:
                 state += f"   max |C| = {r.drift:.2e} m"
+            if r.residual is not None and not r.frozen:
+                state += f"   residual {r.residual:.1e}" + ("" if r.converged else " NOT converged")
             lines.append(f"{r.name}: {r.sim_ms:.1f} ms/frame   {state}")
         lines.append(f"status: {self.status()}")
         for advice in dict.fromkeys(r.advice for r in self.runners if r.frozen):

@@ -68,6 +68,16 @@ class Integrator(ABC):
     pairs) do; the implicit and positional ones, which assemble the forces term by term, do
     not and refuse such a system."""
 
+    equation = None
+    """The equation a step solves (:class:`~taichi_sim.integrators.equation.Equation`) for the
+    methods that solve a system per step; None for the explicit ones. Runs measure its residual
+    (:class:`taichi_sim.convergence.ConvergenceMonitor`)."""
+    tracks_solved_start = False
+    """Whether the method, when ``solved_start`` is set to a State, copies into it the start of
+    the last piece of a step it solved (a substep, a halving) and sets ``solved_h`` (s)."""
+    solved_start = None
+    solved_h = float("nan")
+
     def __init__(self, system: System):
         if self.requires_second_order and not system.second_order:
             raise ConfigError(f"integrator {self.name!r} needs a second-order (particle) system")
