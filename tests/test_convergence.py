@@ -74,7 +74,9 @@ def test_implicit_euler_that_stops_early_is_not_converged(f64):
 
 
 def test_projective_dynamics_with_few_iterations_warns_and_with_many_does_not(f64):
-    scene = cloth(damping=0.0)
+    # At k = 1e2 N/m local/global iterations converge (1000: 1e-10); at k = 1e6 they crawl
+    # (1000 iterations still leave 0.5-0.7 of the forces unbalanced: docs/implicit.md).
+    scene = cloth(stiffness=1e2, damping=0.0)
     few = ts.run(scene, ts.create_integrator("projective_dynamics", scene.system, iterations=10),
                  dt=1 / 60, steps=10, energy_every=1)
     assert few.status is Status.OK  # a fixed-work method goes on ...
@@ -110,14 +112,10 @@ def test_single_precision_agrees_with_double_where_it_is_accepted():
         result = ts.run(scene, "implicit_euler", dt=1 / 60, steps=30)
         assert result.status is Status.OK, result.message
         positions[precision] = scene.state.x.to_numpy().astype(float)
-    moved = np.abs(positions["f64"][:, 1] - cloth_start_height()).max()
-    assert moved > 0.3  # it fell: the cloth is not frozen
+    fell = scene.params["height"] - positions["f64"][:, 1].mean()
+    assert fell > 0.3  # the cloth is not frozen
     rms = math.sqrt(np.mean(np.sum((positions["f32"] - positions["f64"]) ** 2, axis=1)))
     assert rms < 0.02
-
-
-def cloth_start_height():
-    return ts.scene_preset("cloth").params["height"].default
 
 
 def test_explicit_methods_and_unmodelled_forces_are_not_measured(f64):
