@@ -246,7 +246,7 @@ def build_parser() -> argparse.ArgumentParser:
     ex.add_argument("--step-sizes", metavar="H,H,...", help="steps in s, fractions allowed (default 1e-6,1/60,1)")
     ex.add_argument("--steps", type=_positive_int, help="steps per run (default 30; --quick 10)")
     sc = bench_parsers["stiff-cloth"]
-    sc.add_argument("--size", type=_positive_int, help="cloth side (default 32; --quick 8)")
+    sc.add_argument("--size", type=_positive_int, help="cloth side (default 64; --quick 8)")
     sc.add_argument("--stiffnesses", metavar="K,K,...", help="structural stiffness in N/m (default 1e2,1e4,1e8)")
     sc.add_argument("--step-sizes", metavar="H,H,...", help="steps in s, fractions allowed (default 1/60,1/120,1/240,1/480)")
     sc.add_argument("--t-end", type=_positive_float, help="simulated time in s (default 0.5)")

@@ -271,3 +271,9 @@ class ConvergenceMonitor:
                  f"the bound {self.bound:.3g} (3 times the rounding floor {self.floor:.2g} of this precision)")
         return (f"solver residual {value:.3g} at t = {t:.6g} s exceeds {bound} (the share of the forces "
                 f"the step leaves unbalanced){advice}")
+
+    def warning_message(self, value: float, t: float) -> str:
+        """One line for a fixed-work method whose sample exceeded the bound (the run goes on)."""
+        return (f"{self.integrator.name} leaves its steps unsolved: " + self.breach_message(value, t)
+                + "; the run goes on: its result is the method's own approximation, whose error the "
+                  "residual does not measure (compare with `taichi-sim bench stiff-cloth`)")

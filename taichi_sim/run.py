@@ -264,8 +264,7 @@ def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: 
                         break
                     if not monitor.warned:
                         monitor.warned = True
-                        warnings.append(f"{integrator.name} did not converge: " + monitor.breach_message(residual, t)
-                                        + "; the run goes on (the state is the method's, not the exact step's)")
+                        warnings.append(monitor.warning_message(residual, t))
             if scene.after_step(t, report.h):
                 integrator.reset()  # an event changed the system (e.g. tore springs)
             # An energy sample costs about what a check does, so every sample is a check.

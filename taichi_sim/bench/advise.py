@@ -197,13 +197,25 @@ def recommend(scene, table: list[dict], target_error: float, t_end: float,
             rows.append({**row, "status": "failed", "h": h, "note": probe.message})
             continue
         per_step = (probe.f_evals + probe.linear_iterations) / max(probe.steps, 1)
+        # A fixed-work method that leaves its step unsolved at h (its residual above the bound)
+        # can be far from the answer in a way Richardson cannot see: ranked after the rest.
+        converged = not probe.warnings
+        if not converged:
+            row["note"] = (f"its step is not solved at this step size (solver residual "
+                           f"{probe.worst_residual:.2g}): the error estimate may understate its error")
         rows.append({**row, "status": "ok", "error_constant": constant, "h": h, "steps": steps,
+                     "residual": probe.worst_residual, "converged": converged,
                      "limited_by": "stability" if h == cap else ("t_end" if h == t_end else "accuracy"),
                      "cost_per_step": per_step, "cost": steps * per_step,
                      "wall_s": steps * wall / max(probe.steps, 1),
                      "predicted_error": constant * h**p * t_end})
-    rows.sort(key=lambda r: (r["status"] != "ok", r.get("cost", math.inf)))
+    rows.sort(key=_rank)
     return rows
+
+
+def _rank(row: dict):
+    """Cheapest first among the converged, then the unconverged, then failures."""
+    return row["status"] != "ok", row.get("converged") is False, row.get("cost", math.inf)
 
 
 def check(scene, table: list[dict], rows: list[dict], target_error: float, t_end: float) -> str:
@@ -249,6 +261,6 @@ def check(scene, table: list[dict], rows: list[dict], target_error: float, t_end
         row.update(status="failed", note=f"checked against the reference run: its error at this step is "
                                          f"{error:.2g} m, {error / target_error:.3g} x the target (the pilot's "
                                          f"Richardson estimate understated it)")
-    rows.sort(key=lambda r: (r["status"] != "ok", r.get("cost", math.inf)))
+    rows.sort(key=_rank)
     return (f"checked against {REFERENCE} at {t_end / (2 * steps):.3g} s ({2 * steps} steps; "
             f"its own error about {reference_error:.2g} m): " + ", ".join(checked))

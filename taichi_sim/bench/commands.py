@@ -338,7 +338,7 @@ def _plan_extremes(args):
 def _plan_stiff_cloth(args):
     from .stiffcloth import METHODS, STEPS
 
-    size = getattr(args, "size", None) or (8 if args.quick else 32)
+    size = getattr(args, "size", None) or (8 if args.quick else 64)
     if not 2 <= size <= 256:
         raise ConfigError(f"--size must be from 2 to 256, got {size}")
     stiffnesses = _float_list(getattr(args, "stiffnesses", None), "stiffnesses",
@@ -372,13 +372,21 @@ def _plan_stiff_cloth(args):
     return run
 
 
+def _said_so(row: dict) -> str:
+    """Whether a run reported that it had not converged ("-" for a method that solves nothing)."""
+    residual = row.get("residual")
+    if residual is None or residual != residual:  # NaN: not measured
+        return "-"
+    return "yes" if row.get("warned") else "no"
+
+
 def print_stiff_cloth(rows: list[dict], details: dict) -> None:
     print(f"{details['size']}x{details['size']} cloth, rms position error at T = {details['t_end']:g} s against "
           f"symplectic Euler at a quarter of its stable step (f64):")
     print(common.format_table(
-        ["k (N/m)", "method", "h (s)", "status", "ms/step", "rms error (m)"],
+        ["k (N/m)", "method", "h (s)", "status", "ms/step", "rms error (m)", "solver residual", "said so"],
         [[f"{r['k']:g}", r["method"], f"{r['h']:.3g}", r["status"], _fmt(r.get("ms_per_step")),
-          _fmt(r.get("error_rms"))] for r in rows]))
+          _fmt(r.get("error_rms")), _fmt(r.get("residual")), _said_so(r)] for r in rows]))
     print("Artificial damping (no dashpots, no drag; h = 1/60 s, 1 s):")
     print(common.format_table(
         ["k (N/m)", "method", "status", "energy lost per s", "highest rise above start (J)"],
@@ -442,7 +450,7 @@ def advise_main(args) -> int:
     print(common.format_table(
         ["integrator", "order", "step (s)", "limited by", "steps", "cost (f-evals + lin. its)", "wall (s)", "status"],
         [[r["integrator"], r["order"], r.get("h"), r.get("limited_by"), r.get("steps"), r.get("cost"),
-          r.get("wall_s"), r["status"] if r["status"] == "ok" else f"{r['status']}: {r.get('note', '')}"]
+          r.get("wall_s"), r["status"] + (f": {r['note']}" if r.get("note") else "")]
          for r in rows]))
     print(checked)
     best = next((r for r in rows if r["status"] == "ok"), None)
@@ -450,7 +458,9 @@ def advise_main(args) -> int:
         print("no fixed-step integrator could be recommended", file=sys.stderr)
         return 1
     print(f"recommended: --integrator {best['integrator']} --dt {best['h']:.3g} ({best['steps']} steps, "
-          f"about {best['cost']:.3g} f-evaluations, {best['wall_s']:.3g} s on this machine)")
+          f"about {best['cost']:.3g} f-evaluations, {best['wall_s']:.3g} s on this machine)"
+          + ("; no candidate solves its step at its size, so check this one against a finer run"
+             if best.get("converged") is False else ""))
     return 0
 
 
