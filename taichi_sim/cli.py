@@ -99,7 +99,7 @@ def _add_view_options(p: argparse.ArgumentParser) -> None:
                    metavar="NAME=VALUE", help=_SET_HELP)
     p.add_argument("--seed", type=int, default=0, help="random seed for scenes with randomness (default 0)")
     p.add_argument("--curves", metavar="FILE", default=None,
-                   help="JSON file of parameter curves over time (see the README's Curves section)")
+                   help="JSON file of parameter curves over time (see docs/constraints-and-curves.md)")
     p.add_argument("--precision", choices=("f32", "f64"), default="f64", help=_PRECISION_HELP)
     p.add_argument("--arch", choices=("cpu", "gpu"), default="cpu",
                    help=_ARCH_HELP + "; rendering always uses Vulkan")
@@ -174,7 +174,7 @@ def build_parser() -> argparse.ArgumentParser:
                           "about two force evaluations")
     sim.add_argument("--out", required=True, help="output .npz path")
     sim.add_argument("--curves", metavar="FILE", default=None,
-                     help="JSON file of parameter curves over time (see the README's Curves section)")
+                     help="JSON file of parameter curves over time (see docs/constraints-and-curves.md)")
     sim.add_argument("--quiet", action="store_true", help="no summary line or progress bar")
 
     demo = sub.add_parser("demo", help="the interactive launcher (needs a display and Vulkan)")

@@ -1,4 +1,4 @@
-"""The self-describing .npz a run writes (schema documented in README.md)."""
+"""The self-describing .npz a run writes (schema documented in docs/cli.md)."""
 from __future__ import annotations
 
 import os

@@ -1,4 +1,5 @@
-"""Stability theory of the integrators on a spring network (DESIGN.md section 5).
+"""Stability theory of the integrators on a spring network (docs/integrators.md, Stability on an
+oscillator).
 
 Every method here is stable on an undamped linear oscillator of angular frequency omega while
 theta = h omega stays below a constant C of the method; a spring network linearised about a
@@ -19,8 +20,8 @@ W = M^-1/2 (zero on pinned particles), so:
 * :func:`omega_max_bound`: block Gershgorin on S, a cheap upper bound,
   omega_max^2 <= max over free i of ( sum_s k_s / m_i + sum_{s, j free} k_s / sqrt(m_i m_j) ),
   because ||B_s|| = k_s (tau <= 1). With equal masses and no pinned neighbour this is
-  DESIGN.md's 2 (sum of attached k) / m; a pinned neighbour counts once, so the single spring
-  of the ``spring`` scene gives exactly sqrt(k / m).
+  2 (sum of attached k) / m, the bound in docs/integrators.md; a pinned neighbour counts once, so
+  the single spring of the ``spring`` scene gives exactly sqrt(k / m).
 * :func:`omega_max_power`: power iteration on S; its Rayleigh quotient rises to the sharp value
   from below.
 
@@ -53,7 +54,8 @@ STABILITY_CONSTANT: dict[str, float] = {
     "xpbd": math.inf,
 }
 
-# |R(i theta)|^2 per step of the methods that grow on the imaginary axis (DESIGN.md section 5).
+# |R(i theta)|^2 per step of the methods that grow on the imaginary axis (docs/integrators.md,
+# Stability on an oscillator).
 GROWTH_PER_STEP_SQUARED = {
     "euler": lambda theta: 1.0 + theta**2,
     "trapezoid": lambda theta: 1.0 + theta**4 / 4.0,

@@ -12,7 +12,7 @@ def grid_index(nx: int, ny: int) -> np.ndarray:
 
 
 def spring_counts(nx: int, ny: int) -> dict[int, int]:
-    """Closed-form spring counts per kind for an nx x ny grid (DESIGN.md section 4)."""
+    """Closed-form spring counts per kind for an nx x ny grid (docs/scenes.md, Force model)."""
     return {
         STRUCTURAL: (nx - 1) * ny + nx * (ny - 1),
         SHEAR: 2 * max(nx - 1, 0) * max(ny - 1, 0),

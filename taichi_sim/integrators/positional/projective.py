@@ -45,7 +45,7 @@ class ProjectiveDynamics(Integrator):
     iteration lowering g, the step ends with g no higher than at either, for one extra pass
     over the springs a step. Against the exact backward Euler step (64 x 64, 0.5 s) the error
     was the same or lower than from y alone at k = 1e2 to 1e6, and 2-3 % higher at k = 1e8,
-    where both were 0.8 m off (README, "Position-level methods").
+    where both were 0.8 m off (docs/implicit.md, Position-level methods).
 
     What it converges to: every iteration lowers g, and g's minimiser is the backward Euler
     step of the springs with spring forces exact; so with enough ``iterations`` (or a

@@ -49,7 +49,7 @@ class XPBD(Integrator):
     instead) the constraints are solved only partly: a stiff cloth (k large, so compliance ~ 0)
     stretches more than the exact solution would, by an amount that shrinks with more
     substeps, never by a blow-up. The method does not conserve energy; on conservative scenes
-    it loses energy (see the README's damping figures). First order in h.
+    it loses energy (docs/implicit.md, The trade, measured). First order in h.
 
     Args:
         system: a particle system (second order).
