@@ -132,3 +132,30 @@ def test_explicit_methods_and_unmodelled_forces_are_not_measured(f64):
 def test_bad_max_residual_is_refused_naming_it(value):
     with pytest.raises(ConfigError, match="max_residual"):
         check_max_residual(value)
+
+
+def test_simulate_reports_the_residual_and_exits_1_when_the_exact_step_is_not_reached(tmp_path, capsys):
+    from taichi_sim.cli import main
+
+    out = tmp_path / "run.npz"
+    common = ["simulate", "cloth", "--set", "nx=6", "--set", "ny=6", "--set", "stiffness=1e4",
+              "--integrator", "implicit_euler", "--dt", "0.02", "--steps", "4", "--out", str(out)]
+    assert main(common) == 0
+    data = np.load(out)
+    assert len(data["solver_residual"]) == len(data["residual_t"]) >= 1
+    assert float(data["solver_residual"].max()) <= float(data["max_residual"])
+    assert "solver residual at most" in capsys.readouterr().out
+    assert main(common + ["--newton-tolerance", "0.5"]) == 1
+    assert str(np.load(out)["status"]) == "not_converged"
+    assert "--newton-iterations" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("value", ["0", "-1", "2", "nan", "x"])
+def test_simulate_refuses_a_bad_max_residual_before_writing(tmp_path, capsys, value):
+    from taichi_sim.cli import main
+
+    out = tmp_path / "run.npz"
+    code = main(["simulate", "cloth", "--steps", "1", "--max-residual", value, "--out", str(out)])
+    assert code == 2 and not out.exists()
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "max-residual" in err[0].replace("_", "-")
