@@ -217,13 +217,16 @@ class ConvergenceMonitor:
     def check_precision(self, state, precision: str, epsilon: float) -> None:
         """Before a run: the bound samples are held to is ``max_residual`` or, where the
         precision's rounding alone leaves more (:func:`rounding_floor` at the start positions;
-        single precision on stiff springs), ``FLOOR_MARGIN`` times that floor (``bound``).
+        single precision on stiff springs) but at most ``MAX_FLOOR``, ``FLOOR_MARGIN`` times
+        that floor (``bound``).
         ConfigError for a method that promises the exact step when the floor is above
         ``MAX_FLOOR``: the precision cannot tell the answer from a cloth frozen in mid-air."""
         if not self.active:
             return
         self.floor = rounding_floor(self.model, state.x.to_numpy(), epsilon)
-        if math.isfinite(self.floor):
+        if math.isfinite(self.floor) and self.floor <= MAX_FLOOR:
+            # Past MAX_FLOOR nothing is raised: a fixed-work method's samples then exceed the
+            # bound and it warns (a state the precision cannot resolve is no answer either).
             self.bound = max(self.max_residual, FLOOR_MARGIN * self.floor)
         if self.promises_exact and self.floor > MAX_FLOOR:
             raise ConfigError(
