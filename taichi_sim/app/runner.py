@@ -10,7 +10,7 @@ import time
 
 import numpy as np
 
-from ..integrators import Status, create_integrator, integrator_class
+from ..integrators import create_integrator, integrator_class
 from ..render.drawer import DRAWABLE_LIMIT
 from ..scene.scene import Scene
 from ..stepper import Stepper
