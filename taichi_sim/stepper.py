@@ -111,8 +111,9 @@ class Stepper:
         curves: parameter name -> :class:`~taichi_sim.curves.Spline` driving the scene from t = 0.
         observers: objects with any of ``before_step(stepper, h)`` (just before the integrator
             call), ``after_step(stepper, report)`` (after an accepted step and its guard check)
-            and ``after_check(stepper) -> str | None`` (after a check passed; a string refuses
-            the state: the run ends DIVERGED with that detail).
+            and ``after_check(stepper) -> str | None`` (after the guard passed the state, before
+            it becomes the last good one; a string refuses it: the run ends DIVERGED with that
+            detail, on the state before).
 
     Attributes:
         t: simulated time (s); steps: accepted steps; rejected: steps an adaptive method retried.
@@ -244,8 +245,9 @@ class Stepper:
             self.check(report.h)
         else:
             self.checked = False
-        for hook in self._after:
-            hook(self, report)
+        if self._after and self.failure is None:
+            for hook in self._after:
+                hook(self, report)
         return report
 
     def step_toward(self, t_end: float, *, check: bool = False) -> StepReport:
@@ -285,13 +287,16 @@ class Stepper:
         """Check the current state now (the guard, then observers' ``after_check``); a state
         that fails ends the run DIVERGED on the last good one. ``h``: the step named in the
         failure (default :attr:`h`). True when it passed."""
-        breach = self.guard.check(self.t, self.steps)
+        hooks = self._on_check
+        breach = self.guard.check(self.t, self.steps, keep=not hooks)
         detail = None if breach is None else breach.detail
-        if detail is None:
-            for hook in self._on_check:
+        if detail is None and hooks:
+            for hook in hooks:
                 detail = hook(self)
                 if detail:
                     break
+            if not detail:
+                self.guard.keep(self.t, self.steps)
         self.checked = not detail
         if detail:
             self.fail(Status.DIVERGED, self.steps, self.t, self.h if h is None else h, detail, restore=True)

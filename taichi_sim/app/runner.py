@@ -184,7 +184,7 @@ class Runner:
     def after_check(self, stepper: Stepper) -> str | None:
         """The stepper's hook after a check passed: keep what the HUD shows, or refuse a state
         too large to draw."""
-        x = self.guard.last_good_positions()
+        x = np.asarray(self.scene.state.x.to_numpy(), np.float64)
         with np.errstate(invalid="ignore", over="ignore"):
             if not np.all(np.abs(x) <= DRAWABLE_LIMIT):
                 return "positions too large to draw"
