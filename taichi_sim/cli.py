@@ -6,6 +6,7 @@ import math
 import sys
 
 from .errors import ConfigError
+from .scene.params import scene_assignments
 
 EXIT_USAGE = 2
 
@@ -35,17 +36,6 @@ def _version() -> str:
 
         pyproject = Path(__file__).resolve().parent.parent / "pyproject.toml"
         return tomllib.loads(pyproject.read_text())["project"]["version"]
-
-
-def scene_assignments(assignments: list[tuple[str, str]]) -> dict[str, str]:
-    """``--set`` pairs as a dict; a parameter set twice is an error (which value was meant?)."""
-    params: dict[str, str] = {}
-    for name, value in assignments:
-        if name in params:
-            raise ConfigError(f"--set {name} given twice ({name}={params[name]} and {name}={value}); "
-                              "give each parameter once")
-        params[name] = value
-    return params
 
 
 def _positive_float(text: str) -> float:

@@ -214,26 +214,33 @@ class ConvergenceMonitor:
                 integrator.solved_start = self._start
                 integrator.solved_h = math.nan
 
-    def check_precision(self, state, precision: str, epsilon: float) -> None:
+    def check_precision(self, state, precision: str, epsilon: float) -> str:
         """Before a run: the bound samples are held to is ``max_residual`` or, where the
         precision's rounding alone leaves more (:func:`rounding_floor` at the start positions;
         single precision on stiff springs) but at most ``MAX_FLOOR``, ``FLOOR_MARGIN`` times
-        that floor (``bound``).
-        ConfigError for a method that promises the exact step when the floor is above
-        ``MAX_FLOOR``: the precision cannot tell the answer from a cloth frozen in mid-air."""
+        that floor (``bound``). Returns why a method that promises the exact step cannot run
+        in this precision (its floor is above ``MAX_FLOOR``: the answer cannot be told from a
+        cloth frozen in mid-air), else ""."""
         if not self.active:
-            return
+            return ""
         self.floor = rounding_floor(self.model, state.x.to_numpy(), epsilon)
         if math.isfinite(self.floor) and self.floor <= MAX_FLOOR:
             # Past MAX_FLOOR nothing is raised: a fixed-work method's samples then exceed the
             # bound and it warns (a state the precision cannot resolve is no answer either).
             self.bound = max(self.max_residual, FLOOR_MARGIN * self.floor)
         if self.promises_exact and self.floor > MAX_FLOOR:
-            raise ConfigError(
-                f"{self.integrator.name} cannot solve this scene in {precision}: rounding of its springs' "
-                f"forces is about {self.floor:.2g} of the particles' weight (more than {MAX_FLOOR:g}), so "
-                f"the step cannot be told from one frozen in mid-air; use --precision f64, or a "
-                f"position-level method (xpbd, projective_dynamics)")
+            return (f"{self.integrator.name} cannot solve this scene in {precision}: rounding of its springs' "
+                    f"forces is about {self.floor:.2g} of the particles' weight (more than {MAX_FLOOR:g}), so "
+                    f"the step cannot be told from one frozen in mid-air; use --precision f64, or a "
+                    f"position-level method (xpbd, projective_dynamics)")
+        return ""
+
+    def clear(self) -> None:
+        """Forget the samples (a restart from t = 0)."""
+        self.times.clear()
+        self.values.clear()
+        self.worst, self.worst_t = math.nan, math.nan
+        self.warned = False
 
     @property
     def active(self) -> bool:

@@ -2,11 +2,11 @@
 from __future__ import annotations
 
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from .atomic import write_atomically
 from .errors import ConfigError
 from .integrators import Integrator
 from .run import RunResult
@@ -81,30 +81,6 @@ def _first_order_velocity(scene: Scene, x: np.ndarray) -> np.ndarray:
     return out.x.to_numpy().astype(np.float64)
 
 
-def _umask() -> int:
-    mask = os.umask(0)  # the only portable way to read it is to set it
-    os.umask(mask)
-    return mask
-
-
-def write_atomically(path: Path, write, *, binary: bool = True) -> Path:
-    """Create ``path`` with ``write(file)``: a temporary file beside it, then a rename, so a
-    failure never leaves a partial file. The file gets the mode of any newly created file
-    (0666 less the umask: 0644 under umask 022)."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent or ".")
-    try:
-        # mkstemp creates 0600 so that nobody reads a half-written file; the result is public
-        os.fchmod(fd, 0o666 & ~_umask())
-        with os.fdopen(fd, "wb" if binary else "w", **({} if binary else {"encoding": "utf-8"})) as f:
-            write(f)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
-
-
 def save_npz(path: str | os.PathLike, arrays: dict[str, np.ndarray]) -> Path:
-    """Write ``arrays`` to ``path`` atomically (see :func:`write_atomically`)."""
+    """Write ``arrays`` to ``path`` atomically (:func:`taichi_sim.atomic.write_atomically`)."""
     return write_atomically(check_output_path(path), lambda f: np.savez_compressed(f, **arrays))

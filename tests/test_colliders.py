@@ -10,6 +10,8 @@ from taichi_sim.scene import cloth as topo
 from taichi_sim.scene.builder import SceneBuilder
 from taichi_sim.scene.colliders import SpherePath
 
+from helpers import step_checked
+
 
 def cloth_builder(n=16, size=0.5, height=0.0, stiffness=5.0, mass=0.01):
     """A free horizontal n x n cloth of side ``size`` (m) at ``height``, soft enough for
@@ -25,14 +27,7 @@ def cloth_builder(n=16, size=0.5, height=0.0, stiffness=5.0, mass=0.01):
 
 
 def advance(scene, dt, steps, integrator="symplectic_euler", check=None):
-    stepper = ts.create_integrator(integrator, scene.system)
-    t = 0.0
-    for k in range(steps):
-        assert stepper.step(scene.state, t, dt).status is ts.Status.OK
-        t = (k + 1) * dt
-        scene.after_step(t, dt)
-        if check is not None:
-            check(scene)
+    step_checked(scene, integrator, dt, steps, check)
     return scene.state.to_numpy()[0]
 
 

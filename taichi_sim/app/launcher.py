@@ -20,6 +20,7 @@ import numpy as np
 import taichi as ti
 
 from .. import runtime
+from ..atomic import write_atomically
 from ..errors import ConfigError
 from ..render import RenderUnavailable
 from ..render.chart import Rect
@@ -207,10 +208,7 @@ class Launcher:
             status["solver_residual"] = r.residual
         if final:
             status["x"] = x.tolist()
-        path = Path(self.status_path)
-        tmp = path.with_name(path.name + ".tmp")
-        tmp.write_text(json.dumps(status))
-        os.replace(tmp, path)
+        write_atomically(self.status_path, lambda f: f.write(json.dumps(status)), binary=False)
 
     def poll_input(self) -> None:
         """Keys and mouse of this frame (on-screen windows only)."""

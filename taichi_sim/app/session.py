@@ -19,6 +19,7 @@ from ..scene import SCENES, build_scene, scene_preset
 from ..scene.params import Param, resolve
 from ..scene.live import LIVE_SETTERS, applies_live
 from ..scene.scene import Scene
+from ..stepper import check_dt
 from ..scene.visual import describe
 from .pacing import Pacer, factor_text
 from .runner import Runner
@@ -290,9 +291,7 @@ class Session:
         return name
 
     def _check_dt(self, dt: float) -> float:
-        if not (math.isfinite(dt) and dt > 0):
-            raise ConfigError(f"dt must be a finite number > 0, got {dt}")
-        return float(dt)
+        return check_dt(dt)  # before any scene is built or changed
 
     def _check_substeps(self, substeps: int) -> int:
         if isinstance(substeps, bool) or not isinstance(substeps, int) or not 1 <= substeps <= SUBSTEPS_MAX:

@@ -415,7 +415,7 @@ def advise_main(args) -> int:
     from .. import runtime
     from ..integrators import INTEGRATORS
     from ..scene import build_scene, scene_preset
-    from ..cli import scene_assignments
+    from ..scene.params import scene_assignments
     from ..scene.params import resolve
     from ..scene.presets import check_scene_memory
     from .advise import check, recommend, scene_omegas, stability_table
