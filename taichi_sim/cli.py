@@ -92,7 +92,9 @@ _ARCH_HELP = ("where the simulation runs: cpu (default) or gpu (CUDA, Vulkan or 
 def _add_view_options(p: argparse.ArgumentParser) -> None:
     """Options shared by ``demo`` and ``record``: what to run and how."""
     which = p.add_mutually_exclusive_group()
-    which.add_argument("--integrator", default=None, help="integrator name (default: the scene's)")
+    which.add_argument("--integrator", default=None,
+                       help="integrator name (default: the scene's), or package.module:Class or "
+                            "path/to/file.py:Class (see docs/plugins.md)")
     which.add_argument("--side-by-side", dest="side_by_side", type=_name_list, metavar="A,B[,C]",
                        help="run the scene with 2 or 3 integrators at once, drawn next to each other")
     p.add_argument("--dt", type=_positive_float, default=None, help="step size in s (default: the scene's)")
