@@ -92,3 +92,10 @@ def create_integrator(name: str, system, **options) -> Integrator:
     method does not take raises ConfigError.
     """
     return check_options(name, options)(system, **options)
+
+
+__all__ = ["INTEGRATORS", "ENTRY_POINT_GROUP", "Integrator", "Status", "StepReport", "ButcherTableau",
+           "ExplicitRK", "EmbeddedRK", "LinearSolverStats", "missing_facts", "installed_plugins",
+           "integrator_class", "check_options", "parse_options", "create_integrator",
+           "Euler", "Trapezoid", "Midpoint", "RK4", "SymplecticEuler", "DormandPrince45", "Fehlberg45",
+           "ImplicitEuler", "ImplicitEulerLinearised", "ImplicitMidpoint", "ProjectiveDynamics", "XPBD"]
