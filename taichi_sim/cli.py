@@ -81,7 +81,9 @@ _ARCH_HELP = ("where the simulation runs: cpu (default) or gpu (CUDA, Vulkan or 
 def _add_view_options(p: argparse.ArgumentParser) -> None:
     """Options shared by ``demo`` and ``record``: what to run and how."""
     which = p.add_mutually_exclusive_group()
-    which.add_argument("--integrator", default=None, help="integrator name (default: the scene's)")
+    which.add_argument("--integrator", default=None,
+                       help="integrator name (default: the scene's), or package.module:Class or "
+                            "path/to/file.py:Class (see docs/plugins.md)")
     which.add_argument("--side-by-side", dest="side_by_side", type=_name_list, metavar="A,B[,C]",
                        help="run the scene with 2 or 3 integrators at once, drawn next to each other")
     p.add_argument("--dt", type=_positive_float, default=None, help="step size in s (default: the scene's)")
@@ -104,7 +106,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     sim = sub.add_parser("simulate", help="run a scene headless and write an .npz")
     sim.add_argument("scene", help="scene name (see `taichi-sim list`)")
-    sim.add_argument("--integrator", default=None, help="integrator name (default: the scene's)")
+    sim.add_argument("--integrator", default=None,
+                     help="integrator name (default: the scene's), or your own class as package.module:Class "
+                          "or path/to/file.py:Class (see docs/plugins.md)")
     sim.add_argument("--dt", type=_positive_float, default=None,
                      help="step size in s (default: the scene's; adaptive methods: the first step, "
                           "chosen automatically)")
@@ -144,6 +148,10 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--chebyshev-rho", type=float,
                      help="projective_dynamics' Chebyshev acceleration: the spectral radius "
                           "estimate in [0, 1) (default 0: off)")
+    sim.add_argument("--option", dest="integrator_options", action="append", type=_assignment, default=[],
+                     metavar="NAME=VALUE",
+                     help="a keyword option of the integrator's constructor, e.g. a plug-in's own; repeat "
+                          "for several (`taichi-sim list` shows each method's options)")
     sim.add_argument("--max-residual", type=_positive_float, metavar="R",
                      help="bound on the relative residual of a method that solves a system per step "
                           "(default 1e-2): above it implicit_euler and implicit_midpoint end not_converged "
@@ -315,7 +323,7 @@ def _frame_bar(frames):
 
 
 def cmd_list(args) -> int:
-    from .integrators import INTEGRATORS
+    from .integrators import ENTRY_POINT_GROUP, INTEGRATORS, installed_plugins, integrator_class
     from .scene import SCENES
 
     print("Scenes (set parameters with --set NAME=VALUE):")
@@ -326,10 +334,25 @@ def cmd_list(args) -> int:
             default = str(p.default).lower() if isinstance(p.default, bool) else p.default
             unit = f" {p.unit}" if p.unit else ""
             print(f"    {p.name:<20} {str(default) + unit:<14} {p.meaning}")
-    print("\nIntegrators:")
+    print("\nIntegrators (options: --option NAME=VALUE, or the flags of `simulate`):")
     for cls in INTEGRATORS.values():
-        print(f"  {cls.name:<18} order {cls.order}  {cls.description}")
+        _print_integrator(cls.name, cls)
+    plugins = installed_plugins()
+    print(f"\nPlug-ins installed (entry-point group {ENTRY_POINT_GROUP}; or give --integrator "
+          f"package.module:Class, see docs/plugins.md):" + ("" if plugins else " none"))
+    for name in plugins:
+        try:
+            _print_integrator(name, integrator_class(name))
+        except ConfigError as exc:
+            print(f"  {name:<18} not usable: {exc}")
     return 0
+
+
+def _print_integrator(name: str, cls) -> None:
+    print(f"  {name:<18} order {cls.order}  {cls.description}")
+    if cls.options():
+        shown = ", ".join(f"{k}={'(automatic)' if v is None else v}" for k, v in cls.options().items())
+        print(f"  {'':<18} options: {shown}")
 
 
 def cmd_simulate(args) -> int:
@@ -337,7 +360,7 @@ def cmd_simulate(args) -> int:
     from .convergence import check_max_residual
     from .guard import GuardLimits
     from .theory import stability_warning
-    from .integrators import check_options, create_integrator
+    from .integrators import check_options, create_integrator, parse_options
     from .run import check_run_args, planned_steps, run
     from .scene import build_scene, scene_preset
     from .scene.params import resolve
@@ -350,6 +373,10 @@ def cmd_simulate(args) -> int:
                             "max_step", "cg_tolerance", "substeps", "iterations", "tolerance",
                             "chebyshev_rho")
                if getattr(args, name) is not None}
+    for name, value in parse_options(integrator_name, scene_assignments(args.integrator_options, "--option")).items():
+        if name in options:
+            raise ConfigError(f"--option {name} repeats a value given by its own flag; give it once")
+        options[name] = value
     adaptive = check_options(integrator_name, options).adaptive
     dt = args.dt if args.dt is not None or adaptive else preset.default_dt
     check_run_args(dt, args.steps, args.t_end, adaptive=adaptive)

@@ -363,7 +363,7 @@ class Launcher:
                 self.picking = None if opened else k
             if self.picking != k:
                 continue
-            for name in compatible_integrators(r.scene):
+            for name in compatible_integrators(r.scene, s.plugins):
                 if g.button(("> " if name == r.integrator.name else "  ") + f"{name}##int{k}"):
                     self._guard(s.set_integrator, k, name)
                     self.picking = None

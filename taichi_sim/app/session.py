@@ -57,11 +57,13 @@ def slider_range(p: Param) -> tuple[float, float]:
     return low, high
 
 
-def compatible_integrators(scene: Scene) -> list[str]:
-    """Integrator names that can step ``scene`` (first-order systems have no velocities; a
-    constrained one takes only the methods that evaluate forces through eval_f)."""
+def compatible_integrators(scene: Scene, plugins: Sequence[str] = ()) -> list[str]:
+    """Integrator names (the built-ins, then ``plugins``) that can step ``scene`` (first-order
+    systems have no velocities; a constrained one takes only the methods that evaluate forces
+    through eval_f)."""
     constrained = getattr(scene.system, "constraints", None) is not None
-    return [name for name, cls in INTEGRATORS.items()
+    classes = {**INTEGRATORS, **{name: integrator_class(name) for name in plugins}}
+    return [name for name, cls in classes.items()
             if not (cls.requires_second_order and not scene.system.second_order)
             and not (constrained and not cls.takes_constraints)]
 
@@ -89,8 +91,10 @@ class Session:
         integrators = list(integrators)
         if not 1 <= len(integrators) <= MAX_PANELS:
             raise ConfigError(f"give 1 to {MAX_PANELS} integrators, got {len(integrators)}")
-        for name in integrators:
-            integrator_class(name)
+        # a plug-in goes by its class's name from here on (its spec loaded it once; the picker
+        # offers it beside the built-ins)
+        integrators = [name if name in INTEGRATORS else integrator_class(name).name for name in integrators]
+        self.plugins = list(dict.fromkeys(name for name in integrators if name not in INTEGRATORS))
         self.seed = int(seed)
         self.interactive = bool(interactive)
         self.scene_name = preset.name
@@ -134,7 +138,7 @@ class Session:
         runners = self._built.get(key)
         scenes = [r.scene for r in runners] if runners is not None else \
             [build_scene(self.scene_name, self.params, seed=self.seed) for _ in integrators]
-        allowed = compatible_integrators(scenes[0])
+        allowed = compatible_integrators(scenes[0], self.plugins)
         if fallback is not None:
             integrators = [n if n in allowed else fallback for n in integrators]
         for name in integrators:
@@ -275,7 +279,7 @@ class Session:
 
     def set_integrator(self, panel: int, name: str) -> None:
         """Use integrator ``name`` for panel ``panel`` (keeps the state and the time)."""
-        allowed = compatible_integrators(self.runners[panel].scene)
+        allowed = compatible_integrators(self.runners[panel].scene, self.plugins)
         if name not in allowed:
             raise ConfigError(f"integrator {name!r} cannot step scene {self.scene_name!r}")
         self.runners[panel].set_integrator(name)
@@ -283,7 +287,7 @@ class Session:
 
     def cycle_integrator(self, panel: int, step: int = 1) -> str:
         """Switch panel ``panel`` to the next (step=1) or previous (-1) compatible integrator."""
-        allowed = compatible_integrators(self.runners[panel].scene)
+        allowed = compatible_integrators(self.runners[panel].scene, self.plugins)
         current = self.runners[panel].integrator.name
         k = allowed.index(current) if current in allowed else -1
         name = allowed[(k + step) % len(allowed)]

@@ -17,6 +17,8 @@ import time
 
 import numpy as np
 
+from ..scene.cloth import swept_stiffness
+
 METHODS: tuple[tuple[str, dict], ...] = (
     ("implicit_euler", {}),
     ("implicit_euler_linearised", {}),
@@ -40,7 +42,7 @@ def label(name: str, options: dict) -> str:
 def cloth_params(size: int, k: float, conservative: bool = False) -> dict:
     """A size x size cloth with structural stiffness k (N/m; shear k/2, flex k/5, the cloth
     family's ratios); ``conservative``: no dashpots, no drag."""
-    params = {"nx": size, "ny": size, "stiffness": k, "shear_stiffness": k / 2, "flex_stiffness": k / 5}
+    params = {"nx": size, "ny": size, **swept_stiffness(k)}
     if conservative:
         params.update(damping=0.0, drag=0.0)
     return params

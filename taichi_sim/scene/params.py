@@ -88,12 +88,13 @@ def resolve(params: tuple[Param, ...], scene: str, given: dict[str, Any]) -> dic
     return values
 
 
-def scene_assignments(assignments: list[tuple[str, str]]) -> dict[str, str]:
-    """``--set`` pairs as a dict; a parameter set twice is an error (which value was meant?)."""
+def scene_assignments(assignments: list[tuple[str, str]], flag: str = "--set") -> dict[str, str]:
+    """``--set`` (or ``flag``) pairs as a dict; a parameter set twice is an error (which value
+    was meant?)."""
     params: dict[str, str] = {}
     for name, value in assignments:
         if name in params:
-            raise ConfigError(f"--set {name} given twice ({name}={params[name]} and {name}={value}); "
+            raise ConfigError(f"{flag} {name} given twice ({name}={params[name]} and {name}={value}); "
                               "give each parameter once")
         params[name] = value
     return params

@@ -39,6 +39,8 @@ class ImplicitEuler(ImplicitStageMethod):
     default_newton_iterations = 50
     inexact_newton = True
     equation = Equation("backward_euler", EXACT, advice=_NEWTON_ADVICE)
+    advice_note = ("no step limit: exact backward Euler, energy never rises on conservative scenes; "
+                   "damps motion more as h omega grows")
 
 
 class ImplicitEulerLinearised(ImplicitStageMethod):
@@ -61,6 +63,8 @@ class ImplicitEulerLinearised(ImplicitStageMethod):
     linearised = True
     equation = Equation("backward_euler", FIXED_WORK,
                         advice="it takes one linearised Newton step: use implicit_euler or lower --dt")
+    advice_note = ("no limit on linear springs only: one Newton step can gain energy on "
+                   "stretched springs at large h^2 k / m (reported diverged)")
 
     def __init__(self, system: System, *, linear_solver: str = "cg", cg_tolerance: float | None = None,
                  cg_max_iterations: int = 1000, preconditioner: str | None = None,
@@ -90,3 +94,5 @@ class ImplicitMidpoint(ImplicitStageMethod):
     stage_fraction = 0.5
     default_newton_iterations = 50
     equation = Equation("implicit_midpoint", EXACT, advice=_NEWTON_ADVICE)
+    advice_note = ("no limit on linear springs (conserves their energy); on nonlinear springs "
+                   "energy can rise and Newton can fail at large h omega (reported)")

@@ -1,5 +1,7 @@
 """Extended position-based dynamics: springs as compliant distance constraints."""
 
+import math
+
 import taichi as ti
 
 from ... import runtime
@@ -64,6 +66,15 @@ class XPBD(Integrator):
     equation = Equation("backward_euler", FIXED_WORK, explicit_external=True,
                         advice="raise --iterations or --substeps, or lower --dt")
     tracks_solved_start = True
+    stability_constant = math.inf  # the springs are compliant constraints, solved at any step
+    advice_note = ("no blow-up at any step; with few substeps stiff springs stay partly stretched (k >= 1e6: "
+                   "give it 50-100 substeps per 1/60 s); damping shrinks with the substep")
+
+    @classmethod
+    def scratch_bytes(cls, particles: int, springs: int, real_bytes: int, linear_solver: str = "cg") -> int:
+        """Displacement and explicit force per particle; lambda and order per spring, and the
+        edge colouring's Python ints on the host while it runs (about 120 bytes per spring)."""
+        return 6 * real_bytes * particles + springs * (real_bytes + 4 + 120)
 
     def __init__(self, system: System, *, substeps: int = 20, iterations: int = 1):
         super().__init__(system)
