@@ -360,7 +360,7 @@ def cmd_simulate(args) -> int:
     from .convergence import check_max_residual
     from .guard import GuardLimits
     from .theory import stability_warning
-    from .integrators import check_options, create_integrator, parse_options
+    from .integrators import check_options, create_integrator, integrator_class, parse_options
     from .run import check_run_args, planned_steps, run
     from .scene import build_scene, scene_preset
     from .scene.params import resolve
@@ -389,7 +389,8 @@ def cmd_simulate(args) -> int:
     limits = GuardLimits() if args.max_energy_growth is None else GuardLimits(energy_growth=args.max_energy_growth)
     io.check_output_path(args.out)
     check_scene_memory(preset, resolve(preset.params, preset.name, params), precision=args.precision,
-                       integrators=(integrator_name,), linear_solver=options.get("linear_solver") or "cg")
+                       integrators=(integrator_class(integrator_name),),
+                       linear_solver=options.get("linear_solver") or "cg")
     curves = _load_curves(args, preset)
     if args.save_every:
         _check_history_memory(preset, resolve(preset.params, preset.name, params), args.save_every,
@@ -501,7 +502,7 @@ def _session_args(args) -> dict:
         integrator_class(name)
     params = scene_assignments(args.assignments)
     check_scene_memory(preset, resolve(preset.params, preset.name, params), precision=args.precision,
-                       integrators=tuple(integrators), copies=len(integrators))
+                       integrators=tuple(integrator_class(name) for name in integrators), copies=len(integrators))
     return {"scene": preset.name, "integrators": tuple(integrators), "params": params, "dt": args.dt,
             "curves": _load_curves(args, preset) or {}}
 

@@ -48,26 +48,16 @@ class Size:
 def estimate_bytes(size: Size, *, precision: str = "f64", integrators: tuple = (),
                    linear_solver: str = "cg", copies: int = 1) -> int:
     """Estimated peak memory (bytes) of building ``copies`` scenes of ``size`` and stepping them
-    with each of ``integrators`` (names or classes; side-by-side runs each own a scene and an
-    integrator)."""
+    with each of ``integrators`` (integrator classes: each states its own scratch,
+    ``Integrator.scratch_bytes``; side-by-side runs each own a scene and an integrator). The
+    callers name them: this module sits below the integrators."""
     r = 4 if precision == "f32" else 8
     n, s, t = size.particles, size.springs, size.triangles
     total = copies * (n * (_PARTICLE_FIXED + _PARTICLE_REALS * r) + s * (_SPRING_FIXED + _SPRING_REALS * r)
                       + t * (_TRIANGLE_FIXED + _TRIANGLE_REALS * r))
     for method in integrators:
-        total += _integrator_class(method).scratch_bytes(n, s, r, linear_solver)
+        total += method.scratch_bytes(n, s, r, linear_solver)
     return int(total)
-
-
-def _integrator_class(method):
-    """An integrator's class from its name (or the class itself): each method states its own
-    scratch (``Integrator.scratch_bytes``). Imported at call time: a scene names its default
-    integrator, and the scene layer sits below the integrators."""
-    if isinstance(method, str):
-        from .integrators import integrator_class
-
-        return integrator_class(method)
-    return method
 
 
 def available_bytes() -> int | None:
@@ -94,7 +84,7 @@ def format_bytes(count: float) -> str:
     return f"{int(count)} B"
 
 
-def check_size(size: Size, culprits: str, *, precision: str = "f64", integrators: tuple[str, ...] = (),
+def check_size(size: Size, culprits: str, *, precision: str = "f64", integrators: tuple = (),
                linear_solver: str = "cg", copies: int = 1, available: int | None = None) -> int:
     """Raise ConfigError naming ``culprits`` (e.g. ``"nx = 100000, ny = 100000"``) when a scene of
     ``size`` cannot be indexed by Taichi or would need more memory than is available (bytes;

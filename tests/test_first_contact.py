@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from taichi_sim.cli import build_parser, main
+from taichi_sim.integrators import integrator_class
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -127,12 +128,12 @@ def test_memory_check_against_what_is_available():
     from taichi_sim.memory import Size, check_size, estimate_bytes
 
     size = Size(1000, 6000, 2000)
-    need = estimate_bytes(size, integrators=("rk4",))
-    assert check_size(size, "nx = 10", integrators=("rk4",), available=need) == need
+    need = estimate_bytes(size, integrators=(integrator_class("rk4"),))
+    assert check_size(size, "nx = 10", integrators=(integrator_class("rk4"),), available=need) == need
     with pytest.raises(ValueError, match=r"nx = 10: the scene needs about 2\.\d+ MB .* only 1 MB"):
-        check_size(size, "nx = 10", integrators=("rk4",), available=10**6)
+        check_size(size, "nx = 10", integrators=(integrator_class("rk4"),), available=10**6)
     # scratch grows with the method; f32 halves the reals; side-by-side copies add up
-    assert estimate_bytes(size, integrators=("implicit_euler",)) > need > estimate_bytes(size, integrators=("euler",))
+    assert estimate_bytes(size, integrators=(integrator_class("implicit_euler"),)) > need > estimate_bytes(size, integrators=(integrator_class("euler"),))
     assert estimate_bytes(size, precision="f32") < estimate_bytes(size)
     assert estimate_bytes(size, copies=2) > 1.9 * estimate_bytes(size)
     with pytest.raises(ValueError, match="32-bit field indices"):

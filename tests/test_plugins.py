@@ -161,7 +161,7 @@ def test_the_example_runs_through_advise_and_a_bench(tmp_path, capsys):
 
 def test_plugin_memory_and_launcher_session(f64):
     size = Size(10_000, 30_000)
-    assert estimate_bytes(size, integrators=(SPEC,)) - estimate_bytes(size) == 3 * 6 * 8 * 10_000
+    assert estimate_bytes(size, integrators=(integrator_class(SPEC),)) - estimate_bytes(size) == 3 * 6 * 8 * 10_000
     from taichi_sim.app.session import Session, compatible_integrators
 
     session = Session("pendulum", [SPEC, "symplectic_euler"], params={"particle_count": 4})

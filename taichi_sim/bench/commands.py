@@ -426,7 +426,7 @@ PLANNERS = {"stiff-cloth": _plan_stiff_cloth, "work-precision": _plan_work_preci
 def advise_main(args) -> int:
     """``taichi-sim advise SCENE``: the stability table and, with --target-error, a recommendation."""
     from .. import runtime
-    from ..integrators import INTEGRATORS
+    from ..integrators import INTEGRATORS, integrator_class
     from ..scene import build_scene, scene_preset
     from ..scene.params import scene_assignments
     from ..scene.params import resolve
@@ -437,7 +437,7 @@ def advise_main(args) -> int:
     params = scene_assignments(args.assignments)
     # ConfigError before any Taichi work; the pilot runs build one scene per candidate, in turn
     check_scene_memory(preset, resolve(preset.params, preset.name, params), precision=args.precision,
-                       integrators=("implicit_euler",))
+                       integrators=(integrator_class("implicit_euler"),))
     integrators = _integrator_names(args.integrators) if args.integrators else None
     if args.target_error is not None and not (math.isfinite(args.target_error) and args.target_error > 0):
         raise ConfigError(f"--target-error must be a finite number > 0, got {args.target_error}")
