@@ -197,6 +197,7 @@ class ConvergenceMonitor:
             self.reason = "a first-order system"
         elif unmodelled(scene):
             self.reason = f"the scene's {unmodelled(scene)} forces are not in the residual's model"
+        self.active = not self.reason  # an attribute: read at every step
         self.times: list[float] = []
         self.values: list[float] = []
         self.worst, self.worst_t = math.nan, math.nan
@@ -241,10 +242,6 @@ class ConvergenceMonitor:
         self.values.clear()
         self.worst, self.worst_t = math.nan, math.nan
         self.warned = False
-
-    @property
-    def active(self) -> bool:
-        return not self.reason
 
     def before_step(self, state) -> None:
         if self._start is not None and not self._tracked:

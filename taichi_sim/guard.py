@@ -1,7 +1,8 @@
 """Blow-up detection: one guard for every path that steps a scene.
 
-``run`` (and through it ``simulate``, ``advise`` and ``bench work-precision``), the launcher's and
-the recorder's :class:`~taichi_sim.app.runner.Runner` all watch a run with a :class:`Guard`.
+Every :class:`~taichi_sim.stepper.Stepper` watches its run with a :class:`Guard`: ``run`` (and
+through it ``simulate``, ``advise`` and ``bench work-precision``), the launcher's and the
+recorder's :class:`~taichi_sim.app.runner.Runner`, the throughput worker.
 Besides the non-finite values the integrators report, a run has *diverged* when
 
 * **energy**: its total energy E rose above the reference E_ref (the start, or the last time

@@ -188,17 +188,18 @@ def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: 
     # energy_every given, the steps it names are checked whether the guard is due or not.
     forced = has_energy and energy_every is not None
     step, step_toward, update = stepper.step, stepper.step_toward, bar.update
+    by_steps = steps is not None
     with bar:
-        while stepper.failure is None and (stepper.steps < steps if steps is not None else stepper.t < t_end):
+        while stepper.failure is None and (stepper.steps < steps if by_steps else stepper.t < t_end):
             check = forced and (stepper.steps + 1) % every == 0
             # the last step is checked too: the method's own result is measured before the
             # post-step events move it, so the end's check must happen inside the step
-            check = check or (stepper.steps + 1 >= steps if steps is not None
+            check = check or (stepper.steps + 1 >= steps if by_steps
                               else stepper.t + (stepper.h or 0.0) >= t_end * (1 - 1e-12))
-            report = step(check=check) if steps is not None else step_toward(t_end, check=check)
+            report = step(None, check) if by_steps else step_toward(t_end, check)
             if not report.accepted or stepper.failure is not None:
                 continue
-            if stepper.checked and has_energy:
+            if has_energy and stepper.checked:
                 done, t = stepper.steps, stepper.t
                 if forced:
                     keep = done % every == 0

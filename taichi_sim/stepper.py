@@ -29,10 +29,11 @@ from . import runtime
 from .convergence import ConvergenceMonitor
 from .errors import ConfigError
 from .guard import Guard, GuardLimits
-from .integrators import Integrator, Status, StepReport, create_integrator
+from .integrators import Integrator, Status, StepReport, create_integrator, integrator_class
 from .theory import stable_step_advice
 
 ADVICE = "lower the step or pick a more stable integrator"
+OK = Status.OK  # a module global: read at every step
 
 
 def check_dt(dt, *, adaptive: bool = False) -> float | None:
@@ -129,12 +130,15 @@ class Stepper:
     def __init__(self, scene, integrator: Integrator | str, dt: float | None, *,
                  limits: GuardLimits | None = None, curves: dict | None = None, observers=(),
                  max_residual: float | None = None):
-        if isinstance(integrator, str):
+        if isinstance(integrator, str):  # a bad dt is refused before anything is bound
+            check_dt(dt, adaptive=integrator_class(integrator).adaptive)
             integrator = create_integrator(integrator, scene.system)
         self.scene = scene
         self.dt = check_dt(dt, adaptive=integrator.adaptive)
         self.guard = Guard(scene, limits)
         self.max_residual = max_residual
+        # bound once: each attribute lookup is paid at every step
+        self._events, self._spend = scene.after_step, self.guard.spend
         self.driver = None
         self._before, self._after, self._on_check = [], [], []
         for observer in observers:
@@ -216,7 +220,7 @@ class Stepper:
 
     # -- stepping -----------------------------------------------------------------------------
 
-    def step(self, h: float | None = None, *, check: bool = False, land: float | None = None) -> StepReport:
+    def step(self, h: float | None = None, check: bool = False, land: float | None = None) -> StepReport:
         """One integrator call from :attr:`t` of ``h`` s (default :attr:`h`) and everything after
         it (module docstring). ``check``: check the state after it even when the guard is not
         due. ``land``: the time an accepted step of the full ``h`` ends at (the caller shortened
@@ -225,23 +229,23 @@ class Stepper:
         if h is None:
             h = self.h if self.h is not None else self._first_step(None)
         t = self.t
-        if self.driver is not None and self.driver.apply(t):
+        if self.driver is not None and self.driver.apply(t):  # 1. parameters at the start
             self.system_changed()
         if self.refusal:
             self.fail(Status.NOT_CONVERGED, self.steps + 1, t, h, self.refusal, restore=False)
             return StepReport(accepted=False, h=0.0, next_h=h, f_evals=0, status=Status.NOT_CONVERGED,
                               message=self.refusal)
-        for hook in self._before:
+        for hook in self._before:  # 2.
             hook(self, h)
         monitor = self.monitor
         if monitor.active:
             monitor.before_step(self.scene.state)
-        report = self._integrate(self.scene.state, t, h)
+        report = self._integrate(self.scene.state, t, h)  # 3.
         self.f_evals += report.f_evals
         self.linear_iterations += report.linear_iterations
         if self.implicit:
             self.linear_residual = report.linear_residual
-        if report.status is not Status.OK:
+        if report.status is not OK:  # 4.
             self._step_failed(report, h)
             return report
         if self.adaptive:
@@ -249,7 +253,7 @@ class Stepper:
         if not report.accepted:
             self.rejected += 1
             return report
-        self.steps += 1
+        self.steps += 1  # 5. an accepted step
         if land is not None and report.h == h:
             self.t = land
             self._base_t, self._base_steps = land, self.steps
@@ -258,27 +262,27 @@ class Stepper:
             self._base_t, self._base_steps = self.t, self.steps
         else:
             self.t = self._base_t + (self.steps - self._base_steps) * h  # no drift over many steps
-        due = self.guard.spend(report.f_evals + report.linear_iterations) or check
+        due = self._spend(report.f_evals + report.linear_iterations) or check
         # The residual is the method's: measured before the post-step events move the state.
         if due and monitor.active and not self._converged(report.h):
             return report
-        if self.scene.after_step(self.t, report.h):
+        if self._events(self.t, report.h):
             self.integrator.reset()  # an event changed the system (e.g. tore springs)
         if due:
             self.check(report.h)
         else:
             self.checked = False
-        if self._after and self.failure is None:
+        if self._after and self.failure is None:  # 6.
             for hook in self._after:
                 hook(self, report)
         return report
 
-    def step_toward(self, t_end: float, *, check: bool = False) -> StepReport:
+    def step_toward(self, t_end: float, check: bool = False) -> StepReport:
         """:meth:`step`, shortened to land exactly on ``t_end`` (s) when it would reach it."""
         h = self.h if self.h is not None else self._first_step(t_end)
         if self.t + h >= t_end * (1 - 1e-12):
-            return self.step(t_end - self.t, check=check, land=t_end)
-        return self.step(h, check=check)
+            return self.step(t_end - self.t, check, t_end)
+        return self.step(h, check)
 
     def advance_to(self, t_end: float, *, whole_steps: bool = False, max_calls: int | None = None) -> int:
         """Step until :attr:`t` reaches ``t_end`` (s), the run fails or ``max_calls`` integrator
