@@ -175,6 +175,8 @@ def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: 
     else:
         bar = tqdm(total=expected, unit="step", disable=None if progress is None else not progress,
                    leave=False, mininterval=0.5)
+    if hasattr(integrator, "progress"):  # an iterated implicit method: Newton's work within long steps
+        integrator.progress = bar.set_postfix_str if not bar.disable else None
     # read once: an attribute of a Taichi data-oriented object costs about a microsecond
     step, implicit = integrator.step, integrator.implicit
     with bar:
