@@ -106,14 +106,16 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--dir", default="/tmp/newton_matrices")
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--systems", type=int, default=None, help="only the step's first SYSTEMS systems")
+    parser.add_argument("--stiffness", default="10000,1e+08", help="as in the file names")
     parser.add_argument("--candidates", default="splu,splu-reused,splu-previous,pyamg,pyamg-reused,pd,jacobi")
     args = parser.parse_args()
     print(f"load average (1 min) {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores")
-    for stiffness in ("10000", "1e+08"):
+    for stiffness in args.stiffness.split(","):
         files = sorted(glob.glob(os.path.join(args.dir, f"k{stiffness}_s*_n*.npz")))
         steps = sorted({int(os.path.basename(f).split("_s")[1].split("_")[0]) for f in files})
         last, before = steps[-1], steps[-2]
-        systems = [load(f) for f in files if f"_s{last}_" in f]
+        systems = [load(f) for f in files if f"_s{last}_" in f][:args.systems]
         previous_first = load(sorted(f for f in files if f"_s{before}_" in f)[0])[0]
         n = systems[0][1].size
         start = time.perf_counter()
