@@ -13,7 +13,8 @@ residual. Candidates:
 * ``splu-reused``: that factor of the step's first system as the preconditioner of CG on every
   system of the step (refactorised when a solve needs more than ``REFACTOR_AFTER`` iterations);
 * ``splu-previous``: the factor of the previous step's first system, reused across the step;
-* ``pyamg``: smoothed-aggregation AMG (pyamg, 3x3 blocks, built per system) preconditioning CG;
+* ``pyamg``: smoothed-aggregation AMG (pyamg, 3x3 blocks, built per system) preconditioning CG
+  (pyamg is not a dependency of the package: ``pip install pyamg`` to run these two);
 * ``pyamg-reused``: its hierarchy built once per step;
 * ``pd``: projective dynamics' constant matrix M + tau^2 L (x) I3, factorised once, as CG's
   preconditioner;
