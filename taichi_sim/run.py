@@ -184,6 +184,8 @@ def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: 
     else:
         bar = tqdm(total=expected, unit="step", disable=None if progress is None else not progress,
                    leave=False, mininterval=0.5)
+    if hasattr(integrator, "progress"):  # an iterated implicit method: Newton's work within long steps
+        integrator.progress = bar.set_postfix_str if not bar.disable else None
     # An energy sample costs about what a check does, so every sample is a check; with
     # energy_every given, the steps it names are checked whether the guard is due or not.
     forced = has_energy and energy_every is not None

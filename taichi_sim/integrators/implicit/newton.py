@@ -52,6 +52,7 @@ from .velocity_stage import VelocityStage
 ARMIJO_SLOPE = 1e-4  # fraction of the predicted decrease a line-search step must achieve
 MAX_BACKTRACKS = 30  # step halvings before the line search gives up (smallest step ~1e-9)
 DEFAULT_SUBDIVISIONS = 10  # a step Newton cannot solve is split into halves, at most this deep
+PROGRESS_INTERVAL = 0.5  # s between two progress texts of a running step (see ``progress``)
 
 
 def shared_stage(system: System, linear_solver: str, preconditioner: str | None, restart: int):
@@ -142,6 +143,14 @@ class ImplicitStageMethod(Integrator):
         if linear_solver == "direct":
             total += 4 * 9 * (particles + 2 * springs) * (real_bytes + 4)
         return total
+    coarsen_after = 4
+    """Steps solved in pieces of one size before the next step tries pieces twice as long (see
+    :meth:`step`): a try that fails costs ``newton_iterations`` Newton iterations."""
+    progress = None
+    """Called with a one-line text (Newton iteration, residual, linear iterations of the step,
+    and the averages per solved step so far) at most every ``PROGRESS_INTERVAL`` seconds while
+    an iterated method steps, so that a run loop can show what a long step is doing (the
+    command line's progress bar shows it as its postfix); None: nothing is reported."""
 
     def __init__(self, system: System, *, linear_solver: str = "cg", newton_iterations: int | None = None,
                  newton_tolerance: float | None = None, cg_tolerance: float | None = None,
@@ -157,6 +166,11 @@ class ImplicitStageMethod(Integrator):
             raise ConfigError("max_subdivisions applies to the iterated methods only")
         self.max_subdivisions = int(max_subdivisions)
         self._level = 0  # the subdivision level the next step starts at (see step)
+        self._steps_at_level = 0  # steps solved in a row at that level
+        self._progress_time = time.perf_counter()
+        self.last_relative_residual = math.nan
+        """|g| / |s| at the end of the last Newton solve of an iterated method (see
+        ``newton_tolerance``), converged or not; NaN before the first."""
         self._saved = system.make_state() if self.max_subdivisions else None  # the step's start
         if linear_solver not in LINEAR_SOLVERS:
             raise ConfigError(f"linear_solver must be one of {', '.join(LINEAR_SOLVERS)}, "
@@ -197,6 +211,7 @@ class ImplicitStageMethod(Integrator):
         """Forget the previous step (the next one starts cold, undivided)."""
         self._resume_time = None
         self._level = 0
+        self._steps_at_level = 0
 
     def step(self, state: State, t: float, h: float) -> StepReport:
         if self.linearised or not self.max_subdivisions:
@@ -205,8 +220,10 @@ class ImplicitStageMethod(Integrator):
             return report
         # Where Newton cannot solve a step (the motion swings or folds too far for it within
         # one step), the step is taken as 2, 4, ... solved steps of the same method. A step
-        # starts at the level the last one needed; a step that needed no more tries one level
-        # coarser next time.
+        # starts at the level the last one needed; after ``coarsen_after`` steps in a row that
+        # needed no more, the next tries one level coarser. (Trying coarser after every such
+        # step made every other step of a stiff cloth fail its first try and pay
+        # ``newton_iterations`` for nothing; docs/exact-step.md.)
         self._saved.copy_from(state)  # a failure after some pieces were taken restores it
         work = StepWork(h)
         level = self._level
@@ -218,7 +235,12 @@ class ImplicitStageMethod(Integrator):
                 state.copy_from(self._saved)
                 self._resume_time = None
                 return failure
-        self._level = self._deepest if self._deepest > level else max(level - 1, 0)
+        if self._deepest > level:
+            self._level, self._steps_at_level = self._deepest, 0
+        else:
+            self._steps_at_level += 1
+            if self._steps_at_level >= self.coarsen_after:
+                self._level, self._steps_at_level = max(level - 1, 0), 0
         return work.report(Status.OK)
 
     def _piece(self, state: State, t: float, h: float, depth: int, work: StepWork) -> StepReport | None:
@@ -278,6 +300,7 @@ class ImplicitStageMethod(Integrator):
         if point.nonfinite or not math.isfinite(point.residual):
             return work.failed(Status.DIVERGED, "non-finite state at the start of the step")
         relative = self._relative(point)
+        self.last_relative_residual = relative
         for newton in range(1, self.newton_iterations + 1):
             if relative <= self.newton_tolerance and stage.energy_ok():
                 break
@@ -291,6 +314,9 @@ class ImplicitStageMethod(Integrator):
                 return work.failed(Status.DIVERGED,
                                    f"non-finite nonlinear residual at Newton iteration {newton}")
             relative = self._relative(point)
+            self.last_relative_residual = relative
+            if self.progress is not None:
+                self._report_progress(t, newton, relative, work)
             if not accepted and not (relative <= self.newton_tolerance and stage.energy_ok()):
                 return work.failed(Status.NOT_CONVERGED,
                                    f"Newton iteration {newton}: the line search found no sufficient "
@@ -305,6 +331,18 @@ class ImplicitStageMethod(Integrator):
                                f"Newton reached newton_iterations={self.newton_iterations} without an "
                                f"iterate whose energy is at most the step's start energy")
         return self._commit(state, t, work, continued)
+
+    def _report_progress(self, t: float, newton: int, relative: float, work: StepWork) -> None:
+        """Hand ``progress`` the state of the running step, at most every PROGRESS_INTERVAL s."""
+        now = time.perf_counter()
+        if now - self._progress_time < PROGRESS_INTERVAL:
+            return
+        self._progress_time = now
+        stats = self.stats
+        solved = max(stats.substeps, 1)
+        self.progress(f"t={t:.4g} s Newton {newton} |g|/|s|={relative:.1e} linear it {work.linear_iterations}; "
+                      f"per solved step: Newton {stats.newton_iterations / solved:.1f}, "
+                      f"linear it {stats.iterations / solved:.0f}")
 
     def _relative(self, point) -> float:
         """|g| / |s| at ``point``, or 0 when |g| is down to what rounding leaves (the stage's
