@@ -575,7 +575,58 @@ def cmd_default() -> int:
     return 0
 
 
+EXIT_CLOSED_PIPE = 128 + 13  # what a shell reports for a program ended by SIGPIPE
+
+
+def _stdout_closed() -> bool:
+    """Whether stdout is a pipe whose reader has gone (``| head`` has read its lines)."""
+    import select
+
+    try:
+        poll = select.poll()
+        poll.register(sys.stdout.fileno(), select.POLLOUT)
+        return any(events & select.POLLERR for _, events in poll.poll(0))
+    except (AttributeError, OSError, ValueError):  # not a file (captured), or already closed
+        return False
+
+
+def _closed_pipe() -> int:
+    """End quietly after the reader of stdout went away: what is still buffered goes to
+    /dev/null (else Python's final flush reports the broken pipe), and the exit status is a
+    closed pipe's."""
+    import os
+
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (AttributeError, OSError, ValueError):
+        pass
+    return EXIT_CLOSED_PIPE
+
+
 def main(argv: list[str] | None = None) -> int:
+    """Run one command; its exit status (0 done, 1 the run or check failed, 2 bad input, 130
+    interrupted, 141 stdout closed by its reader)."""
+    try:
+        code = _main(argv)
+        sys.stdout.flush()  # a closed pipe shows here, not in Python's flush at exit
+        return code
+    except SystemExit:  # --help and --version print, then exit
+        try:
+            sys.stdout.flush()
+        except BrokenPipeError:
+            if _stdout_closed():
+                raise SystemExit(_closed_pipe()) from None
+            raise
+        raise
+    except BrokenPipeError:
+        if not _stdout_closed():  # another pipe (ffmpeg's, say) broke: a real error
+            raise
+        return _closed_pipe()
+
+
+def _main(argv: list[str] | None) -> int:
     parser = build_parser()
     try:
         args = parser.parse_args(argv)

@@ -290,3 +290,21 @@ def test_readme_api_example_continues_from_the_run(capsys):
     assert t == pytest.approx(0.05 + h, rel=1e-5) and h > 0  # the step continued from t_end, not from 0
     assert shown[0].startswith("ok 2.0 2000 8000 ") and shown[-1].startswith("accepted h = ")
     assert all(line.startswith("rejected h = ") for line in shown[1:-1])
+
+
+@pytest.mark.parametrize("argv", [["list"], ["simulate", "--help"], ["advise", "spring"]])
+def test_a_closed_stdout_ends_quietly(argv):
+    """``taichi-sim ... | head -0``: the reader is gone before the first line; the command ends
+    as a program ended by SIGPIPE would (exit 141), without a traceback."""
+    import subprocess
+    import sys
+
+    read, write = os.pipe()
+    os.close(read)  # nobody will read: every write to the pipe fails
+    try:
+        done = subprocess.run([sys.executable, "-m", "taichi_sim", *argv], stdout=write,
+                              stderr=subprocess.PIPE, text=True, timeout=300, cwd=ROOT)
+    finally:
+        os.close(write)
+    # argparse drops a failed write of --help itself, then exits 0: quiet too
+    assert done.stderr == "" and done.returncode in ((0, 141) if "--help" in argv else (141,)), done.stderr
