@@ -9,6 +9,7 @@ import numpy as np
 
 from .errors import ConfigError
 from .integrators import Integrator
+from .paths import check_can_create
 from .run import RunResult
 from .scene.scene import Scene
 
@@ -27,16 +28,7 @@ def check_output_path(path: str | os.PathLike, suffix: str = ".npz") -> Path:
         raise ConfigError(f"cannot write {str(path)!r}: directory {str(parent)!r} does not exist")
     if not os.access(parent, os.W_OK) or (path.exists() and not os.access(path, os.W_OK)):
         raise ConfigError(f"cannot write {str(path)!r}: permission denied")
-    # os.access trusts the mode bits: root passes them everywhere, and /proc, a read-only mount
-    # or a full disk refuse what they allow. The write makes a temporary file beside the target
-    # and renames it (write_atomically), so make one here and remove it.
-    try:
-        fd, probe = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".check", dir=parent)
-        os.close(fd)
-        os.unlink(probe)
-    except OSError as exc:
-        raise ConfigError(f"cannot write {str(path)!r}: creating a file in {str(parent)!r} fails "
-                          f"({exc.strerror or exc})") from None
+    check_can_create(path, parent)
     return path
 
 

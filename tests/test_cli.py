@@ -137,6 +137,8 @@ def test_an_output_folder_that_refuses_files_exits_2_before_running(capsys):
     assert code == 2 and err.startswith("taichi-sim: error: cannot write '/proc/taichi-sim-run.npz': ")
     assert len(err.splitlines()) == 1 and "spring:" not in err
     assert not os.path.exists("/proc/taichi-sim-run.npz")
+    assert main(["record", "spring", "--out", "/proc/taichi-sim-clip.gif"]) == 2
+    assert capsys.readouterr().err.startswith("taichi-sim: error: cannot write '/proc/taichi-sim-clip.gif': ")
 
 
 def test_diverged_run_writes_status_and_exits_1(tmp_path, capsys):

@@ -19,6 +19,7 @@ from typing import Any, Callable, Iterable
 import numpy as np
 
 from ..errors import ConfigError
+from ..paths import check_can_create
 
 
 def prepare_out_dir(path: str | os.PathLike) -> Path:
@@ -32,6 +33,7 @@ def prepare_out_dir(path: str | os.PathLike) -> Path:
         raise ConfigError(f"--out {str(out)!r}: cannot create the directory ({exc.strerror})") from None
     if not os.access(out, os.W_OK | os.X_OK):
         raise ConfigError(f"--out {str(out)!r}: permission denied")
+    check_can_create(out / "bench", out)
     return out
 
 

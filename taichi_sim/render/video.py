@@ -16,6 +16,7 @@ import numpy as np
 from PIL import Image
 
 from ..errors import ConfigError
+from ..paths import check_can_create
 
 MAX_SIDE = 4096  # pixels
 MAX_FPS = 240.0
@@ -85,6 +86,7 @@ def check_output(path: str | os.PathLike, size: tuple[int, int], fps: float) -> 
         raise ConfigError(f"cannot write {str(target)!r}: directory {str(parent)!r} does not exist")
     if not os.access(parent, os.W_OK) or (target.exists() and not os.access(target, os.W_OK)):
         raise ConfigError(f"cannot write {str(target)!r}: permission denied")
+    check_can_create(target, parent)
     return kind, target
 
 
