@@ -282,6 +282,13 @@ def cmd_check(args) -> int:
 
     from .geometry import self_intersections
 
+    import os
+    import zipfile
+
+    # np.load reads any file but a zip or .npy as a pickle, and refuses it talking of pickles
+    if os.path.isfile(args.npz) and not zipfile.is_zipfile(args.npz):
+        raise ConfigError(f"{args.npz} is not a run's npz (not a zip archive): give a file "
+                          "written by `taichi-sim simulate --out RUN.npz`")
     try:
         with np.load(args.npz) as data:
             arrays = {k: data[k] for k in ("triangles", "x", "x_history", "t_history", "t", "scene")
