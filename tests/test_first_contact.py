@@ -308,3 +308,23 @@ def test_a_closed_stdout_ends_quietly(argv):
         os.close(write)
     # argparse drops a failed write of --help itself, then exits 0: quiet too
     assert done.stderr == "" and done.returncode in ((0, 141) if "--help" in argv else (141,)), done.stderr
+
+
+@pytest.mark.parametrize("argv, expected", [
+    (["cloth", "--set", "stifness=5"], "scene 'cloth' has no parameter 'stifness': did you mean 'stiffness'?"),
+    (["cloht"], "unknown scene 'cloht': did you mean 'cloth'?"),
+    (["cloth", "--integrator", "sympletic_euler"],
+     "unknown integrator 'sympletic_euler': did you mean 'symplectic_euler'?"),
+])
+def test_a_misspelt_name_gets_a_suggestion(tmp_path, capsys, argv, expected):
+    out = tmp_path / "run.npz"
+    assert main(["simulate", *argv, "--steps", "1", "--out", str(out)]) == 2
+    line = _one_line_error(capsys)
+    assert expected in line and len(line) < 160  # not every one of the cloth's 70-odd names
+    assert not out.exists()
+
+
+def test_a_name_far_from_all_lists_them_all(tmp_path, capsys):
+    assert main(["simulate", "spring", "--set", "wibble=1", "--steps", "1", "--out", str(tmp_path / "r.npz")]) == 2
+    line = _one_line_error(capsys)
+    assert "no parameter 'wibble' (choose from stiffness, rest_length," in line and "did you mean" not in line

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import inspect
 
-from ..errors import ConfigError
+from ..errors import ConfigError, unknown_name
 from .adaptive import DormandPrince45, EmbeddedRK, Fehlberg45
 from .base import Integrator, Status, StepReport
 from .explicit_rk import RK4, Euler, ExplicitRK, Midpoint, Trapezoid
@@ -22,7 +22,7 @@ def integrator_class(name: str) -> type[Integrator]:
     try:
         return INTEGRATORS[name]
     except KeyError:
-        raise ConfigError(f"unknown integrator {name!r} (choose from {', '.join(INTEGRATORS)})") from None
+        raise ConfigError(unknown_name("unknown integrator", name, INTEGRATORS)) from None
 
 
 def check_options(name: str, options: dict) -> type[Integrator]:
