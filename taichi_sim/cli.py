@@ -8,6 +8,11 @@ import sys
 from .errors import ConfigError
 
 EXIT_USAGE = 2
+# The most steps one `simulate` takes. The cheapest scene (the circle ODE, RK4) runs at about a
+# thousand steps a second on a loaded 2-core machine, a few thousand on an idle one: 10^8 steps
+# are already a day or more, so a larger count (--steps 100000000000000, or --t-end 1e6 --dt
+# 1e-6) is a typo, not a plan. A long run wants a larger --dt or an adaptive integrator.
+MAX_STEPS = 10**8
 
 
 class _Parser(argparse.ArgumentParser):
@@ -365,6 +370,7 @@ def cmd_simulate(args) -> int:
     adaptive = check_options(integrator_name, options).adaptive
     dt = args.dt if args.dt is not None or adaptive else preset.default_dt
     check_run_args(dt, args.steps, args.t_end, adaptive=adaptive)
+    _check_step_count(args.steps, dt, args.t_end, planned_steps)
     if args.energy_every is not None and args.energy_every < 0:
         raise ConfigError(f"--energy-every must be >= 0, got {args.energy_every}")
     if args.save_every is not None and args.save_every < 1:
@@ -416,6 +422,18 @@ def cmd_simulate(args) -> int:
             print(f"{scene.name}: largest |C| over the constraints {float(result.constraint_violation.max()):.3g} m "
                   f"over the run, {result.constraint_violation[-1]:.3g} m at the end")
     return 0 if result.status.value == "ok" else 1
+
+
+def _check_step_count(steps: int | None, dt: float | None, t_end: float | None, planned_steps) -> None:
+    """Refuse more than MAX_STEPS steps, given as --steps or as --t-end / --dt (an adaptive
+    run's count is unknown beforehand: not checked)."""
+    if steps is not None and steps > MAX_STEPS:
+        raise ConfigError(f"--steps {steps:,} is over the limit of {MAX_STEPS:,} steps (a day or more of "
+                          "computing on the cheapest scene); take fewer, larger steps")
+    if steps is None and dt is not None and planned_steps(dt, t_end) > MAX_STEPS:
+        raise ConfigError(f"--t-end {t_end:g} s at --dt {dt:g} s is {planned_steps(dt, t_end):,} steps, over the "
+                          f"limit of {MAX_STEPS:,} (a day or more of computing on the cheapest scene); "
+                          "raise --dt, shorten --t-end or pick an adaptive integrator")
 
 
 def _check_history_memory(preset, values, save_every: int, steps: int | None) -> None:

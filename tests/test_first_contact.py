@@ -328,3 +328,26 @@ def test_a_name_far_from_all_lists_them_all(tmp_path, capsys):
     assert main(["simulate", "spring", "--set", "wibble=1", "--steps", "1", "--out", str(tmp_path / "r.npz")]) == 2
     line = _one_line_error(capsys)
     assert "no parameter 'wibble' (choose from stiffness, rest_length," in line and "did you mean" not in line
+
+
+@pytest.mark.parametrize("argv, expected", [
+    (["simple", "--steps", "100000000000000"],
+     "--steps 100,000,000,000,000 is over the limit of 100,000,000 steps"),
+    (["spring", "--t-end", "1000000", "--dt", "1e-6"],
+     "--t-end 1e+06 s at --dt 1e-06 s is 1,000,000,000,000 steps, over the limit of 100,000,000"),
+    (["spring", "--t-end", "10000000"], "at --dt 0.01 s is 1,000,000,000 steps, over the limit"),  # the scene's dt
+])
+def test_an_absurd_step_count_is_refused_naming_the_limit(tmp_path, capsys, argv, expected):
+    out = tmp_path / "run.npz"
+    assert main(["simulate", *argv, "--out", str(out)]) == 2
+    assert expected in _one_line_error(capsys)
+    assert not out.exists()
+
+
+def test_the_step_limit_itself_is_allowed():
+    from taichi_sim.cli import MAX_STEPS, _check_step_count
+    from taichi_sim.run import planned_steps
+
+    _check_step_count(MAX_STEPS, 1e-3, None, planned_steps)
+    _check_step_count(None, 1e-3, MAX_STEPS * 1e-3, planned_steps)
+    _check_step_count(None, None, 1e9, planned_steps)  # adaptive: the count is not known
