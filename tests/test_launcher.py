@@ -257,17 +257,17 @@ def test_reset_restores_torn_and_emitting_scenes_in_place(runtime, name, params)
 
 
 def test_the_imgui_ini_file_is_taken_back(tmp_path):
-    from taichi_sim.app import launcher
+    from taichi_sim.render import vulkan
 
     new, old = tmp_path / "new" / "imgui.ini", tmp_path / "old" / "imgui.ini"
     old.parent.mkdir()
     new.parent.mkdir()
     old.write_text("[Window][Mine]\n")
-    launcher._watch_ini(new)
-    launcher._watch_ini(old)
+    vulkan.watch_imgui_ini(new)
+    vulkan.watch_imgui_ini(old)
     new.write_text("[Window][Controls]\n")  # what ImGui writes when its window goes
     old.write_text("[Window][Controls]\n")
-    launcher._watch_ini(old)  # a second launcher in the process keeps the first "before"
-    launcher._take_back_ini(new)
-    launcher._take_back_ini(old)
+    vulkan.watch_imgui_ini(old)  # a second launcher in the process keeps the first "before"
+    vulkan.take_back_imgui_ini(new)
+    vulkan.take_back_imgui_ini(old)
     assert not new.exists() and old.read_text() == "[Window][Mine]\n"

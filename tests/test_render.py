@@ -370,7 +370,8 @@ def test_without_vulkan_record_says_what_to_install(runtime, monkeypatch, capsys
     assert code == 0  # the simulation commands do not need Vulkan
 
 
-def test_record_command_writes_an_mp4(own_windows, tmp_path):
+def test_record_command_writes_an_mp4(own_windows, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # where ImGui writes its imgui.ini: taken back
     out = tmp_path / "pendulum.mp4"
     assert main(["record", "pendulum", "--side-by-side", "euler,symplectic_euler", "--dt", "0.005",
                  "--seconds", "0.5", "--fps", "8", "--size", "64x48", "--out", str(out), "--quiet"]) == 0

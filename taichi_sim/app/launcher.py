@@ -6,7 +6,6 @@ without a window); this module only draws widgets and passes events on.
 """
 from __future__ import annotations
 
-import atexit
 import json
 import math
 import os
@@ -24,7 +23,7 @@ from ..errors import ConfigError
 from ..render import RenderUnavailable
 from ..render.chart import Rect
 from ..render.renderer import Renderer
-from ..render.vulkan import open_window
+from ..render.vulkan import open_window, take_back_imgui_ini, watch_imgui_ini
 from ..scene import SCENES
 from .curve_panel import CurvePanel
 from .display import display_problem
@@ -46,38 +45,6 @@ LEGEND = Rect(0.955, 0.36, 0.975, 0.64)  # the strain colour bar
 #: STATUS_EVERY seconds and when it closes (what the real-window test reads).
 STATUS_ENV = "TAICHI_SIM_STATUS"
 STATUS_EVERY = 0.25  # s
-#: ImGui (inside GGUI) saves its window layout to this file in the current directory.
-IMGUI_INI = "imgui.ini"
-
-
-#: imgui.ini paths a launcher watched -> their content before (None: there was none).
-_INI_BEFORE: dict[Path, bytes | None] = {}
-
-
-def _watch_ini(path: Path) -> Path:
-    """Note what ``path`` holds before ImGui may write it (once per process and path), and make
-    sure it is taken back at exit even when the window is destroyed by someone else."""
-    if path not in _INI_BEFORE:
-        if not _INI_BEFORE:
-            atexit.register(lambda: [_take_back_ini(p) for p in list(_INI_BEFORE)])
-        _INI_BEFORE[path] = path.read_bytes() if path.is_file() else None
-    return path
-
-
-def _take_back_ini(path: Path) -> None:
-    """Remove the ini file ImGui wrote, or put back the one that was there before."""
-    if path not in _INI_BEFORE:
-        return
-    before = _INI_BEFORE[path]
-    try:
-        if before is None:
-            path.unlink(missing_ok=True)
-        elif not path.is_file() or path.read_bytes() != before:
-            path.write_bytes(before)  # someone else's layout file: left as found
-    except OSError:
-        pass  # the directory went away or turned read-only: nothing of ours to take back
-
-
 def _terminate(signum, frame):
     raise SystemExit(128 + signum)
 
@@ -100,7 +67,7 @@ class Launcher:
         self.session = session
         self.size = size
         self.owns_window = window is None
-        self._ini = _watch_ini(Path.cwd() / IMGUI_INI)
+        self._ini = watch_imgui_ini()
         if window is None:
             problem = display_problem()
             if problem is not None:  # GLFW would end the process with "cannot initialize GLFW"
@@ -175,7 +142,7 @@ class Launcher:
         try:
             self.window.destroy()  # ImGui writes its ini file now
         finally:
-            _take_back_ini(self._ini)
+            take_back_imgui_ini(self._ini)
 
     def write_status(self, *, final: bool = False) -> None:
         """Write the status JSON to :attr:`status_path` (through a temporary file, so a reader
