@@ -201,8 +201,9 @@ def build_parser() -> argparse.ArgumentParser:
                      help="colour the cloth by spring strain, with a colour bar")
     dest = rec.add_mutually_exclusive_group(required=True)
     dest.add_argument("--out", help="FILE.mp4, FILE.gif, or DIR/ for PNG frames")
-    dest.add_argument("--showcase", metavar="DIR",
-                      help="record the showcase (a GIF and a PNG per entry) into DIR")
+    dest.add_argument("--showcase", metavar="DIR", nargs="?", const="media",
+                      help="record the full showcase, the README's gallery (a GIF and a PNG per "
+                           "entry, 5 to 15 minutes), into DIR (default media/)")
     rec.add_argument("--quiet", action="store_true", help="no summary line or progress bar")
 
     bench = sub.add_parser("bench", help="measure accuracy, stability and speed (CSV, JSON and PNG into --out)")
@@ -537,12 +538,11 @@ def cmd_record(args) -> int:
             raise ConfigError(f"--showcase records its own scenes and settings; drop {', '.join(extra)}")
         try:
             runtime.init(arch=args.arch, precision=args.precision)
-            recordings = record_showcase(args.showcase, progress=None if not args.quiet else False)
+            record_showcase(args.showcase, progress=None if not args.quiet else False,
+                            on_clip=None if args.quiet else _print_clip)
         except RenderUnavailable as exc:
             print(f"taichi-sim: error: {exc}", file=sys.stderr)
             return EXIT_USAGE
-        if not args.quiet:
-            _print_showcase(recordings)
         return 0
     if args.scene is None:
         raise ConfigError("record needs a SCENE (or --showcase DIR)")
@@ -569,19 +569,25 @@ def cmd_record(args) -> int:
     return 1 if result.stopped else 0
 
 
-def _print_showcase(recordings) -> None:
-    for r in recordings:
-        print(f"  {r.path}  {r.still}  ({r.frames} frames, {r.wall:.1f} s)")
+def _print_clip(k: int, count: int, entry, recording) -> None:
+    """One line per recorded clip, as it is done (flushed: also when stdout is a file or a pipe)."""
+    print(f"  [{k}/{count}] {recording.path}  {recording.still}  ({recording.frames} frames, "
+          f"{recording.wall:.1f} s): {entry.title}", flush=True)
+
+
+QUICK_SHOWCASE_DIR = "out/showcase"  # untracked (git-ignored); media/ is the README's gallery
 
 
 def cmd_default() -> int:
-    """No arguments: the launcher where a display exists, else the showcase recorded into
-    media/."""
+    """No arguments: the launcher where a display exists, else a short showcase recorded into
+    out/showcase/ (the full one, into media/, is ``record --showcase``)."""
+    from pathlib import Path
+
     from . import runtime
     from .app.display import display_problem
     from .app.launcher import Launcher
     from .app.session import Session
-    from .app.showcase import record_showcase
+    from .app.showcase import QUICK_SHOWCASE, record_showcase
     from .render import RenderUnavailable
 
     try:
@@ -590,13 +596,18 @@ def cmd_default() -> int:
         if problem is None:
             Launcher(Session("cloth", ["symplectic_euler"], interactive=True)).run()
             return 0
-        print(f"taichi-sim: {problem}: recording the showcase into media/ instead", file=sys.stderr)
-        recordings = record_showcase("media")
+        print(f"taichi-sim: {problem}: recording a short showcase into {QUICK_SHOWCASE_DIR}/ instead",
+              file=sys.stderr)
+        print(f"Recording {len(QUICK_SHOWCASE)} short clips into {QUICK_SHOWCASE_DIR}/ (open the GIFs in "
+              "a browser; the full gallery: taichi-sim record --showcase):", flush=True)
+        try:
+            Path(QUICK_SHOWCASE_DIR).parent.mkdir(exist_ok=True)
+        except OSError as exc:
+            raise ConfigError(f"cannot create {QUICK_SHOWCASE_DIR}/: {exc.strerror or exc}") from None
+        record_showcase(QUICK_SHOWCASE_DIR, entries=QUICK_SHOWCASE, on_clip=_print_clip)
     except RenderUnavailable as exc:
         print(f"taichi-sim: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
-    print("Showcase recorded into media/ (open the GIFs in a browser):")
-    _print_showcase(recordings)
     return 0
 
 

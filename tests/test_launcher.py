@@ -203,18 +203,46 @@ def test_the_default_command_falls_back_to_the_showcase_on_a_bad_display(monkeyp
     import taichi_sim.app.showcase as showcase_module
     from taichi_sim.cli import main
 
+    from taichi_sim.app.record import Recording
+
     recorded = []
-    monkeypatch.setattr(showcase_module, "record_showcase", lambda folder: recorded.append(folder) or [])
+
+    def record(clip, out, *, still, still_at, progress):  # what the short showcase asks for
+        recorded.append((clip, out))
+        return Recording(path=out, frames=clip.frame_count, wall=1.0, still=still, failures=())
+
+    monkeypatch.setattr(showcase_module, "record", record)
     monkeypatch.setattr(launcher_module, "Launcher", lambda *a, **k: pytest.fail("no window here"))
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
     bad = f":{free_display_number()}"
     monkeypatch.setenv("DISPLAY", bad)
     monkeypatch.chdir(tmp_path)
     assert main([]) == 0
-    assert recorded == ["media"]
-    err = capsys.readouterr().err.strip()
-    assert err == (f"taichi-sim: cannot open the X display {bad!r}: recording the showcase into "
-                   "media/ instead")
+    # a short showcase into the untracked out/showcase/, never into the README's media/
+    assert {out.parent.as_posix() for _, out in recorded} == {"out/showcase"}
+    assert 3 <= len(recorded) <= 4 and all(clip.seconds <= 2 and clip.supersample == 1 for clip, _ in recorded)
+    assert sum(c.frame_count * c.size[0] * c.size[1] * len(c.integrators) for c, _ in recorded) < 4e7
+    captured = capsys.readouterr()
+    assert captured.err.strip() == (f"taichi-sim: cannot open the X display {bad!r}: recording a short "
+                                    "showcase into out/showcase/ instead")
+    # a line per clip as it is done, though stdout is no terminal here
+    lines = captured.out.splitlines()
+    assert lines[0].startswith(f"Recording {len(recorded)} short clips into out/showcase/")
+    assert [line.split("]")[0] for line in lines[1:]] == [f"  [{k}/{len(recorded)}" for k in range(1, len(recorded) + 1)]
+    assert all("out/showcase/" in line for line in lines[1:])
+    assert not (tmp_path / "media").exists()
+
+
+def test_record_showcase_without_a_folder_writes_the_gallery_in_media(monkeypatch, tmp_path):
+    import taichi_sim.app.showcase as showcase_module
+    from taichi_sim.cli import main
+
+    folders = []
+    monkeypatch.setattr(showcase_module, "record_showcase", lambda folder, **kw: folders.append(folder) or [])
+    monkeypatch.chdir(tmp_path)
+    assert main(["record", "--showcase", "--quiet"]) == 0
+    assert main(["record", "--showcase", "mine", "--quiet"]) == 0
+    assert folders == ["media", "mine"]
 
 
 def test_a_failed_showcase_leaves_no_empty_folder(monkeypatch, tmp_path):
