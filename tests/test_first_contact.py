@@ -351,3 +351,25 @@ def test_the_step_limit_itself_is_allowed():
     _check_step_count(MAX_STEPS, 1e-3, None, planned_steps)
     _check_step_count(None, 1e-3, MAX_STEPS * 1e-3, planned_steps)
     _check_step_count(None, None, 1e9, planned_steps)  # adaptive: the count is not known
+
+
+@pytest.mark.parametrize("minor", [10, 11, 12, 13, 14])
+def test_bootstrap_takes_the_pythons_that_taichi_has_wheels_for(tmp_path, minor):
+    """pyproject and scripts/bootstrap.sh agree: Python 3.11, 3.12 and 3.13 (taichi 1.7.4's
+    wheels), and the refusal says which ones to install."""
+    import subprocess
+    import sys
+
+    requires = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["requires-python"]
+    assert requires == ">=3.11,<3.14"
+    stub = tmp_path / f"python3.{minor}"  # answers bootstrap's version check as Python 3.<minor>
+    stub.write_text(f"#!{sys.executable}\nimport sys\nsys.version_info = (3, {minor}, 0, 'final', 0)\n"
+                    "exec(sys.argv[2])\n")
+    stub.chmod(0o755)
+    script = (f"set -euo pipefail; eval \"$(sed -n '/^find_python()/,/^}}/p' scripts/bootstrap.sh)\"; "
+              f"PYTHON={stub} find_python")
+    done = subprocess.run(["bash", "-c", script], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    if 11 <= minor <= 13:
+        assert done.returncode == 0 and done.stdout.strip() == str(stub), done.stderr
+    else:
+        assert done.returncode == 1 and "needs Python 3.11, 3.12 or 3.13" in done.stderr
