@@ -284,12 +284,12 @@ def build_parser() -> argparse.ArgumentParser:
 def cmd_check(args) -> int:
     """Self-intersections in every frame of a saved run (x_history, or the final x): exit 0 when
     none, 1 when some frame has any."""
+    import os
+    import zipfile
+
     import numpy as np
 
     from .geometry import self_intersections
-
-    import os
-    import zipfile
 
     # np.load reads any file but a zip or .npy as a pickle, and refuses it talking of pickles
     if os.path.isfile(args.npz) and not zipfile.is_zipfile(args.npz):
@@ -354,12 +354,12 @@ def cmd_list(args) -> int:
 def cmd_simulate(args) -> int:
     from . import io, runtime
     from .guard import GuardLimits
-    from .theory import stability_warning
     from .integrators import check_options, create_integrator
     from .run import check_run_args, planned_steps, run
     from .scene import build_scene, scene_preset
     from .scene.params import resolve
     from .scene.presets import check_scene_memory
+    from .theory import stability_warning
 
     preset = scene_preset(args.scene)
     integrator_name = args.integrator or preset.default_integrator

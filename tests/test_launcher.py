@@ -201,9 +201,8 @@ def test_a_bad_display_is_found_before_glfw_would_end_the_process(monkeypatch, c
 def test_the_default_command_falls_back_to_the_showcase_on_a_bad_display(monkeypatch, capsys, tmp_path):
     import taichi_sim.app.launcher as launcher_module
     import taichi_sim.app.showcase as showcase_module
-    from taichi_sim.cli import main
-
     from taichi_sim.app.record import Recording
+    from taichi_sim.cli import main
 
     recorded = []
 

@@ -10,17 +10,16 @@ import os
 import imageio.v2 as imageio
 import numpy as np
 import pytest
+from helpers import OffscreenWindows
 
 import taichi_sim as ts
-from helpers import OffscreenWindows
 from taichi_sim.app.record import Clip, frame_labels, record
 from taichi_sim.app.runner import Runner
 from taichi_sim.app.session import Session
 from taichi_sim.app.showcase import SHOWCASE, record_showcase, shortened
 from taichi_sim.cli import main
 from taichi_sim.integrators import Status
-from taichi_sim.render import DrawOptions, Renderer, RenderUnavailable, open_window
-from taichi_sim.render import vulkan
+from taichi_sim.render import DrawOptions, Renderer, RenderUnavailable, open_window, vulkan
 from taichi_sim.render.drawer import SceneDrawer
 from taichi_sim.render.renderer import BACKGROUND
 from taichi_sim.scene.visual import describe

@@ -16,8 +16,8 @@ from ..errors import ConfigError
 from ..integrators import INTEGRATORS, integrator_class
 from ..render.drawer import DrawOptions
 from ..scene import SCENES, build_scene, scene_preset
-from ..scene.params import Param, resolve
 from ..scene.live import LIVE_SETTERS, applies_live
+from ..scene.params import Param, resolve
 from ..scene.scene import Scene
 from ..scene.visual import describe
 from .pacing import Pacer, factor_text

@@ -405,9 +405,9 @@ PLANNERS = {"stiff-cloth": _plan_stiff_cloth, "work-precision": _plan_work_preci
 def advise_main(args) -> int:
     """``taichi-sim advise SCENE``: the stability table and, with --target-error, a recommendation."""
     from .. import runtime
+    from ..cli import scene_assignments
     from ..integrators import INTEGRATORS
     from ..scene import build_scene, scene_preset
-    from ..cli import scene_assignments
     from ..scene.params import resolve
     from ..scene.presets import check_scene_memory
     from .advise import check, recommend, scene_omegas, stability_table

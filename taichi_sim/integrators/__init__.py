@@ -12,6 +12,11 @@ from .positional import XPBD, ProjectiveDynamics
 from .symplectic import SymplecticEuler
 from .tableau import ButcherTableau
 
+__all__ = ["INTEGRATORS", "RK4", "XPBD", "ButcherTableau", "DormandPrince45", "EmbeddedRK", "Euler",
+           "ExplicitRK", "Fehlberg45", "ImplicitEuler", "ImplicitEulerLinearised", "ImplicitMidpoint",
+           "Integrator", "LinearSolverStats", "Midpoint", "ProjectiveDynamics", "Status", "StepReport",
+           "SymplecticEuler", "Trapezoid", "check_options", "create_integrator", "integrator_class"]
+
 INTEGRATORS: dict[str, type[Integrator]] = {
     cls.name: cls for cls in (Euler, Trapezoid, Midpoint, RK4, SymplecticEuler, DormandPrince45, Fehlberg45,
                               ImplicitEuler, ImplicitEulerLinearised, ImplicitMidpoint, ProjectiveDynamics, XPBD)
