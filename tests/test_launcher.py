@@ -298,3 +298,16 @@ def test_the_imgui_ini_file_is_taken_back(tmp_path):
     vulkan.take_back_imgui_ini(new)
     vulkan.take_back_imgui_ini(old)
     assert not new.exists() and old.read_text() == "[Window][Mine]\n"
+
+
+@pytest.mark.parametrize("size", [(1280, 800), (1024, 640), (800, 600)])
+def test_the_help_overlay_holds_all_its_lines(size):
+    """GGUI clips text at a panel's edges: every help line fits the panel's width and height."""
+    from taichi_sim.app.input import help_lines
+    from taichi_sim.app.launcher import HUD_CHAR_PX, LINE_PX, help_window
+
+    (x, y, width, height), lines = help_window(size)
+    assert max(len(line) for line in lines) * HUD_CHAR_PX <= width * size[0] - 2 * HUD_CHAR_PX
+    assert (len(lines) + 1.5) * LINE_PX <= height * size[1]  # the lines under a title bar
+    assert 0 <= y and y + height <= 1 and 0 <= x and x + width <= 1
+    assert " ".join(lines).split() == " ".join(help_lines()).split()  # wrapped, nothing lost

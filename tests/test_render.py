@@ -277,6 +277,25 @@ def test_launcher_draws_panel_hud_and_help_offscreen(window):
     assert launcher.renderer.drawers[0].trail_count == 1  # restarted, not joined to the old path
 
 
+@pytest.mark.parametrize("scene", ["cloth", "pendulum"])
+def test_the_launcher_frames_the_scene_clear_of_its_panels(window, scene):
+    """Nothing of the start-up scene (the cloth's pinned corners, the pendulum's pin) lies under
+    the control panel or the Status panel, energy charts shown or not."""
+    from taichi_sim.app.launcher import HUD, PANEL, Launcher
+
+    session = Session(scene, ["symplectic_euler"], interactive=True)
+    launcher = Launcher(session, SIZE, window=window)
+    for energy in (True, False):
+        session.options.energy = energy
+        launcher.draw_frame()
+        launcher.renderer.read_image()
+        x0 = np.asarray(session.runners[0].scene.x0) + launcher.renderer.offsets[0]
+        uv, depth = launcher.renderer.camera.project(x0)
+        assert (depth > 0).all() and (uv > 0).all() and (uv < 1).all()
+        assert (uv[:, 0] > PANEL[2]).all()
+        assert not ((uv[:, 0] > HUD[0]) & (uv[:, 1] > 1 - HUD[3])).any(), uv
+
+
 # -- recording ------------------------------------------------------------------------------------
 
 def test_record_mp4_and_gif_read_back_with_the_right_frames(own_windows, tmp_path):

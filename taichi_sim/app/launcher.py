@@ -35,7 +35,8 @@ from .session import DT_RANGE, SUBSTEPS_MAX, Session, compatible_integrators
 PANEL = (0.0, 0.0, 0.27, 1.0)  # control panel: x, y, width, height (fractions of the window)
 HUD = (0.62, 0.0, 0.38, 0.3)
 HUD_CHAR_PX = 7.5  # width of a character of GGUI's font, for wrapping the HUD's lines
-HELP = (0.33, 0.1, 0.36, 0.68)
+HELP = (0.33, 0.1, 0.36, 0.68)  # x, y, width and the most height (help_window fits it to the lines)
+LINE_PX = 17  # height of a line of GGUI's text, for sizing a panel to its lines
 WARNING = (1.0, 0.45, 0.38)
 CURRENT = (0.55, 0.85, 1.0)  # the current entry of a list
 #: The energy charts (normalised, y up): the curve editor's strip, which hides them when shown.
@@ -45,6 +46,18 @@ LEGEND = Rect(0.955, 0.36, 0.975, 0.64)  # the strain colour bar
 #: STATUS_EVERY seconds and when it closes (what the real-window test reads).
 STATUS_ENV = "TAICHI_SIM_STATUS"
 STATUS_EVERY = 0.25  # s
+def help_window(size: tuple[int, int]) -> tuple[tuple[float, float, float, float], list[str]]:
+    """The help overlay's (x, y, width, height), fractions of a window of ``size`` pixels, and
+    its lines wrapped to that width: GGUI clips text at a panel's edges, which cut off the
+    mouse help's last line. The panel is as tall as its lines (a title bar and margins over),
+    moved up where the window is too short for it below HELP's y."""
+    width = max(20, int(HELP[2] * size[0] / HUD_CHAR_PX) - 2)
+    lines = [part for line in help_lines()
+             for part in (textwrap.wrap(line, width, subsequent_indent="    ") or [""])]
+    height = min(0.98, (len(lines) + 3) * LINE_PX / size[1])
+    return (HELP[0], max(0.01, min(HELP[1], 0.99 - height)), HELP[2], height), lines
+
+
 def _terminate(signum, frame):
     raise SystemExit(128 + signum)
 
@@ -97,7 +110,9 @@ class Launcher:
         key = tuple(id(scene) for scene in self.session.scenes)
         renderer = self._renderers.get(key)
         if renderer is None:
-            renderer = Renderer(self.window, self.session.visuals(), self.size, inset=PANEL[2])
+            # framed beside the control panel and below the Status panel, which hid the cloth's
+            # pinned corners and the pendulum's pin
+            renderer = Renderer(self.window, self.session.visuals(), self.size, inset=PANEL[2], top=HUD[3])
             self._renderers[key] = renderer
         else:
             renderer.clear_trails()
@@ -379,7 +394,8 @@ class Launcher:
         self.curve_panel.draw(self.renderer.canvas, self.gui, self._guard)
 
     def _help(self) -> None:
-        with self.gui.sub_window("Help", *HELP) as g:
-            for line in help_lines():
+        rect, lines = help_window(self.size)
+        with self.gui.sub_window("Help", *rect) as g:
+            for line in lines:
                 g.text(line)
 
