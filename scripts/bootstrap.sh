@@ -4,9 +4,9 @@ set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 venv="$root/.venv"
 
-# taichi 1.7.4 ships wheels for CPython 3.11 to 3.13 (pyproject's requires-python). $PYTHON, when
-# set, is the only candidate; otherwise 3.11 comes first, then 3.12 and 3.13: the whole suite and the documented
-# measurements run on 3.11, the newer two are checked on a few test files.
+# taichi 1.7.4 ships wheels for CPython 3.11 to 3.13 (pyproject's requires-python). $PYTHON,
+# when set, is the only candidate; otherwise 3.11 comes first, then 3.12 and 3.13: the whole
+# suite and the documented measurements run on 3.11, the newer two on a few test files.
 find_python() {
   local cand cands=(python3.11 python3.12 python3.13 python3)
   [ -z "${PYTHON:-}" ] || cands=("$PYTHON")
