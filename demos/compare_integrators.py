@@ -5,7 +5,8 @@
 The pendulum chain's stiff springs have omega_max of about 200 rad/s. At h = 8 ms
 (h * omega_max = 1.6) explicit Euler is unstable for any step and blows up within a fraction of
 a second (its panel freezes on the last finite state, labelled with the time it diverged);
-symplectic Euler is stable below h * omega = 2 and RK4 below 2.83 (DESIGN.md section 5).
+symplectic Euler is stable below h * omega = 2 and RK4 below 2.83 (docs/integrators.md, Stability
+on an oscillator).
 """
 import sys
 

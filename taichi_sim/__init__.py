@@ -19,8 +19,9 @@ from .run import RunResult, run  # noqa: E402
 from .runtime import init  # noqa: E402
 from .scene import SCENES, Scene, SceneBuilder, build_scene  # noqa: E402
 from .state import State  # noqa: E402
+from .stepper import Stepper  # noqa: E402
 
 __version__ = "0.1.0"
 
 __all__ = ["init", "build_scene", "run", "create_integrator", "INTEGRATORS", "SCENES", "Scene",
-           "SceneBuilder", "State", "Integrator", "Status", "StepReport", "RunResult", "ConfigError"]
+           "SceneBuilder", "State", "Stepper", "Integrator", "Status", "StepReport", "RunResult", "ConfigError"]

@@ -6,6 +6,7 @@ import math
 import sys
 
 from .errors import ConfigError
+from .scene.params import scene_assignments
 
 EXIT_USAGE = 2
 # The most steps one `simulate` takes. The cheapest scene (the circle ODE, RK4) runs at about a
@@ -40,17 +41,6 @@ def _version() -> str:
 
         pyproject = Path(__file__).resolve().parent.parent / "pyproject.toml"
         return tomllib.loads(pyproject.read_text())["project"]["version"]
-
-
-def scene_assignments(assignments: list[tuple[str, str]]) -> dict[str, str]:
-    """``--set`` pairs as a dict; a parameter set twice is an error (which value was meant?)."""
-    params: dict[str, str] = {}
-    for name, value in assignments:
-        if name in params:
-            raise ConfigError(f"--set {name} given twice ({name}={params[name]} and {name}={value}); "
-                              "give each parameter once")
-        params[name] = value
-    return params
 
 
 def _positive_float(text: str) -> float:
@@ -96,7 +86,9 @@ _ARCH_HELP = ("where the simulation runs: cpu (default) or gpu (CUDA, Vulkan or 
 def _add_view_options(p: argparse.ArgumentParser) -> None:
     """Options shared by ``demo`` and ``record``: what to run and how."""
     which = p.add_mutually_exclusive_group()
-    which.add_argument("--integrator", default=None, help="integrator name (default: the scene's)")
+    which.add_argument("--integrator", default=None,
+                       help="integrator name (default: the scene's), or package.module:Class or "
+                            "path/to/file.py:Class (see docs/plugins.md)")
     which.add_argument("--side-by-side", dest="side_by_side", type=_name_list, metavar="A,B[,C]",
                        help="run the scene with 2 or 3 integrators at once, drawn next to each other")
     p.add_argument("--dt", type=_positive_float, default=None, help="step size in s (default: the scene's)")
@@ -104,7 +96,7 @@ def _add_view_options(p: argparse.ArgumentParser) -> None:
                    metavar="NAME=VALUE", help=_SET_HELP)
     p.add_argument("--seed", type=int, default=0, help="random seed for scenes with randomness (default 0)")
     p.add_argument("--curves", metavar="FILE", default=None,
-                   help="JSON file of parameter curves over time (see the README's Curves section)")
+                   help="JSON file of parameter curves over time (see docs/constraints-and-curves.md)")
     p.add_argument("--precision", choices=("f32", "f64"), default="f64", help=_PRECISION_HELP)
     p.add_argument("--arch", choices=("cpu", "gpu"), default="cpu",
                    help=_ARCH_HELP + "; rendering always uses Vulkan")
@@ -119,7 +111,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     sim = sub.add_parser("simulate", help="run a scene headless and write an .npz")
     sim.add_argument("scene", help="scene name (see `taichi-sim list`)")
-    sim.add_argument("--integrator", default=None, help="integrator name (default: the scene's)")
+    sim.add_argument("--integrator", default=None,
+                     help="integrator name (default: the scene's), or your own class as package.module:Class "
+                          "or path/to/file.py:Class (see docs/plugins.md)")
     sim.add_argument("--dt", type=_positive_float, default=None,
                      help="step size in s (default: the scene's; adaptive methods: the first step, "
                           "chosen automatically)")
@@ -159,6 +153,14 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--chebyshev-rho", type=float,
                      help="projective_dynamics' Chebyshev acceleration: the spectral radius "
                           "estimate in [0, 1) (default 0: off)")
+    sim.add_argument("--option", dest="integrator_options", action="append", type=_assignment, default=[],
+                     metavar="NAME=VALUE",
+                     help="a keyword option of the integrator's constructor, e.g. a plug-in's own; repeat "
+                          "for several (`taichi-sim list` shows each method's options)")
+    sim.add_argument("--max-residual", type=_positive_float, metavar="R",
+                     help="bound on the relative residual of a method that solves a system per step "
+                          "(default 1e-2): above it implicit_euler and implicit_midpoint end not_converged "
+                          "(exit 1), projective_dynamics, xpbd and the linearised step warn")
     sim.add_argument("--max-energy-growth", type=_positive_float, metavar="F",
                      help="the blow-up guard's energy bound: the run is diverged when its energy "
                           "rises more than F energy scales above the start (default 10)")
@@ -175,7 +177,7 @@ def build_parser() -> argparse.ArgumentParser:
                           "about two force evaluations")
     sim.add_argument("--out", required=True, help="output .npz path")
     sim.add_argument("--curves", metavar="FILE", default=None,
-                     help="JSON file of parameter curves over time (see the README's Curves section)")
+                     help="JSON file of parameter curves over time (see docs/constraints-and-curves.md)")
     sim.add_argument("--quiet", action="store_true", help="no summary line or progress bar")
 
     demo = sub.add_parser("demo", help="the interactive launcher (needs a display and Vulkan)")
@@ -248,7 +250,7 @@ def build_parser() -> argparse.ArgumentParser:
     ex.add_argument("--step-sizes", metavar="H,H,...", help="steps in s, fractions allowed (default 1e-6,1/60,1)")
     ex.add_argument("--steps", type=_positive_int, help="steps per run (default 30; --quick 10)")
     sc = bench_parsers["stiff-cloth"]
-    sc.add_argument("--size", type=_positive_int, help="cloth side (default 32; --quick 8)")
+    sc.add_argument("--size", type=_positive_int, help="cloth side (default 64; --quick 8)")
     sc.add_argument("--stiffnesses", metavar="K,K,...", help="structural stiffness in N/m (default 1e2,1e4,1e8)")
     sc.add_argument("--step-sizes", metavar="H,H,...", help="steps in s, fractions allowed (default 1/60,1/120,1/240,1/480)")
     sc.add_argument("--t-end", type=_positive_float, help="simulated time in s (default 0.5)")
@@ -334,7 +336,7 @@ def _frame_bar(frames):
 
 
 def cmd_list(args) -> int:
-    from .integrators import INTEGRATORS
+    from .integrators import ENTRY_POINT_GROUP, INTEGRATORS, installed_plugins, integrator_class
     from .scene import SCENES
 
     print("Scenes (set parameters with --set NAME=VALUE):")
@@ -345,16 +347,32 @@ def cmd_list(args) -> int:
             default = str(p.default).lower() if isinstance(p.default, bool) else p.default
             unit = f" {p.unit}" if p.unit else ""
             print(f"    {p.name:<20} {str(default) + unit:<14} {p.meaning}")
-    print("\nIntegrators:")
+    print("\nIntegrators (options: --option NAME=VALUE, or the flags of `simulate`):")
     for cls in INTEGRATORS.values():
-        print(f"  {cls.name:<18} order {cls.order}  {cls.description}")
+        _print_integrator(cls.name, cls)
+    plugins = installed_plugins()
+    print(f"\nPlug-ins installed (entry-point group {ENTRY_POINT_GROUP}; or give --integrator "
+          f"package.module:Class, see docs/plugins.md):" + ("" if plugins else " none"))
+    for name in plugins:
+        try:
+            _print_integrator(name, integrator_class(name))
+        except ConfigError as exc:
+            print(f"  {name:<18} not usable: {exc}")
     return 0
+
+
+def _print_integrator(name: str, cls) -> None:
+    print(f"  {name:<18} order {cls.order}  {cls.description}")
+    if cls.options():
+        shown = ", ".join(f"{k}={'(automatic)' if v is None else v}" for k, v in cls.options().items())
+        print(f"  {'':<18} options: {shown}")
 
 
 def cmd_simulate(args) -> int:
     from . import io, runtime
+    from .convergence import check_max_residual
     from .guard import GuardLimits
-    from .integrators import check_options, create_integrator
+    from .integrators import check_options, create_integrator, integrator_class, parse_options
     from .run import check_run_args, planned_steps, run
     from .scene import build_scene, scene_preset
     from .scene.params import resolve
@@ -368,6 +386,10 @@ def cmd_simulate(args) -> int:
                             "max_step", "cg_tolerance", "substeps", "iterations", "tolerance",
                             "chebyshev_rho")
                if getattr(args, name) is not None}
+    for name, value in parse_options(integrator_name, scene_assignments(args.integrator_options, "--option")).items():
+        if name in options:
+            raise ConfigError(f"--option {name} repeats a value given by its own flag; give it once")
+        options[name] = value
     adaptive = check_options(integrator_name, options).adaptive
     dt = args.dt if args.dt is not None or adaptive else preset.default_dt
     check_run_args(dt, args.steps, args.t_end, adaptive=adaptive)
@@ -376,11 +398,13 @@ def cmd_simulate(args) -> int:
         raise ConfigError(f"--energy-every must be >= 0, got {args.energy_every}")
     if args.save_every is not None and args.save_every < 1:
         raise ConfigError(f"--save-every must be >= 1, got {args.save_every}")
+    check_max_residual(args.max_residual)
     params = scene_assignments(args.assignments)
     limits = GuardLimits() if args.max_energy_growth is None else GuardLimits(energy_growth=args.max_energy_growth)
     io.check_output_path(args.out)
     check_scene_memory(preset, resolve(preset.params, preset.name, params), precision=args.precision,
-                       integrators=(integrator_name,), linear_solver=options.get("linear_solver") or "cg")
+                       integrators=(integrator_class(integrator_name),),
+                       linear_solver=options.get("linear_solver") or "cg")
     curves = _load_curves(args, preset)
     if args.save_every:
         _check_history_memory(preset, resolve(preset.params, preset.name, params), args.save_every,
@@ -397,7 +421,7 @@ def cmd_simulate(args) -> int:
         print(f"taichi-sim: warning: {warning}", file=sys.stderr)
     result = run(scene, integrator, dt=dt, steps=args.steps, t_end=args.t_end,
                  energy_every=args.energy_every, progress=None if not args.quiet else False, guard=limits,
-                 curves=curves, save_every=args.save_every)
+                 curves=curves, save_every=args.save_every, max_residual=args.max_residual)
     arrays = io.run_arrays(scene, result, integrator=integrator, dt=dt)
     if curves:
         import numpy as np
@@ -408,6 +432,8 @@ def cmd_simulate(args) -> int:
     path = io.save_npz(args.out, arrays)
     if result.message:
         print(f"taichi-sim: {result.message}", file=sys.stderr)
+    for warning in result.warnings:
+        print(f"taichi-sim: warning: {warning}", file=sys.stderr)
     for event in scene.post_step:
         if getattr(event, "warning", None) and event.warning():
             print(f"taichi-sim: warning: {event.warning()}", file=sys.stderr)
@@ -416,6 +442,13 @@ def cmd_simulate(args) -> int:
         print(f"{scene.name}: {result.steps} steps{rejected} of {integrator_name} to t = {result.t:.6g} s, "
               f"{result.f_evals} f-evals, {result.wall_time:.3f} s on {runtime.backend()}, "
               f"status {result.status.value} -> {path}")
+        if len(result.solver_residual):
+            worst = result.worst_residual
+            verdict = "converged" if worst <= result.max_residual else "NOT converged"
+            print(f"{scene.name}: solver residual at most {worst:.3g} (t = {_residual_time(result):.6g} s) over "
+                  f"{len(result.solver_residual)} sampled steps, bound {result.max_residual:.3g}: {verdict}")
+        elif result.residual_note and integrator.equation is not None:
+            print(f"{scene.name}: solver residual not measured: {result.residual_note}")
         for event in scene.post_step:
             if hasattr(event, "summary"):
                 print(f"{scene.name}: {event.summary()}")
@@ -435,6 +468,13 @@ def _check_step_count(steps: int | None, dt: float | None, t_end: float | None, 
         raise ConfigError(f"--t-end {t_end:g} s at --dt {dt:g} s is {planned_steps(dt, t_end):,} steps, over the "
                           f"limit of {MAX_STEPS:,} (a day or more of computing on the cheapest scene); "
                           "raise --dt, shorten --t-end or pick an adaptive integrator")
+
+
+def _residual_time(result) -> float:
+    import numpy as np
+
+    values = np.nan_to_num(result.solver_residual, nan=-1.0)
+    return float(result.residual_t[int(np.argmax(values))])
 
 
 def _check_history_memory(preset, values, save_every: int, steps: int | None) -> None:
@@ -488,7 +528,7 @@ def _session_args(args) -> dict:
         integrator_class(name)
     params = scene_assignments(args.assignments)
     check_scene_memory(preset, resolve(preset.params, preset.name, params), precision=args.precision,
-                       integrators=tuple(integrators), copies=len(integrators))
+                       integrators=tuple(integrator_class(name) for name in integrators), copies=len(integrators))
     return {"scene": preset.name, "integrators": tuple(integrators), "params": params, "dt": args.dt,
             "curves": _load_curves(args, preset) or {}}
 

@@ -1,7 +1,8 @@
 """Blow-up detection: one guard for every path that steps a scene.
 
-``run`` (and through it ``simulate``, ``advise`` and ``bench work-precision``), the launcher's and
-the recorder's :class:`~taichi_sim.app.runner.Runner` all watch a run with a :class:`Guard`.
+Every :class:`~taichi_sim.stepper.Stepper` watches its run with a :class:`Guard`: ``run`` (and
+through it ``simulate``, ``advise`` and ``bench work-precision``), the launcher's and the
+recorder's :class:`~taichi_sim.app.runner.Runner`, the throughput worker.
 Besides the non-finite values the integrators report, a run has *diverged* when
 
 * **energy**: its total energy E rose above the reference E_ref (the start, or the last time
@@ -238,7 +239,7 @@ class Guard:
         self.interval = 1
         self.health = health
         if health.nonfinite == 0:
-            self._keep(t, step)
+            self.keep(t, step)
 
     # -- bounds -------------------------------------------------------------------------------
 
@@ -271,16 +272,18 @@ class Guard:
         self.work += max(int(work), 1)
         return self.work >= self.interval
 
-    def check(self, t: float, step: int) -> Breach | None:
+    def check(self, t: float, step: int, *, keep: bool = True) -> Breach | None:
         """Check the current state (time ``t`` s, ``step`` accepted steps): None when it is
-        within every bound (then it becomes the last good state), else the :class:`Breach`."""
+        within every bound (then, with ``keep``, it becomes the last good state; without, the
+        caller may judge it further and :meth:`keep` it), else the :class:`Breach`."""
         self.work = 0
         self.checks += 1
         health = self.scene.system.health(self.scene.state, self.center)
         breach = self._judge(health, t)
         if breach is None:
             self.health = health
-            self._keep(t, step)
+            if keep:
+                self.keep(t, step)
             self.interval = min(2 * self.interval, self.limits.check_work)
         return breach
 
@@ -313,7 +316,8 @@ class Guard:
 
     # -- the last good state ------------------------------------------------------------------
 
-    def _keep(self, t: float, step: int) -> None:
+    def keep(self, t: float, step: int) -> None:
+        """Take the current state (time ``t`` s, ``step`` accepted steps) as the last good one."""
         self.snapshot.copy_from(self.scene.state)
         self.good_t, self.good_step = t, step
 

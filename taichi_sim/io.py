@@ -1,15 +1,14 @@
-"""The self-describing .npz a run writes (schema documented in README.md)."""
+"""The self-describing .npz a run writes (schema documented in docs/cli.md)."""
 from __future__ import annotations
 
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from .atomic import check_can_create, write_atomically
 from .errors import ConfigError
 from .integrators import Integrator
-from .paths import check_can_create
 from .run import RunResult
 from .scene.scene import Scene
 
@@ -55,6 +54,10 @@ def run_arrays(scene: Scene, result: RunResult, *, integrator: Integrator, dt: f
     }
     if result.constraint_violation is not None:
         data["constraint_violation"] = result.constraint_violation
+    if integrator.equation is not None:  # a method that solves a system per step
+        data["solver_residual"], data["residual_t"] = result.solver_residual, result.residual_t
+        data["max_residual"] = np.float64(result.max_residual)
+        data["residual_note"] = np.str_(result.residual_note)
     if result.x_history is not None:
         data["x_history"], data["t_history"] = result.x_history, result.t_history
     if scene.mesh is not None:  # the cloth's surface, as built (torn ones included)
@@ -79,30 +82,6 @@ def _first_order_velocity(scene: Scene, x: np.ndarray) -> np.ndarray:
     return out.x.to_numpy().astype(np.float64)
 
 
-def _umask() -> int:
-    mask = os.umask(0)  # the only portable way to read it is to set it
-    os.umask(mask)
-    return mask
-
-
-def write_atomically(path: Path, write, *, binary: bool = True) -> Path:
-    """Create ``path`` with ``write(file)``: a temporary file beside it, then a rename, so a
-    failure never leaves a partial file. The file gets the mode of any newly created file
-    (0666 less the umask: 0644 under umask 022)."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent or ".")
-    try:
-        # mkstemp creates 0600 so that nobody reads a half-written file; the result is public
-        os.fchmod(fd, 0o666 & ~_umask())
-        with os.fdopen(fd, "wb" if binary else "w", **({} if binary else {"encoding": "utf-8"})) as f:
-            write(f)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
-
-
 def save_npz(path: str | os.PathLike, arrays: dict[str, np.ndarray]) -> Path:
-    """Write ``arrays`` to ``path`` atomically (see :func:`write_atomically`)."""
+    """Write ``arrays`` to ``path`` atomically (:func:`taichi_sim.atomic.write_atomically`)."""
     return write_atomically(check_output_path(path), lambda f: np.savez_compressed(f, **arrays))

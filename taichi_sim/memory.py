@@ -3,7 +3,7 @@ so that an impossible size is refused with one line instead of a MemoryError dee
 Taichi.
 
 The estimate counts bytes per particle, per spring and per triangle, plus each integrator's
-scratch. The per-item constants are rounded up from measurements of peak resident memory (the
+scratch as its class states it (``Integrator.scratch_bytes``). The per-item constants are rounded up from measurements of peak resident memory (the
 growth of ``resource.getrusage(...).ru_maxrss`` across ``build_scene`` and across
 ``create_integrator`` plus two steps, numpy's peak by ``tracemalloc``; 2026-11-23, Taichi 1.7.4
 on x64, f64, 2 vCPUs of an AMD EPYC): building a 512 x 512 cloth (262 144 particles,
@@ -35,21 +35,6 @@ _PARTICLE_FIXED, _PARTICLE_REALS = 200, 14
 _SPRING_FIXED, _SPRING_REALS = 230, 10
 _TRIANGLE_FIXED, _TRIANGLE_REALS = 80, 2
 
-# Scratch of each integrator, in copies of the state (6 reals per particle): its RK stages and
-# stage inputs, candidates, snapshots.
-_SCRATCH_STATES = {"euler": 1, "trapezoid": 3, "midpoint": 3, "rk4": 5, "symplectic_euler": 1,
-                   "rk45": 11, "rkf45": 10}
-# The implicit methods: Newton's point, force, rhs, delta, guess, CG's vectors and 3 x 3 diagonal
-# blocks (about 40 reals per particle) and the cached spring Jacobian blocks (10 reals + 2 ids
-# per spring); the direct solver adds a sparse matrix (9 (n + 2 S) entries of a real and an index)
-# and its Cholesky factor, taken as 4 times that.
-_IMPLICIT_PARTICLE_REALS, _IMPLICIT_SPRING_REALS, _IMPLICIT_SPRING_FIXED = 40, 10, 8
-_DIRECT_FILL = 4
-# Projective dynamics' SuperLU factors, L and U together: 7.8 and 10.9 times the matrix's n + 2 S
-# entries on 64 x 64 and 128 x 128 cloths (the fill grows slowly with n), taken as 12.
-_SUPERLU_FILL = 12
-_COLOURING_FIXED = 120  # XPBD's edge colouring on the host: Python ints per spring while it runs
-
 
 @dataclass(frozen=True)
 class Size:
@@ -60,25 +45,18 @@ class Size:
     triangles: int = 0
 
 
-def estimate_bytes(size: Size, *, precision: str = "f64", integrators: tuple[str, ...] = (),
+def estimate_bytes(size: Size, *, precision: str = "f64", integrators: tuple = (),
                    linear_solver: str = "cg", copies: int = 1) -> int:
     """Estimated peak memory (bytes) of building ``copies`` scenes of ``size`` and stepping them
-    with each of ``integrators`` (side-by-side runs each own a scene and an integrator)."""
+    with each of ``integrators`` (integrator classes: each states its own scratch,
+    ``Integrator.scratch_bytes``; side-by-side runs each own a scene and an integrator). The
+    callers name them: this module sits below the integrators."""
     r = 4 if precision == "f32" else 8
     n, s, t = size.particles, size.springs, size.triangles
     total = copies * (n * (_PARTICLE_FIXED + _PARTICLE_REALS * r) + s * (_SPRING_FIXED + _SPRING_REALS * r)
                       + t * (_TRIANGLE_FIXED + _TRIANGLE_REALS * r))
-    for name in integrators:
-        if name.startswith("implicit"):
-            total += n * _IMPLICIT_PARTICLE_REALS * r + s * (_IMPLICIT_SPRING_REALS * r + _IMPLICIT_SPRING_FIXED)
-            if linear_solver == "direct":
-                total += _DIRECT_FILL * 9 * (n + 2 * s) * (r + 4)
-        elif name == "xpbd":  # displacement and explicit force per particle, lambda and order per spring
-            total += 6 * r * n + s * (r + 4 + _COLOURING_FIXED)
-        elif name == "projective_dynamics":  # vec3s per particle; the matrix's triplets and its L and U
-            total += 18 * r * n + (n + 4 * s) * (r + 8) + _SUPERLU_FILL * (n + 2 * s) * (r + 4)
-        else:
-            total += _SCRATCH_STATES.get(name, 11) * 6 * r * n
+    for method in integrators:
+        total += method.scratch_bytes(n, s, r, linear_solver)
     return int(total)
 
 
@@ -106,7 +84,7 @@ def format_bytes(count: float) -> str:
     return f"{int(count)} B"
 
 
-def check_size(size: Size, culprits: str, *, precision: str = "f64", integrators: tuple[str, ...] = (),
+def check_size(size: Size, culprits: str, *, precision: str = "f64", integrators: tuple = (),
                linear_solver: str = "cg", copies: int = 1, available: int | None = None) -> int:
     """Raise ConfigError naming ``culprits`` (e.g. ``"nx = 100000, ny = 100000"``) when a scene of
     ``size`` cannot be indexed by Taichi or would need more memory than is available (bytes;

@@ -1,7 +1,8 @@
 """The force model in plain numpy, rebuilt from a run's .npz (or a Scene's arrays).
 
-This is the exported statement of DESIGN.md section 4: anyone can rebuild the exact ODE from
-the npz with this module (or their own code) and check a run, e.g. against scipy's DOP853.
+This is the exported statement of the force model (docs/scenes.md, Force model): anyone can
+rebuild the exact ODE from the npz with this module (or their own code) and check a run, e.g.
+against scipy's DOP853.
 It is written for clarity, not speed, and is independent of the Taichi kernels.
 """
 from __future__ import annotations

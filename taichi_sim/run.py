@@ -3,15 +3,16 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from tqdm import tqdm
 
 from .errors import ConfigError
-from .guard import Guard, GuardLimits
+from .guard import GuardLimits
 from .integrators import Integrator, Status, create_integrator
 from .scene.scene import Scene
+from .stepper import Stepper, check_dt
 
 
 @dataclass
@@ -36,6 +37,13 @@ class RunResult:
         guard_checks: how many times the guard checked the state.
         constraint_violation: for a scene with constraints, the largest |C| (m) over all
             constraints at each energy sample (aligned with ``energy_t``); None otherwise.
+        solver_residual, residual_t: for a method that solves a system per step, its relative
+            residual (:mod:`taichi_sim.convergence`) at the guard's checks and energy samples
+            and their times (s); empty arrays otherwise. residual_note: why a run has none ("").
+        worst_residual: the largest sample (NaN when none); max_residual: the bound applied
+            (``max_residual``, or more where the precision rounds more: see
+            :meth:`~taichi_sim.convergence.ConvergenceMonitor.check_precision`); warnings:
+            one-line warnings (a fixed-work method whose residual exceeded the bound).
         x_history, t_history: with ``save_every``, the positions (S, N, 3) (m) (for a
             first-order system its state, (S, N, dim)) at t = 0, every ``save_every`` accepted
             steps and at the end, and their times (S,) (s); None otherwise.
@@ -58,6 +66,12 @@ class RunResult:
     x_history: np.ndarray | None = None
     t_history: np.ndarray | None = None
     constraint_violation: np.ndarray | None = None
+    solver_residual: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    residual_t: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    residual_note: str = ""
+    worst_residual: float = math.nan
+    max_residual: float = math.nan
+    warnings: tuple = ()
 
 
 def planned_steps(dt: float, t_end: float) -> int:
@@ -75,12 +89,9 @@ def default_energy_every(step_count: int) -> int:
 
 def check_run_args(dt: float | None, steps: int | None, t_end: float | None, *,
                    adaptive: bool = False) -> None:
-    """Raise ConfigError for a step size, step count or end time that cannot be run."""
-    if dt is None:
-        if not adaptive:
-            raise ConfigError("dt is required for a fixed-step integrator")
-    elif isinstance(dt, bool) or not isinstance(dt, (int, float)) or not (math.isfinite(dt) and dt > 0):
-        raise ConfigError(f"dt must be a finite number > 0, got {dt}")
+    """Raise ConfigError for a step size, step count or end time that cannot be run (``dt`` is
+    the stepper's: :func:`~taichi_sim.stepper.check_dt`)."""
+    check_dt(dt, adaptive=adaptive)
     if (steps is None) == (t_end is None):
         raise ConfigError("give exactly one of steps or t_end")
     if steps is not None and (isinstance(steps, bool) or not isinstance(steps, int) or steps < 1):
@@ -92,7 +103,8 @@ def check_run_args(dt: float | None, steps: int | None, t_end: float | None, *,
 def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: int | None = None,
         t_end: float | None = None, energy_every: int | None = None,
         progress: bool | None = False, guard: GuardLimits | None = None,
-        curves: dict | None = None, save_every: int | None = None) -> RunResult:
+        curves: dict | None = None, save_every: int | None = None,
+        max_residual: float | None = None) -> RunResult:
     """Advance ``scene.state`` from t = 0 by ``steps`` accepted steps, or up to ``t_end`` s.
 
     Args:
@@ -114,13 +126,22 @@ def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: 
         save_every: keep the positions every this many accepted steps, at t = 0 and at the end
             (``x_history``, ``t_history``); None or 0: keep none. Each kept frame is copied
             from the device: N x 3 reals.
+        max_residual: bound on the relative residual of a method that solves a system per
+            step (default :data:`~taichi_sim.convergence.DEFAULT_MAX_RESIDUAL`), sampled with
+            the guard's checks and at the last step: above it a method that promises the
+            solved step (implicit_euler, implicit_midpoint) stops the run NOT_CONVERGED; a
+            fixed-work one (projective dynamics, XPBD, the linearised step) goes on with a
+            warning in ``warnings``. Such a method on a scene whose springs the precision
+            cannot resolve is refused (ConfigError) before any step.
 
-    With ``t_end`` the last step is shortened to land exactly on it. The run stops at the
-    first step whose status is not OK, or when the blow-up guard finds the state past a bound
-    (status DIVERGED; the guard checks every ``guard.check_work`` f-evaluations and at the
-    end). A DIVERGED run leaves in the scene the last state that passed the guard, and its
-    energy trace ends there; the result's message says at which step and time it failed, what
-    grew, and the predicted stable step of an explicit method.
+    The steps are a :class:`~taichi_sim.stepper.Stepper`'s; this function adds the energy
+    trace, the saved frames and the progress bar. With ``t_end`` the last step is shortened to
+    land exactly on it. The run stops at the first step whose status is not OK, or when the
+    blow-up guard finds the state past a bound (status DIVERGED; the guard checks every
+    ``guard.check_work`` f-evaluations and at the end). A DIVERGED run leaves in the scene the
+    last state that passed the guard, and its energy trace ends there; the result's message
+    says at which step and time it failed, what grew, and the predicted stable step of an
+    explicit method.
     """
     if isinstance(integrator, str):
         integrator = create_integrator(integrator, scene.system)
@@ -130,140 +151,92 @@ def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: 
                                    or save_every < 0):
         raise ConfigError(f"save_every must be an integer >= 0, got {save_every!r}")
     history = _History(scene) if save_every else None
-    driver = None
-    if curves:
-        from .curves import CurveDriver
-        driver = CurveDriver(scene, curves)
-        driver.apply(0.0)
-    watch = Guard(scene, guard)
-    f_evals = 0
-    if adaptive:
-        if dt is None:
-            h = integrator.initial_step(scene.state, 0.0, t_end)
-            f_evals += integrator.initial_step_f_evals
-        else:
-            h = dt
-        expected = steps  # unknown for an adaptive run to t_end
-    else:
-        h = dt
-        expected = steps if steps is not None else planned_steps(dt, t_end)
+    stepper = Stepper(scene, integrator, dt, limits=guard, curves=curves, max_residual=max_residual)
+    if stepper.refusal:
+        raise ConfigError(stepper.refusal)
+    watch = stepper.guard
+    expected = steps if adaptive else (steps if steps is not None else planned_steps(dt, t_end))
     every = (default_energy_every(expected or 1000) if energy_every is None else int(energy_every))
-    last_sample = 0
     has_energy = every > 0 and watch.energy0 is not None
     # An adaptive run to t_end has no step count to spread samples over: every t_end / 2000 s.
     sample_interval = t_end / SAMPLES if energy_every is None and expected is None else None
     next_sample = sample_interval
+    last_sample = 0
 
     energy, energy_t = [], []
     violation = [] if scene.constraints is not None else None
-    if has_energy:
-        energy.append(watch.energy0)
-        energy_t.append(0.0)
+
+    def sample(t: float) -> None:
+        energy.append(watch.health.energy)
+        energy_t.append(t)
         if violation is not None:
             violation.append(scene.constraint_violation())
+
+    if has_energy:
+        sample(0.0)
     if history is not None:
         history.keep(0.0)
-    status, message = Status.OK, ""
-    rejected = done = linear_iterations = 0
-    failed_step, failed_t = 0, math.nan
-    linear_residual = 0.0
-    t = 0.0
     start = time.perf_counter()
-    if t_end is not None and expected is None:
+    by_time = t_end is not None and expected is None
+    if by_time:
         bar = tqdm(total=t_end, unit="s", disable=None if progress is None else not progress,
                    leave=False, mininterval=0.5, bar_format="{l_bar}{bar}| {n:.3g}/{total:.3g} s")
     else:
         bar = tqdm(total=expected, unit="step", disable=None if progress is None else not progress,
                    leave=False, mininterval=0.5)
-    # read once: an attribute of a Taichi data-oriented object costs about a microsecond
-    step, implicit = integrator.step, integrator.implicit
+    # An energy sample costs about what a check does, so every sample is a check; with
+    # energy_every given, the steps it names are checked whether the guard is due or not.
+    forced = has_energy and energy_every is not None
+    step, step_toward, update = stepper.step, stepper.step_toward, bar.update
+    by_steps = steps is not None
     with bar:
-        while (steps is not None and done < steps) or (steps is None and t < t_end):
-            last = False
-            if t_end is not None and t + h >= t_end * (1 - 1e-12):
-                h, last = t_end - t, True
-            if driver is not None and driver.apply(t):
-                integrator.reset()
-                watch.rebase(t, done)
-            report = step(scene.state, t, h)
-            f_evals += report.f_evals
-            linear_iterations += report.linear_iterations
-            if implicit:
-                linear_residual = report.linear_residual
-            if report.status is not Status.OK:
-                status = report.status
-                failed_step, failed_t = done + 1, (t + h if report.accepted else t)
-                detail = f" ({report.message})" if report.message else ""
-                if status is Status.DIVERGED:
-                    # The state may hold the non-finite values: put back the last good one.
-                    watch.restore()
-                    done, t = watch.good_step, watch.good_t
-                elif watch.work:
-                    # The failed attempt left the state at t: check what the steps since the
-                    # last check made of it (it may have blown up before the method gave up).
-                    breach = watch.check(t, done)
-                    if breach is not None:
-                        status, detail = Status.DIVERGED, f" ({breach.detail})"
-                        watch.restore()
-                        done, t = watch.good_step, watch.good_t
-                message = failure_message(scene, integrator, status, failed_step, failed_t, h, detail,
-                                          watch, done, t)
-                break
-            if not report.accepted:
-                rejected += 1
-                h = report.next_h
+        while stepper.failure is None and (stepper.steps < steps if by_steps else stepper.t < t_end):
+            check = forced and (stepper.steps + 1) % every == 0
+            # the last step is checked too: the method's own result is measured before the
+            # post-step events move it, so the end's check must happen inside the step
+            check = check or (stepper.steps + 1 >= steps if by_steps
+                              else stepper.t + (stepper.h or 0.0) >= t_end * (1 - 1e-12))
+            report = step(None, check) if by_steps else step_toward(t_end, check)
+            if not report.accepted or stepper.failure is not None:
                 continue
-            done += 1
-            if last:
-                t = t_end
-            elif adaptive:
-                t += report.h
-            else:
-                t = done * dt  # no round-off drift over many fixed steps
-            if scene.after_step(t, report.h):
-                integrator.reset()  # an event changed the system (e.g. tore springs)
-            due = watch.spend(report.f_evals + report.linear_iterations)
-            end = last or done == steps
-            if energy_every is not None:
-                sample = has_energy and (done % every == 0 or end)
-            elif sample_interval is None:
-                sample = has_energy and ((due and done - last_sample >= every) or end)
-            else:
-                sample = has_energy and ((due and t >= next_sample * (1 - 1e-12)) or last)
-                if sample:
-                    next_sample = (math.floor(t / sample_interval + 1e-9) + 1) * sample_interval
-            # An energy sample costs about what a check does, so every sample is a check.
-            if due or sample or end:
-                breach = watch.check(t, done)
-                if breach is not None:
-                    status = Status.DIVERGED
-                    failed_step, failed_t = done, t
-                    watch.restore()
-                    done, t = watch.good_step, watch.good_t
-                    message = failure_message(scene, integrator, status, failed_step, failed_t, report.h,
-                                              f" ({breach.detail})", watch, done, t)
-                    break
-                if sample:
-                    energy.append(watch.health.energy)
-                    energy_t.append(t)
-                    if violation is not None:
-                        violation.append(scene.constraint_violation())
+            if has_energy and stepper.checked:
+                done, t = stepper.steps, stepper.t
+                if forced:
+                    keep = done % every == 0
+                elif sample_interval is None:
+                    keep = done - last_sample >= every
+                else:
+                    keep = t >= next_sample * (1 - 1e-12)
+                    if keep:
+                        next_sample = (math.floor(t / sample_interval + 1e-9) + 1) * sample_interval
+                if keep:
+                    sample(t)
                     last_sample = done
-            if history is not None and (done % save_every == 0 or end):
-                history.keep(t)
-            bar.update(report.h if (t_end is not None and expected is None) else 1)
-            if adaptive:
-                h = report.next_h
+            if history is not None and stepper.steps % save_every == 0:
+                history.keep(stepper.t)
+            update(report.h if by_time else 1)
+        # The last state is always checked and sampled.
+        if stepper.failure is None and not stepper.checked:
+            stepper.check()
+        if stepper.failure is None and has_energy and energy_t[-1] != stepper.t:
+            sample(stepper.t)
     wall = time.perf_counter() - start
+    t, failure, monitor = stepper.t, stepper.failure, stepper.monitor
     energy_t = np.asarray(energy_t, float)
     kept = energy_t <= t  # a diverged run's trace ends at the state it returns
     x_history, t_history = history.arrays(t) if history is not None else (None, None)
-    return RunResult(status=status, steps=done, t=t, f_evals=f_evals, rejected_steps=rejected,
-                     linear_iterations=linear_iterations, linear_residual=linear_residual,
+    return RunResult(status=stepper.status, steps=stepper.steps, t=t, f_evals=stepper.f_evals,
+                     rejected_steps=stepper.rejected, linear_iterations=stepper.linear_iterations,
+                     linear_residual=stepper.linear_residual,
                      energy=np.asarray(energy, float)[kept], energy_t=energy_t[kept],
-                     message=message, wall_time=wall, failed_step=failed_step, failed_t=failed_t,
+                     message="" if failure is None else failure.message, wall_time=wall,
+                     failed_step=0 if failure is None else failure.step,
+                     failed_t=math.nan if failure is None else failure.t,
                      guard_checks=watch.checks, x_history=x_history, t_history=t_history,
-                     constraint_violation=None if violation is None else np.asarray(violation, float)[kept])
+                     constraint_violation=None if violation is None else np.asarray(violation, float)[kept],
+                     solver_residual=np.asarray(monitor.values, float), residual_t=np.asarray(monitor.times, float),
+                     residual_note=monitor.reason, worst_residual=monitor.worst, max_residual=monitor.bound,
+                     warnings=tuple(stepper.warnings))
 
 
 class _History:
@@ -291,23 +264,3 @@ class _History:
             frames.append(np.asarray(self.scene.state.x.to_numpy(), np.float64))
             times = np.append(times, t_final)
         return np.stack(frames), times
-
-
-def failure_message(scene: Scene, integrator: Integrator, status: Status, step: int, t: float, h: float,
-                    detail: str, watch: Guard, good_step: int, good_t: float) -> str:
-    """One line: what stopped a run, where, and what to do about it."""
-    from .theory import stable_step_advice
-
-    text = f"{status.value} at step {step} (t = {t:.6g} s) with {integrator.name}, h = {h:.3g} s{detail}"
-    if status is Status.DIVERGED:
-        text += (f"; the state returned is that of step {good_step} (t = {good_t:.6g} s), the last "
-                 f"that passed the blow-up check")
-        advice = stable_step_advice(scene, integrator.name)
-        if advice:
-            text += f"; {advice}"
-        return text + ": lower the step or pick a more stable integrator"
-    if status is Status.STEP_TOO_SMALL:
-        return text + ": loosen rtol/atol or use f64"
-    if status is Status.STIFF:
-        return text + ": use an implicit method (implicit_euler)"
-    return text + ": lower the step or pick a more stable integrator"

@@ -1,4 +1,5 @@
-"""Stability theory of the integrators on a spring network (DESIGN.md section 5).
+"""Stability theory of the integrators on a spring network (docs/integrators.md, Stability on an
+oscillator).
 
 Every method here is stable on an undamped linear oscillator of angular frequency omega while
 theta = h omega stays below a constant C of the method; a spring network linearised about a
@@ -19,8 +20,8 @@ W = M^-1/2 (zero on pinned particles), so:
 * :func:`omega_max_bound`: block Gershgorin on S, a cheap upper bound,
   omega_max^2 <= max over free i of ( sum_s k_s / m_i + sum_{s, j free} k_s / sqrt(m_i m_j) ),
   because ||B_s|| = k_s (tau <= 1). With equal masses and no pinned neighbour this is
-  DESIGN.md's 2 (sum of attached k) / m; a pinned neighbour counts once, so the single spring
-  of the ``spring`` scene gives exactly sqrt(k / m).
+  2 (sum of attached k) / m, the bound in docs/integrators.md; a pinned neighbour counts once, so
+  the single spring of the ``spring`` scene gives exactly sqrt(k / m).
 * :func:`omega_max_power`: power iteration on S; its Rayleigh quotient rises to the sharp value
   from below.
 
@@ -35,39 +36,27 @@ from typing import Mapping
 
 import numpy as np
 
-# theta = h omega_max below which each method is stable on the imaginary axis. 0: never stable
-# there (|R(i theta)| > 1 for every theta > 0; only damping or a finite horizon gives a limit);
-# inf: A-stable (unconditional). Adaptive methods choose their own step (not listed: None).
-STABILITY_CONSTANT: dict[str, float] = {
-    "euler": 0.0,
-    "trapezoid": 0.0,
-    "midpoint": 0.0,
-    "rk4": 2.0 * math.sqrt(2.0),
-    "symplectic_euler": 2.0,
-    "implicit_euler": math.inf,
-    "implicit_euler_linearised": math.inf,
-    "implicit_midpoint": math.inf,
-    # Springs solved implicitly at any step (the explicit forces, gravity, drag and wind, are
-    # not stiff): see the classes' docstrings.
-    "projective_dynamics": math.inf,
-    "xpbd": math.inf,
-}
 
-# |R(i theta)|^2 per step of the methods that grow on the imaginary axis (DESIGN.md section 5).
-GROWTH_PER_STEP_SQUARED = {
-    "euler": lambda theta: 1.0 + theta**2,
-    "trapezoid": lambda theta: 1.0 + theta**4 / 4.0,
-    "midpoint": lambda theta: 1.0 + theta**4 / 4.0,
-}
+def method_class(method):
+    """The integrator class of ``method``: a class, an instance, or a name (a built-in's, an
+    installed or already loaded plug-in's, or a ``module:Class`` spec)."""
+    if isinstance(method, str):
+        from .integrators import integrator_class  # the facts live on the classes
+
+        return integrator_class(method)
+    return method if isinstance(method, type) else type(method)
 
 
-def stability_constant(name: str) -> float | None:
-    """C of integrator ``name`` (h_max = C / omega_max), or None for an adaptive or unknown method."""
-    return STABILITY_CONSTANT.get(name)
+def stability_constant(method) -> float | None:
+    """C of an integrator (h_max = C / omega_max; its class's ``stability_constant``): 0 when
+    it grows at every step on the imaginary axis (|R(i theta)| > 1 for every theta > 0; only
+    damping or a finite horizon gives a limit), inf when no step blows it up, None for an
+    adaptive method."""
+    return method_class(method).stability_constant
 
 
-def predicted_limit(name: str, omega_max: float | None) -> float | None:
-    """The largest stable step (s) of ``name`` for a system whose fastest mode is ``omega_max``
+def predicted_limit(name, omega_max: float | None) -> float | None:
+    """The largest stable step (s) of integrator ``name`` (a name or class) for a system whose fastest mode is ``omega_max``
     (rad/s): C / omega_max; inf when unconditional or when nothing oscillates; 0 when the
     method is never stable on the imaginary axis; None when not applicable (adaptive, unknown
     omega)."""
@@ -79,12 +68,14 @@ def predicted_limit(name: str, omega_max: float | None) -> float | None:
     return c / omega_max
 
 
-def horizon_limit(name: str, omega: float, t_end: float, growth: float = 2.0) -> float | None:
-    """For a method that grows on the imaginary axis, the largest step (s) whose energy growth
-    |R(i h omega)|^(2 t_end / h) over ``t_end`` s stays within ``growth``; None for the others."""
-    rate = GROWTH_PER_STEP_SQUARED.get(name)
-    if rate is None or omega <= 0:
+def horizon_limit(name, omega: float, t_end: float, growth: float = 2.0) -> float | None:
+    """For a method that grows on the imaginary axis (C = 0), the largest step (s) whose energy
+    growth |R(i h omega)|^(2 t_end / h) over ``t_end`` s stays within ``growth``; None for the
+    others."""
+    cls = method_class(name)
+    if cls.stability_constant != 0.0 or omega <= 0:
         return None
+    rate = cls.amplification_squared
 
     def grows(h):
         return (t_end / h) * math.log(rate(h * omega)) > math.log(growth)
@@ -232,13 +223,14 @@ def scene_omega_max(scene, method: str = "bound", **options) -> float | None:
     raise ValueError(f"unknown omega_max method {method!r}")
 
 
-def stability_warning(scene, integrator_name: str, dt: float | None, *, power_iterations: int = 200) -> str | None:
+def stability_warning(scene, integrator_name, dt: float | None, *, power_iterations: int = 200) -> str | None:
     """One line for ``simulate`` when ``dt`` exceeds the predicted stability limit of
-    ``integrator_name`` on ``scene``, else None: C / omega_max with omega_max by power iteration,
-    the figure that :func:`stable_step_advice` and ``taichi-sim advise`` print, so a run that
-    warns and then fails names one limit. The cheap Gershgorin bound (never below omega_max)
-    skips the iteration when ``dt`` is within even its smaller limit. Methods with no finite
-    positive limit (adaptive, implicit, or never stable on the imaginary axis) get no warning."""
+    ``integrator_name`` (a name or class) on ``scene``, else None: C / omega_max with omega_max
+    by power iteration, the figure that :func:`stable_step_advice` and ``taichi-sim advise``
+    print, so a run that warns and then fails names one limit. The cheap Gershgorin bound (never
+    below omega_max) skips the iteration when ``dt`` is within even its smaller limit. Methods
+    with no finite positive limit (adaptive, implicit, or never stable on the imaginary axis) get
+    no warning."""
     c = stability_constant(integrator_name)
     if dt is None or c is None or c == 0.0 or math.isinf(c):
         return None
@@ -248,8 +240,9 @@ def stability_warning(scene, integrator_name: str, dt: float | None, *, power_it
     omega = _omega_power(scene, power_iterations)
     if not omega or dt <= c / omega:
         return None
-    return (f"dt = {dt:g} s exceeds the predicted stable step {c / omega:.3g} s of {integrator_name} "
-            f"here (C / omega_max = {c:.3g} / {omega:.4g} rad/s; see taichi-sim advise); expect divergence")
+    return (f"dt = {dt:g} s exceeds the predicted stable step {c / omega:.3g} s of "
+            f"{method_class(integrator_name).name} here (C / omega_max = {c:.3g} / {omega:.4g} rad/s; "
+            "see taichi-sim advise); expect divergence")
 
 
 def _omega_power(scene, power_iterations: int) -> float | None:
@@ -262,12 +255,15 @@ def _omega_power(scene, power_iterations: int) -> float | None:
     return omega if omega and math.isfinite(omega) else None
 
 
-def stable_step_advice(scene, name: str, *, power_iterations: int = 200) -> str:
+def stable_step_advice(scene, name, *, power_iterations: int = 200) -> str:
     """A clause for a failure message: the predicted largest stable step of integrator ``name``
     on ``scene`` (C / omega_max, with omega_max by power iteration at the initial positions, as
     ``taichi-sim advise`` computes it); "" for implicit and adaptive methods, or when there is
     no prediction."""
-    c = stability_constant(name)
+    try:
+        c = stability_constant(name)
+    except Exception:  # a prediction must never hide the failure it explains
+        return ""
     if c is None or math.isinf(c):
         return ""
     omega = _omega_power(scene, power_iterations)
@@ -275,8 +271,10 @@ def stable_step_advice(scene, name: str, *, power_iterations: int = 200) -> str:
         return ""
     if c == 0.0:
         others = [m for m in ("symplectic_euler", "rk4") if scene.system.second_order or m == "rk4"]
-        steps = ", ".join(f"{m} {STABILITY_CONSTANT[m] / omega:.3g} s" for m in others)
+        steps = ", ".join(f"{m} {stability_constant(m) / omega:.3g} s" for m in others)
+        name = method_class(name).name
         return (f"{name} grows at every step on undamped oscillations (no stable step); predicted "
                 f"stable steps here (omega_max = {omega:.4g} rad/s): {steps}")
+    name = method_class(name).name
     return (f"predicted stable step of {name} here: {c / omega:.3g} s (C / omega_max = {c:.3g} / "
             f"{omega:.4g} rad/s; see taichi-sim advise)")

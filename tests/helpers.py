@@ -29,6 +29,19 @@ def run_fixed(scene, name, dt, t_end, **options):
     return ts.run(scene, integrator, dt=dt, t_end=t_end, energy_every=0)
 
 
+def step_checked(scene, integrator, dt, steps, check=None):
+    """Step ``scene`` ``steps`` times with a :class:`taichi_sim.Stepper` (the house order: post-step
+    events, the integrator's reset when they change the system, the blow-up guard), calling
+    ``check(scene)`` after every step; any failure fails the test. Returns the stepper."""
+    stepper = ts.Stepper(scene, integrator, dt)
+    while stepper.steps < steps:
+        stepper.step()
+        assert stepper.failure is None, stepper.failure.message
+        if check is not None:
+            check(scene)
+    return stepper
+
+
 class OffscreenWindows:
     """Fixtures for a test module that draws offscreen: one Taichi runtime for the module (CPU,
     f64) and a fresh window of ``size`` per test, destroyed after it (0.06 s each).

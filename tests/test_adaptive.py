@@ -32,7 +32,7 @@ def fifth_order_residuals(tableau, weights):
 
 
 def particle_rhs(arrays):
-    """The force model of DESIGN.md section 4 in numpy, from a scene's arrays: f(t, y) with
+    """The force model (docs/scenes.md, Force model) in numpy, from a scene's arrays: f(t, y) with
     y = (x.ravel(), v.ravel())."""
     mass, free = arrays["mass"], ~arrays["pinned"]
     gravity, drag = arrays["gravity"], float(arrays["drag"])

@@ -107,7 +107,7 @@ def test_power_iteration_matches_closed_forms():
     assert theory.omega_max_power(chain, xc)[0] == pytest.approx(expected, rel=1e-10)
     assert theory.omega_max_eigsh(chain, xc) == pytest.approx(expected, rel=1e-10)
     bound = theory.omega_max_bound(chain)
-    assert expected <= bound <= math.sqrt(2 * 16.0 / 0.5) + 1e-12  # <= DESIGN.md's 2 sum(k) / m
+    assert expected <= bound <= math.sqrt(2 * 16.0 / 0.5) + 1e-12  # <= 2 sum(k) / m (docs/integrators.md)
 
 
 def test_scene_omega_and_predicted_limits(f64):

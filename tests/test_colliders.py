@@ -3,6 +3,7 @@ import math
 
 import numpy as np
 import pytest
+from helpers import step_checked
 
 import taichi_sim as ts
 from taichi_sim.cli import main
@@ -25,14 +26,7 @@ def cloth_builder(n=16, size=0.5, height=0.0, stiffness=5.0, mass=0.01):
 
 
 def advance(scene, dt, steps, integrator="symplectic_euler", check=None):
-    stepper = ts.create_integrator(integrator, scene.system)
-    t = 0.0
-    for k in range(steps):
-        assert stepper.step(scene.state, t, dt).status is ts.Status.OK
-        t = (k + 1) * dt
-        scene.after_step(t, dt)
-        if check is not None:
-            check(scene)
+    step_checked(scene, integrator, dt, steps, check)
     return scene.state.to_numpy()[0]
 
 

@@ -1,4 +1,5 @@
-"""Closed forms and convergence orders of the explicit methods (DESIGN.md section 5)."""
+"""Closed forms and convergence orders of the explicit methods (docs/integrators.md, Stability on
+an oscillator)."""
 import math
 
 import numpy as np
@@ -29,7 +30,7 @@ def test_circle_matches_closed_form(f64, name):
     expected = r0 * STABILITY_POLYNOMIAL[name](1j * h) ** n
     assert x[0, 0] + 1j * x[0, 1] == pytest.approx(expected, rel=1e-12)
     assert abs(x[0, 0] + 1j * x[0, 1]) == pytest.approx(abs(expected), rel=1e-12)
-    if name == "euler":  # DESIGN.md's table, stated directly
+    if name == "euler":  # the table in docs/integrators.md, stated directly
         assert abs(expected) == pytest.approx(r0 * (1 + h * h) ** (n / 2), rel=1e-13)
     assert x[0, 2] == 0.0
 

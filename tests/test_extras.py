@@ -3,6 +3,7 @@ import math
 
 import numpy as np
 import pytest
+from helpers import step_checked
 
 import taichi_sim as ts
 from taichi_sim.cli import main
@@ -11,15 +12,7 @@ from taichi_sim.scene import cloth as topo
 
 def step_and_check(scene, integrator_name, dt, steps, check):
     """Step like ts.run does, calling check(scene) after every accepted step."""
-    integrator = ts.create_integrator(integrator_name, scene.system)
-    t = 0.0
-    for k in range(steps):
-        report = integrator.step(scene.state, t, dt)
-        assert report.status is ts.Status.OK
-        t = (k + 1) * dt
-        scene.after_step(t, dt)
-        check(scene)
-    return t
+    return step_checked(scene, integrator_name, dt, steps, check).t
 
 
 # --- spheres -------------------------------------------------------------------------------

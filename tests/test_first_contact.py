@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from taichi_sim.cli import build_parser, main
+from taichi_sim.integrators import integrator_class
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -127,12 +128,12 @@ def test_memory_check_against_what_is_available():
     from taichi_sim.memory import Size, check_size, estimate_bytes
 
     size = Size(1000, 6000, 2000)
-    need = estimate_bytes(size, integrators=("rk4",))
-    assert check_size(size, "nx = 10", integrators=("rk4",), available=need) == need
+    need = estimate_bytes(size, integrators=(integrator_class("rk4"),))
+    assert check_size(size, "nx = 10", integrators=(integrator_class("rk4"),), available=need) == need
     with pytest.raises(ValueError, match=r"nx = 10: the scene needs about 2\.\d+ MB .* only 1 MB"):
-        check_size(size, "nx = 10", integrators=("rk4",), available=10**6)
+        check_size(size, "nx = 10", integrators=(integrator_class("rk4"),), available=10**6)
     # scratch grows with the method; f32 halves the reals; side-by-side copies add up
-    assert estimate_bytes(size, integrators=("implicit_euler",)) > need > estimate_bytes(size, integrators=("euler",))
+    assert estimate_bytes(size, integrators=(integrator_class("implicit_euler"),)) > need > estimate_bytes(size, integrators=(integrator_class("euler"),))
     assert estimate_bytes(size, precision="f32") < estimate_bytes(size)
     assert estimate_bytes(size, copies=2) > 1.9 * estimate_bytes(size)
     with pytest.raises(ValueError, match="32-bit field indices"):
@@ -268,10 +269,10 @@ def test_readme_links_resolve():
     assert "](docs/design.md)" in readme and "DESIGN.md" not in readme
 
 
-def test_readme_api_example_continues_from_the_run(capsys):
+def test_api_page_example_continues_from_the_run(capsys):
     import re
 
-    api = _section((ROOT / "README.md").read_text(), "Python API")
+    api = (ROOT / "docs" / "api.md").read_text()
     code = re.search(r"```python\n(.*?)```", api, flags=re.S).group(1)
     shown = re.search(r"prints .*?```text\n(.*?)```", api, flags=re.S).group(1).splitlines()
     # a smaller cloth without wind (whose kernels take seconds to compile) for a shorter run
@@ -279,7 +280,7 @@ def test_readme_api_example_continues_from_the_run(capsys):
              .replace("t_end=2.0", "t_end=0.05"))
     assert small != code
     try:
-        exec(compile(small, "README.md", "exec"), {})
+        exec(compile(small, "docs/api.md", "exec"), {})
     finally:
         import taichi_sim as ts
         ts.init(arch="cpu", precision="f64")

@@ -6,7 +6,7 @@ import pytest
 
 import taichi_sim as ts
 from taichi_sim.errors import ConfigError
-from taichi_sim.guard import Guard, GuardLimits, injectable_energy, scene_facts
+from taichi_sim.guard import MAX_STRAIN, Guard, GuardLimits, injectable_energy, scene_facts
 
 
 @pytest.mark.parametrize("field, value", [
@@ -106,6 +106,43 @@ def test_each_bound_names_what_grew(f64):
 def test_tearing_cloth_has_no_strain_bound(f64):
     scene = ts.build_scene("cloth", {"nx": 5, "ny": 5, "tear": True})
     assert Guard(scene).strain_bound() is None
+
+
+def test_springs_stretched_past_the_strain_limit_by_their_own_weight_are_not_a_blow_up(f64):
+    """A chain of 5 x 0.1 kg particles hanging on 1 N/m springs of 0.25 m: the weight of the 4
+    moving particles alone (3.92 N) stretches the top spring to strain 15.7, past MAX_STRAIN
+    (10), and the fall from rest at rest length overshoots to 21. The sag allowance widens the
+    bound to 10 x 3.92 / (1 x 0.25) = 157, so this healthy run is OK (with the plain bound of 10
+    it was called diverged at t = 1.2 s, strain 10.4); a state stretched past the widened bound,
+    and a real blow-up of the same scene, are still caught."""
+    chain = {"particle_count": 5, "stiffness": 1.0, "angle": 0.0, "damping": 0.5, "drag": 0.0}
+    scene = ts.build_scene("pendulum", chain)
+    x0, v0 = scene.state.to_numpy()
+    static = 4 * 0.1 * np.linalg.norm(scene.arrays["gravity"]) / (1.0 * 0.25)  # the top spring's strain
+    assert Guard(scene).strain_bound() == pytest.approx(MAX_STRAIN * static)
+
+    result = ts.run(scene, "symplectic_euler", dt=1e-3, t_end=6.0, save_every=20, progress=False)
+    assert result.status is ts.Status.OK, result.message
+    ends, rest = scene.arrays["springs"], scene.arrays["rest_length"]
+    x = np.asarray(result.x_history)
+    strain = np.linalg.norm(x[:, ends[:, 0]] - x[:, ends[:, 1]], axis=2) / rest - 1
+    assert MAX_STRAIN < strain.max() < 2 * static  # 21: a fall's overshoot, not a blow-up
+    assert strain[-1].max() > MAX_STRAIN  # what the guard saw at the end
+
+    # The widened bound still bounds: the bottom particle 50 m down (strain 200) is a breach,
+    # named as such when the energy and reach bounds are out of the way.
+    lenient = Guard(scene, GuardLimits(energy_growth=1e30))
+    stretched = scene.state.to_numpy()[0]
+    stretched[-1, 1] -= 50.0
+    scene.state.from_numpy(stretched, np.zeros_like(stretched))
+    breach = lenient.check(0.0, 0)
+    assert breach.what == "strain" and breach.value > breach.bound
+    assert breach.bound == pytest.approx(MAX_STRAIN * static)
+
+    # Symplectic Euler past its stable step on the same soft chain still blows up and is caught.
+    scene.state.from_numpy(x0, v0)
+    blow_up = ts.run(scene, "symplectic_euler", dt=0.3, t_end=20.0, progress=False)
+    assert blow_up.status is ts.Status.DIVERGED
 
 
 def test_energy_sources_widen_the_energy_bound(f64):

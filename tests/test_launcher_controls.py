@@ -220,7 +220,8 @@ def test_divergence_freezes_on_the_last_finite_state(runtime):
         if runner.frozen:
             break
     assert runner.status is Status.DIVERGED
-    assert runner.message.startswith("diverged at t = ")
+    assert runner.message.startswith("diverged at step ")
+    assert runner.failure.startswith("diverged at t = ")
     assert runner.message.endswith(": lower the step or pick a more stable integrator")
     assert isinstance(runner.display, np.ndarray) and np.all(np.isfinite(runner.display))
     t, frozen_view = runner.t, runner.display.copy()

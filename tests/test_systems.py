@@ -1,4 +1,5 @@
-"""The eval_f contract, the force model and the cloth topology (DESIGN.md sections 3 and 4)."""
+"""The eval_f contract, the force model and the cloth topology (docs/design.md, Contracts;
+docs/scenes.md, Force model)."""
 import numpy as np
 import pytest
 

@@ -13,12 +13,12 @@ import signal
 import textwrap
 import threading
 import time
-from pathlib import Path
 
 import numpy as np
 import taichi as ti
 
 from .. import runtime
+from ..atomic import write_atomically
 from ..errors import ConfigError
 from ..render import RenderUnavailable
 from ..render.chart import Rect
@@ -185,12 +185,11 @@ class Launcher:
                                                               float((1.0 - uv[0][1]) * self.size[1])]}
         if r.drift is not None:
             status["constraint_violation"] = r.drift
+        if r.residual is not None:
+            status["solver_residual"] = r.residual
         if final:
             status["x"] = x.tolist()
-        path = Path(self.status_path)
-        tmp = path.with_name(path.name + ".tmp")
-        tmp.write_text(json.dumps(status))
-        os.replace(tmp, path)
+        write_atomically(self.status_path, lambda f: f.write(json.dumps(status)), binary=False)
 
     def poll_input(self) -> None:
         """Keys and mouse of this frame (on-screen windows only)."""
@@ -345,7 +344,7 @@ class Launcher:
                 self.picking = None if opened else k
             if self.picking != k:
                 continue
-            for name in compatible_integrators(r.scene):
+            for name in compatible_integrators(r.scene, s.plugins):
                 if g.button(("> " if name == r.integrator.name else "  ") + f"{name}##int{k}"):
                     self._guard(s.set_integrator, k, name)
                     self.picking = None

@@ -20,6 +20,7 @@ from ..scene.live import LIVE_SETTERS, applies_live
 from ..scene.params import Param, resolve
 from ..scene.scene import Scene
 from ..scene.visual import describe
+from ..stepper import check_dt
 from .pacing import Pacer, factor_text
 from .runner import Runner
 
@@ -56,11 +57,13 @@ def slider_range(p: Param) -> tuple[float, float]:
     return low, high
 
 
-def compatible_integrators(scene: Scene) -> list[str]:
-    """Integrator names that can step ``scene`` (first-order systems have no velocities; a
-    constrained one takes only the methods that evaluate forces through eval_f)."""
+def compatible_integrators(scene: Scene, plugins: Sequence[str] = ()) -> list[str]:
+    """Integrator names (the built-ins, then ``plugins``) that can step ``scene`` (first-order
+    systems have no velocities; a constrained one takes only the methods that evaluate forces
+    through eval_f)."""
     constrained = getattr(scene.system, "constraints", None) is not None
-    return [name for name, cls in INTEGRATORS.items()
+    classes = {**INTEGRATORS, **{name: integrator_class(name) for name in plugins}}
+    return [name for name, cls in classes.items()
             if not (cls.requires_second_order and not scene.system.second_order)
             and not (constrained and not cls.takes_constraints)]
 
@@ -88,8 +91,10 @@ class Session:
         integrators = list(integrators)
         if not 1 <= len(integrators) <= MAX_PANELS:
             raise ConfigError(f"give 1 to {MAX_PANELS} integrators, got {len(integrators)}")
-        for name in integrators:
-            integrator_class(name)
+        # a plug-in goes by its class's name from here on (its spec loaded it once; the picker
+        # offers it beside the built-ins)
+        integrators = [name if name in INTEGRATORS else integrator_class(name).name for name in integrators]
+        self.plugins = list(dict.fromkeys(name for name in integrators if name not in INTEGRATORS))
         self.seed = int(seed)
         self.interactive = bool(interactive)
         self.scene_name = preset.name
@@ -133,7 +138,7 @@ class Session:
         runners = self._built.get(key)
         scenes = [r.scene for r in runners] if runners is not None else \
             [build_scene(self.scene_name, self.params, seed=self.seed) for _ in integrators]
-        allowed = compatible_integrators(scenes[0])
+        allowed = compatible_integrators(scenes[0], self.plugins)
         if fallback is not None:
             integrators = [n if n in allowed else fallback for n in integrators]
         for name in integrators:
@@ -274,7 +279,7 @@ class Session:
 
     def set_integrator(self, panel: int, name: str) -> None:
         """Use integrator ``name`` for panel ``panel`` (keeps the state and the time)."""
-        allowed = compatible_integrators(self.runners[panel].scene)
+        allowed = compatible_integrators(self.runners[panel].scene, self.plugins)
         if name not in allowed:
             raise ConfigError(f"integrator {name!r} cannot step scene {self.scene_name!r}")
         self.runners[panel].set_integrator(name)
@@ -282,7 +287,7 @@ class Session:
 
     def cycle_integrator(self, panel: int, step: int = 1) -> str:
         """Switch panel ``panel`` to the next (step=1) or previous (-1) compatible integrator."""
-        allowed = compatible_integrators(self.runners[panel].scene)
+        allowed = compatible_integrators(self.runners[panel].scene, self.plugins)
         current = self.runners[panel].integrator.name
         k = allowed.index(current) if current in allowed else -1
         name = allowed[(k + step) % len(allowed)]
@@ -290,9 +295,7 @@ class Session:
         return name
 
     def _check_dt(self, dt: float) -> float:
-        if not (math.isfinite(dt) and dt > 0):
-            raise ConfigError(f"dt must be a finite number > 0, got {dt}")
-        return float(dt)
+        return check_dt(dt)  # before any scene is built or changed
 
     def _check_substeps(self, substeps: int) -> int:
         if isinstance(substeps, bool) or not isinstance(substeps, int) or not 1 <= substeps <= SUBSTEPS_MAX:
@@ -406,6 +409,8 @@ class Session:
             state = r.failure if r.frozen else f"E = {energy}"
             if r.drift is not None and not r.frozen:
                 state += f"   max |C| = {r.drift:.2e} m"
+            if r.residual is not None and not r.frozen:
+                state += f"   residual {r.residual:.1e}" + ("" if r.converged else " NOT converged")
             lines.append(f"{r.name}: {r.sim_ms:.1f} ms/frame   {state}")
         lines.append(f"status: {self.status()}")
         for advice in dict.fromkeys(r.advice for r in self.runners if r.frozen):

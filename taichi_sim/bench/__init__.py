@@ -4,7 +4,8 @@ Modules:
 
 * :mod:`.theory`: the fastest mode omega_max of a scene (a cheap Gershgorin bound, power
   iteration on the linearised stiffness matrix) and the predicted stability limits C / omega_max
-  (DESIGN.md section 5). ``simulate`` uses it to warn about a step beyond the limit.
+  (docs/integrators.md, Stability on an oscillator). ``simulate`` uses it to warn about a step
+  beyond the limit.
 * :mod:`.workprec`: work-precision sweeps (error against cost) and observed orders.
 * :mod:`.stability`: the largest stable step per integrator, found by bisection, against theory.
 * :mod:`.throughput`: particle-steps per second against grid size, precision and scene

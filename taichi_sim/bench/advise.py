@@ -43,16 +43,6 @@ PROBE_STEPS = 10  # steps at the chosen step size that measure its cost per step
 SAFETY = 0.9
 
 
-def evals_per_step(cls) -> float | None:
-    """f evaluations per step of an integrator class as declared (None: varies, implicit)."""
-    if cls.name == "symplectic_euler":
-        return 1.0
-    tableau = getattr(cls, "tableau", None)
-    if tableau is None:
-        return None
-    return float(tableau.stage_count - (1 if cls.adaptive and tableau.fsal else 0))
-
-
 def scene_omegas(scene, *, power_iterations: int = 300) -> dict:
     """omega_max of a built scene: power iteration (sharp) and the Gershgorin bound."""
     from ..theory import is_circle
@@ -71,33 +61,17 @@ def scene_omegas(scene, *, power_iterations: int = 300) -> dict:
                       f"{info['change']:.1g})"}
 
 
-# What "no step limit" means for each implicit method: only exact backward Euler is
-# unconditionally stable on the nonlinear springs of these scenes.
-IMPLICIT_NOTES = {
-    "implicit_euler": "no step limit: exact backward Euler, energy never rises on conservative scenes; "
-                      "damps motion more as h omega grows",
-    "implicit_euler_linearised": "no limit on linear springs only: one Newton step can gain energy on "
-                                 "stretched springs at large h^2 k / m (reported diverged)",
-    "implicit_midpoint": "no limit on linear springs (conserves their energy); on nonlinear springs "
-                         "energy can rise and Newton can fail at large h omega (reported)",
-    "projective_dynamics": "no blow-up at any step (each iteration lowers backward Euler's objective, "
-                           "from the lower of two starts: energy did not rise up to k = 1e8); with few "
-                           "iterations a stiff cloth is left unsolved (k >= 1e6: it hardly moves, "
-                           "0.6-1 m from backward Euler after 0.5 s); damps like backward Euler",
-    "xpbd": "no blow-up at any step; with few substeps stiff springs stay partly stretched (k >= 1e6: "
-            "give it 50-100 substeps per 1/60 s); damping shrinks with the substep",
-}
-
-
-def stability_table(scene, omegas: dict, t_end: float) -> list[dict]:
-    """One row per integrator: order, f-evals/step, predicted largest stable step."""
-    from ..integrators import INTEGRATORS
+def stability_table(scene, omegas: dict, t_end: float, names=None) -> list[dict]:
+    """One row per integrator of ``names`` (default: the built-ins): order, f-evals/step and the
+    predicted largest stable step, from the facts its class declares."""
+    from ..integrators import INTEGRATORS, integrator_class
 
     omega, bound = omegas["omega_max"], omegas["omega_bound"]
     rows = []
-    for name, cls in INTEGRATORS.items():
-        row = {"integrator": name, "order": cls.order, "evals_per_step": evals_per_step(cls),
-               "C": stability_constant(name), "limit": None, "limit_bound": None, "note": ""}
+    for name in (list(INTEGRATORS) if names is None else names):
+        cls = integrator_class(name)
+        row = {"integrator": name, "order": cls.order, "evals_per_step": cls.f_evals_per_step,
+               "C": stability_constant(cls), "limit": None, "limit_bound": None, "note": ""}
         if cls.requires_second_order and not scene.system.second_order:
             row["note"] = "needs a particle system"
         elif getattr(scene.system, "constraints", None) is not None and not cls.takes_constraints:
@@ -109,9 +83,9 @@ def stability_table(scene, omegas: dict, t_end: float) -> list[dict]:
         elif omega == 0:
             row.update(limit=math.inf, limit_bound=math.inf, note="nothing oscillates: no limit")
         elif math.isinf(row["C"]):
-            row.update(limit=math.inf, limit_bound=math.inf, note=IMPLICIT_NOTES.get(name, "no step limit"))
+            row.update(limit=math.inf, limit_bound=math.inf, note=cls.advice_note)
         elif row["C"] == 0:
-            reach = horizon_limit(name, omega, t_end)
+            reach = horizon_limit(cls, omega, t_end)
             row.update(limit=0.0, limit_bound=0.0, horizon_limit=reach,
                        note=f"grows at every step; energy of the fastest mode doubles over {t_end:g} s "
                             f"above h = {reach:.3g} s")
@@ -197,13 +171,25 @@ def recommend(scene, table: list[dict], target_error: float, t_end: float,
             rows.append({**row, "status": "failed", "h": h, "note": probe.message})
             continue
         per_step = (probe.f_evals + probe.linear_iterations) / max(probe.steps, 1)
+        # A fixed-work method that leaves its step unsolved at h (its residual above the bound)
+        # can be far from the answer in a way Richardson cannot see: ranked after the rest.
+        converged = not probe.warnings
+        if not converged:
+            row["note"] = (f"its step is not solved at this step size (solver residual "
+                           f"{probe.worst_residual:.2g}): the error estimate may understate its error")
         rows.append({**row, "status": "ok", "error_constant": constant, "h": h, "steps": steps,
+                     "residual": probe.worst_residual, "converged": converged,
                      "limited_by": "stability" if h == cap else ("t_end" if h == t_end else "accuracy"),
                      "cost_per_step": per_step, "cost": steps * per_step,
                      "wall_s": steps * wall / max(probe.steps, 1),
                      "predicted_error": constant * h**p * t_end})
-    rows.sort(key=lambda r: (r["status"] != "ok", r.get("cost", math.inf)))
+    rows.sort(key=_rank)
     return rows
+
+
+def _rank(row: dict):
+    """Cheapest first among the converged, then the unconverged, then failures."""
+    return row["status"] != "ok", row.get("converged") is False, row.get("cost", math.inf)
 
 
 def check(scene, table: list[dict], rows: list[dict], target_error: float, t_end: float) -> str:
@@ -249,6 +235,6 @@ def check(scene, table: list[dict], rows: list[dict], target_error: float, t_end
         row.update(status="failed", note=f"checked against the reference run: its error at this step is "
                                          f"{error:.2g} m, {error / target_error:.3g} x the target (the pilot's "
                                          f"Richardson estimate understated it)")
-    rows.sort(key=lambda r: (r["status"] != "ok", r.get("cost", math.inf)))
+    rows.sort(key=_rank)
     return (f"checked against {REFERENCE} at {t_end / (2 * steps):.3g} s ({2 * steps} steps; "
             f"its own error about {reference_error:.2g} m): " + ", ".join(checked))

@@ -23,6 +23,22 @@ def _names(text: str | None, allowed, what: str) -> list[str] | None:
     return names
 
 
+def _integrator_names(text: str | None) -> list[str]:
+    """The integrators of ``--integrators`` (default: every built-in): registry names, installed
+    plug-ins or ``module:Class`` specs, each resolved now so that a bad one is a ConfigError
+    before any work."""
+    from ..integrators import INTEGRATORS, integrator_class
+
+    if text is None:
+        return list(INTEGRATORS)
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    if not names:
+        raise ConfigError("--integrators needs at least one name")
+    for name in names:
+        integrator_class(name)
+    return names
+
+
 def _meta(name: str, args, config: dict) -> dict:
     return {"benchmark": name, "command": common.command_line(), "quick": bool(args.quick),
             "machine": common.machine_info(), "config": config,
@@ -42,12 +58,11 @@ def bench_main(args) -> int:
 
 
 def _plan_work_precision(args):
-    from ..integrators import INTEGRATORS
     from .workprec import EXACT_SCENES, PROBLEMS, QUICK_PROBLEMS
 
     problems = QUICK_PROBLEMS if args.quick else PROBLEMS
     scenes = _names(getattr(args, "scenes", None), list(problems), "scenes") or list(problems)
-    integrators = _names(getattr(args, "integrators", None), list(INTEGRATORS), "integrators") or list(INTEGRATORS)
+    integrators = _integrator_names(getattr(args, "integrators", None))
     repeats = getattr(args, "repeats", None) or (1 if args.quick else 5)
     unsolvable = [] if common.have_scipy() else [s for s in scenes if s not in EXACT_SCENES]
     if unsolvable:
@@ -102,12 +117,11 @@ def print_orders(details: dict, scenes: list[str], integrators: list[str]) -> No
 
 
 def _plan_stability(args):
-    from ..integrators import INTEGRATORS
     from .stability import QUICK_SYSTEMS, SYSTEMS
 
     systems = QUICK_SYSTEMS if args.quick else SYSTEMS
     names = _names(getattr(args, "systems", None), list(systems), "systems") or list(systems)
-    integrators = _names(getattr(args, "integrators", None), list(INTEGRATORS), "integrators") or list(INTEGRATORS)
+    integrators = _integrator_names(getattr(args, "integrators", None))
     periods = getattr(args, "periods", None) or (100.0 if args.quick else 1000.0)
     rel_tol = getattr(args, "rel_tol", None) or (1e-2 if args.quick else 1e-3)
     max_steps = getattr(args, "max_steps", None) or 20000
@@ -167,14 +181,13 @@ def _int_list(text: str, what: str) -> list[int]:
 
 
 def _plan_throughput(args):
-    from ..integrators import INTEGRATORS
     from .throughput import ThroughputConfig
 
     sizes = _int_list(args.sizes, "sizes") if getattr(args, "sizes", None) else \
         ([8, 16] if args.quick else [32, 64, 128, 256, 512])
     precisions = _names(getattr(args, "precisions", None), ["f32", "f64"], "precisions") or \
         (["f32"] if args.quick else ["f32", "f64"])
-    integrators = _names(getattr(args, "integrators", None), list(INTEGRATORS), "integrators") or list(INTEGRATORS)
+    integrators = _integrator_names(getattr(args, "integrators", None))
     features_size = getattr(args, "features_size", None)
     if features_size is None:
         features_size = 128 if 128 in sizes else sizes[min(len(sizes) - 1, 2)]
@@ -288,7 +301,6 @@ def _fraction(text: str) -> float:
 
 
 def _plan_extremes(args):
-    from ..integrators import INTEGRATORS
     from .extremes import QUICK_SCENES, SCENES, STEP_SIZES, STEPS, STIFFNESSES
 
     scenes_all = dict(QUICK_SCENES if args.quick else SCENES)
@@ -303,7 +315,7 @@ def _plan_extremes(args):
         scenes = _names(asked, list(scenes_all), "scenes") or list(scenes_all)
     except ConfigError as exc:
         raise ConfigError(f"{str(exc)[:-1]}, or clothN for an N x N cloth)") from None
-    integrators = _names(getattr(args, "integrators", None), list(INTEGRATORS), "integrators") or list(INTEGRATORS)
+    integrators = _integrator_names(getattr(args, "integrators", None))
     stiffnesses = _float_list(getattr(args, "stiffnesses", None), "stiffnesses", STIFFNESSES)
     step_sizes = _float_list(getattr(args, "step_sizes", None), "step-sizes", STEP_SIZES)
     steps = getattr(args, "steps", None) or (10 if args.quick else STEPS)
@@ -338,7 +350,7 @@ def _plan_extremes(args):
 def _plan_stiff_cloth(args):
     from .stiffcloth import METHODS, STEPS
 
-    size = getattr(args, "size", None) or (8 if args.quick else 32)
+    size = getattr(args, "size", None) or (8 if args.quick else 64)
     if not 2 <= size <= 256:
         raise ConfigError(f"--size must be from 2 to 256, got {size}")
     stiffnesses = _float_list(getattr(args, "stiffnesses", None), "stiffnesses",
@@ -349,8 +361,9 @@ def _plan_stiff_cloth(args):
     t_end = getattr(args, "t_end", None) or (0.1 if args.quick else 0.5)
     budget = getattr(args, "budget", None) or (10.0 if args.quick else 60.0)
     studied = list(dict.fromkeys(name for name, _ in METHODS))
-    chosen = _names(getattr(args, "integrators", None), studied, "integrators") or studied
-    methods = tuple(m for m in METHODS if m[0] in chosen)
+    chosen = _integrator_names(getattr(args, "integrators", None)) if getattr(args, "integrators", None) else studied
+    # a method outside the study (another built-in, a plug-in) runs with its default options
+    methods = tuple(m for m in METHODS if m[0] in chosen) + tuple((n, {}) for n in chosen if n not in studied)
 
     def run(out):
         from .. import runtime
@@ -372,13 +385,21 @@ def _plan_stiff_cloth(args):
     return run
 
 
+def _said_so(row: dict) -> str:
+    """Whether a run reported that it had not converged ("-" for a method that solves nothing)."""
+    residual = row.get("residual")
+    if residual is None or residual != residual:  # NaN: not measured
+        return "-"
+    return "yes" if row.get("warned") else "no"
+
+
 def print_stiff_cloth(rows: list[dict], details: dict) -> None:
     print(f"{details['size']}x{details['size']} cloth, rms position error at T = {details['t_end']:g} s against "
           f"symplectic Euler at a quarter of its stable step (f64):")
     print(common.format_table(
-        ["k (N/m)", "method", "h (s)", "status", "ms/step", "rms error (m)"],
+        ["k (N/m)", "method", "h (s)", "status", "ms/step", "rms error (m)", "solver residual", "said so"],
         [[f"{r['k']:g}", r["method"], f"{r['h']:.3g}", r["status"], _fmt(r.get("ms_per_step")),
-          _fmt(r.get("error_rms"))] for r in rows]))
+          _fmt(r.get("error_rms")), _fmt(r.get("residual")), _said_so(r)] for r in rows]))
     print("Artificial damping (no dashpots, no drag; h = 1/60 s, 1 s):")
     print(common.format_table(
         ["k (N/m)", "method", "status", "energy lost per s", "highest rise above start (J)"],
@@ -405,10 +426,9 @@ PLANNERS = {"stiff-cloth": _plan_stiff_cloth, "work-precision": _plan_work_preci
 def advise_main(args) -> int:
     """``taichi-sim advise SCENE``: the stability table and, with --target-error, a recommendation."""
     from .. import runtime
-    from ..cli import scene_assignments
-    from ..integrators import INTEGRATORS
+    from ..integrators import INTEGRATORS, integrator_class
     from ..scene import build_scene, scene_preset
-    from ..scene.params import resolve
+    from ..scene.params import resolve, scene_assignments
     from ..scene.presets import check_scene_memory
     from .advise import check, recommend, scene_omegas, stability_table
 
@@ -416,14 +436,15 @@ def advise_main(args) -> int:
     params = scene_assignments(args.assignments)
     # ConfigError before any Taichi work; the pilot runs build one scene per candidate, in turn
     check_scene_memory(preset, resolve(preset.params, preset.name, params), precision=args.precision,
-                       integrators=("implicit_euler",))
-    integrators = _names(args.integrators, list(INTEGRATORS), "integrators")
+                       integrators=(integrator_class("implicit_euler"),))
+    integrators = _integrator_names(args.integrators) if args.integrators else None
     if args.target_error is not None and not (math.isfinite(args.target_error) and args.target_error > 0):
         raise ConfigError(f"--target-error must be a finite number > 0, got {args.target_error}")
     runtime.init(arch=args.arch, precision=args.precision)
     scene = build_scene(args.scene, params, seed=args.seed)
     omegas = scene_omegas(scene)
-    table = stability_table(scene, omegas, args.t_end)
+    table = stability_table(scene, omegas, args.t_end,
+                            list(INTEGRATORS) + [n for n in integrators or () if n not in INTEGRATORS])
     springs = scene.features.get("springs", 0)
     print(f"{scene.name}: {scene.particle_count} particles, {springs} springs; omega_max = "
           f"{_fmt(omegas['omega_max'])} rad/s ({omegas['method']}), Gershgorin bound {_fmt(omegas['omega_bound'])} rad/s")
@@ -442,7 +463,7 @@ def advise_main(args) -> int:
     print(common.format_table(
         ["integrator", "order", "step (s)", "limited by", "steps", "cost (f-evals + lin. its)", "wall (s)", "status"],
         [[r["integrator"], r["order"], r.get("h"), r.get("limited_by"), r.get("steps"), r.get("cost"),
-          r.get("wall_s"), r["status"] if r["status"] == "ok" else f"{r['status']}: {r.get('note', '')}"]
+          r.get("wall_s"), r["status"] + (f": {r['note']}" if r.get("note") else "")]
          for r in rows]))
     print(checked)
     best = next((r for r in rows if r["status"] == "ok"), None)
@@ -450,7 +471,9 @@ def advise_main(args) -> int:
         print("no fixed-step integrator could be recommended", file=sys.stderr)
         return 1
     print(f"recommended: --integrator {best['integrator']} --dt {best['h']:.3g} ({best['steps']} steps, "
-          f"about {best['cost']:.3g} f-evaluations, {best['wall_s']:.3g} s on this machine)")
+          f"about {best['cost']:.3g} f-evaluations, {best['wall_s']:.3g} s on this machine)"
+          + ("; no candidate solves its step at its size, so check this one against a finer run"
+             if best.get("converged") is False else ""))
     return 0
 
 

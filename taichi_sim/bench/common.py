@@ -12,14 +12,13 @@ import platform
 import statistics
 import subprocess
 import sys
-import tempfile
 from pathlib import Path
 from typing import Any, Callable, Iterable
 
 import numpy as np
 
+from ..atomic import check_can_create, write_atomically
 from ..errors import ConfigError
-from ..paths import check_can_create
 
 
 def prepare_out_dir(path: str | os.PathLike) -> Path:
@@ -54,20 +53,6 @@ def have_matplotlib() -> bool:
     except ImportError:
         return False
     return True
-
-
-def _atomic_write(path: Path, write: Callable[[Any], None], mode: str = "w") -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, mode, **({"newline": ""} if "b" not in mode else {})) as f:
-            write(f)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # mkstemp made it private; a result file is not
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def jsonable(value):
@@ -108,9 +93,9 @@ def write_outputs(out_dir: Path, name: str, rows: list[dict], payload: dict,
             writer.writerow({k: _csv_value(row.get(k)) for k in columns})
 
     csv_path, json_path, png_path = (out_dir / f"{name}.{ext}" for ext in ("csv", "json", "png"))
-    _atomic_write(csv_path, write_csv)
+    write_atomically(csv_path, write_csv, binary=False, newline="")
     document = jsonable({**payload, "rows": rows})
-    _atomic_write(json_path, lambda f: json.dump(document, f, indent=1, allow_nan=False))
+    write_atomically(json_path, lambda f: json.dump(document, f, indent=1, allow_nan=False), binary=False)
     written_png = None
     if plot is not None and have_matplotlib():
         import matplotlib
@@ -119,7 +104,7 @@ def write_outputs(out_dir: Path, name: str, rows: list[dict], payload: dict,
         buffer = io.BytesIO()
         plot(buffer)
         data = _palette_png(buffer.getvalue())
-        _atomic_write(png_path, lambda f: f.write(data), mode="wb")
+        write_atomically(png_path, lambda f: f.write(data))
         written_png = png_path
     return {"csv": csv_path, "json": json_path, "png": written_png}
 

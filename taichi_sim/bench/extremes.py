@@ -31,10 +31,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..scene.cloth import KIND_RATIOS, kind_stiffness
+
 AUDIT_ENERGY_GROWTH = 100.0
 AUDIT_REACH = 1000.0
 AUDIT_STRAIN = 100.0
-KIND_FACTORS = np.array([1.0, 0.5, 0.2])  # structural, shear, flex stiffness relative to k
 
 SCENES = {
     "spring": ("spring", {}),
@@ -140,7 +141,7 @@ def judge(status, message: str, problem: str, x: np.ndarray, v: np.ndarray) -> V
 def set_stiffness(scene, k: float) -> None:
     """Every spring to its kind's share of k (N/m), in place (nothing recompiles)."""
     springs = scene.springs
-    springs.set_parameters(stiffness=k * KIND_FACTORS[np.clip(springs.kind_np, 0, 2)])
+    springs.set_parameters(stiffness=k * kind_stiffness(springs.kind_np, KIND_RATIOS))
 
 
 def run_extremes(scenes: dict, integrators: list[str], stiffnesses, step_sizes, *, steps: int = STEPS,

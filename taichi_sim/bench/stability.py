@@ -56,6 +56,7 @@ from typing import Callable
 
 import numpy as np
 
+from ..scene.cloth import KIND_RATIOS, kind_stiffness
 from ..theory import horizon_limit, omega_max_bound, omega_max_eigsh, omega_max_power, stability_constant
 
 
@@ -79,7 +80,7 @@ SYSTEMS = {
                              (10.0, 100.0, 1e3, 1e4, 1e5), noise=1e-6,
                              description="5-particle chain, top pinned, perturbed"),
     "cloth": StabilitySystem("cloth", "cloth", {**UNDAMPED, "nx": 6, "ny": 6}, (10.0, 100.0, 1e3, 1e4),
-                             kind_factors=(1.0, 0.5, 0.2), noise=1e-6,
+                             kind_factors=KIND_RATIOS, noise=1e-6,
                              description="6x6 cloth, corners pinned, perturbed"),
 }
 QUICK_SYSTEMS = {
@@ -89,7 +90,7 @@ QUICK_SYSTEMS = {
     "chain": StabilitySystem("chain", "pendulum", {**UNDAMPED, "particle_count": 3, "particle_mass": 0.1},
                              (1e3,), noise=1e-6, description="3-particle chain, top pinned, perturbed"),
     "cloth": StabilitySystem("cloth", "cloth", {**UNDAMPED, "nx": 3, "ny": 3}, (100.0,),
-                             kind_factors=(1.0, 0.5, 0.2), noise=1e-6,
+                             kind_factors=KIND_RATIOS, noise=1e-6,
                              description="3x3 cloth, corners pinned, perturbed"),
 }
 
@@ -200,8 +201,7 @@ def perturbed_start(scene, noise: float, seed: int = 0) -> None:
 def set_stiffness(scene, system: StabilitySystem, k: float) -> np.ndarray:
     """Set every spring's stiffness to k times its kind's factor; returns the new stiffness."""
     springs = scene.springs
-    factors = np.asarray(system.kind_factors)[np.clip(springs.kind_np, 0, 2)]
-    stiffness = k * factors
+    stiffness = k * kind_stiffness(springs.kind_np, system.kind_factors)
     springs.set_parameters(stiffness=stiffness)
     return stiffness
 

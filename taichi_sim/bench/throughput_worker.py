@@ -51,17 +51,15 @@ class Timed:
         import taichi as ti
 
         self.ti, self.scene, self.integrator, self.dt = ti, scene, integrator, dt
-        from taichi_sim.guard import Guard
+        from taichi_sim.stepper import Stepper
 
-        self.events = bool(scene.post_step)
         self.through_run = through_run
         self.f_evals = self.linear = self.steps_done = 0
         self.worst = "ok"
         scene.reset()
-        integrator.reset()
-        # The blow-up guard, as every run has it (a check every 100 units of work): its cost is
-        # part of a step's cost.
-        self.guard = Guard(scene)
+        # The steps every run takes: post-step events, the blow-up guard (a check every 100 units
+        # of work) and their costs are part of a step's cost.
+        self.stepper = Stepper(scene, integrator, dt)
         start = time.perf_counter()
         self._advance(1)  # compiles
         self.first = time.perf_counter() - start
@@ -79,31 +77,26 @@ class Timed:
         self.samples: list[float] = []
 
     def _advance(self, steps: int) -> None:
-        from taichi_sim.integrators import Status
-
-        scene, integrator, guard, t = self.scene, self.integrator, self.guard, 0.0
-        for step in range(1, steps + 1):
-            report = integrator.step(scene.state, t, self.dt)
+        stepper = self.stepper
+        for _ in range(steps):
+            report = stepper.step()
             self.f_evals += report.f_evals
             self.linear += report.linear_iterations
-            if report.status is not Status.OK:
-                self.worst = report.status.value
-            if report.accepted:
-                t += report.h
-                if self.events and scene.after_step(t, report.h):
-                    integrator.reset()
-                if guard.spend(report.f_evals + report.linear_iterations) and guard.check(t, step):
-                    self.worst = Status.DIVERGED.value
+            if stepper.failure is not None:
+                # noted in the record's status; the batch goes on from the start so that it
+                # still times as many steps as it says
+                self.worst = stepper.status.value
+                self.scene.reset()
+                stepper.restart()
         self.ti.sync()
         self.steps_done += steps
 
     def batch(self) -> dict:
         self.scene.reset()
-        self.integrator.reset()
-        self.guard.rebase()
-        # checks every check_work units, as in a long run (a rebase starts the 1, 2, 4, ...
+        self.stepper.restart()
+        # checks every check_work units, as in a long run (a restart starts the 1, 2, 4, ...
         # schedule again, which would weigh on short batches); run() batches keep theirs
-        self.guard.interval = self.guard.limits.check_work
+        self.stepper.guard.interval = self.stepper.guard.limits.check_work
         start = time.perf_counter()
         if self.through_run:
             import taichi_sim as ts

@@ -19,7 +19,7 @@ the stage's own pushes would undo that.
 import numpy as np
 import taichi as ti
 
-from ..scene.colliders.contact import inelastic_friction
+from .friction import inelastic_friction
 
 FAR = 1e30  # the distance (m) from a point when there is no object
 

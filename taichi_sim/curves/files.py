@@ -165,7 +165,7 @@ def curves_json(curves: Curves, scene: str | None = None) -> str:
 def save_curves(path: str | os.PathLike, curves: Curves, scene: str | None = None) -> Path:
     """Write a curves file atomically (temporary file, then rename). Floats are written with
     ``repr`` precision, so loading gives back identical points."""
-    from ..io import write_atomically
+    from ..atomic import write_atomically
 
     text = json.dumps(curves_document(curves, scene), indent=1, allow_nan=False) + "\n"
     return write_atomically(Path(path), lambda f: f.write(text), binary=False)

@@ -1,4 +1,4 @@
-"""Force terms: composable pieces of a particle system's eval_f (DESIGN.md section 4)."""
+"""Force terms: composable pieces of a particle system's eval_f (docs/scenes.md, Force model)."""
 import taichi as ti
 
 

@@ -1,22 +1,19 @@
-"""Integrators behind one contract, looked up by name."""
+"""Integrators behind one contract, looked up by name: a built-in's, an installed plug-in's
+(entry-point group ``taichi_sim.integrators``), or ``package.module:Class`` /
+``path/to/file.py:Class`` (:mod:`.plugins`)."""
 from __future__ import annotations
-
-import inspect
 
 from ..errors import ConfigError, unknown_name
 from .adaptive import DormandPrince45, EmbeddedRK, Fehlberg45
-from .base import Integrator, Status, StepReport
+from .base import Integrator, Status, StepReport, missing_facts
 from .explicit_rk import RK4, Euler, ExplicitRK, Midpoint, Trapezoid
 from .implicit import ImplicitEuler, ImplicitEulerLinearised, ImplicitMidpoint, LinearSolverStats
+from .plugins import ENTRY_POINT_GROUP, installed_plugins, is_spec, load_entry_point, load_spec, loaded_plugin
 from .positional import XPBD, ProjectiveDynamics
 from .symplectic import SymplecticEuler
 from .tableau import ButcherTableau
 
-__all__ = ["INTEGRATORS", "RK4", "XPBD", "ButcherTableau", "DormandPrince45", "EmbeddedRK", "Euler",
-           "ExplicitRK", "Fehlberg45", "ImplicitEuler", "ImplicitEulerLinearised", "ImplicitMidpoint",
-           "Integrator", "LinearSolverStats", "Midpoint", "ProjectiveDynamics", "Status", "StepReport",
-           "SymplecticEuler", "Trapezoid", "check_options", "create_integrator", "integrator_class"]
-
+# Adding a method: its class (with its facts, see Integrator) and one entry here.
 INTEGRATORS: dict[str, type[Integrator]] = {
     cls.name: cls for cls in (Euler, Trapezoid, Midpoint, RK4, SymplecticEuler, DormandPrince45, Fehlberg45,
                               ImplicitEuler, ImplicitEulerLinearised, ImplicitMidpoint, ProjectiveDynamics, XPBD)
@@ -24,23 +21,67 @@ INTEGRATORS: dict[str, type[Integrator]] = {
 
 
 def integrator_class(name: str) -> type[Integrator]:
-    try:
+    """The class of integrator ``name``: a built-in, an installed plug-in, or a
+    ``module:Class`` spec (ConfigError with one line when there is none)."""
+    if name in INTEGRATORS:
         return INTEGRATORS[name]
-    except KeyError:
-        raise ConfigError(unknown_name("unknown integrator", name, INTEGRATORS)) from None
+    if is_spec(name):
+        return load_spec(name, INTEGRATORS)
+    if loaded_plugin(name) is not None:
+        return loaded_plugin(name)
+    plugins = installed_plugins()
+    if name in plugins:
+        return load_entry_point(name, plugins[name], INTEGRATORS)
+    raise ConfigError(unknown_name("unknown integrator", name, [*INTEGRATORS, *plugins])
+                      + "; or name your own class as package.module:Class or path/to/file.py:Class")
 
 
 def check_options(name: str, options: dict) -> type[Integrator]:
     """The class of integrator ``name``, after checking it takes every keyword in ``options``
     (ConfigError otherwise); nothing is allocated."""
     cls = integrator_class(name)
-    accepted = {p.name for p in inspect.signature(cls.__init__).parameters.values()
-                if p.kind is inspect.Parameter.KEYWORD_ONLY}
-    unknown = sorted(set(options) - accepted)
+    accepted = cls.options()
+    unknown = sorted(set(options) - set(accepted))
     if unknown:
         raise ConfigError(f"integrator {name!r} takes no option {unknown[0]!r}"
                           + (f" (it takes: {', '.join(sorted(accepted))})" if accepted else ""))
     return cls
+
+
+def parse_options(name: str, assignments: dict[str, str]) -> dict:
+    """Command-line option strings (``--option NAME=VALUE``) of integrator ``name`` as Python
+    values, typed by the keyword's default (bool, int, float or str) or, for a default of
+    None, by its annotation; ConfigError naming the option for a value that does not parse or
+    an option the method does not take."""
+    import inspect
+
+    cls = check_options(name, assignments)
+    parameters = inspect.signature(cls.__init__).parameters
+    values = {}
+    for key, text in assignments.items():
+        default, annotation = parameters[key].default, str(parameters[key].annotation)
+        kinds = ([type(default)] if default is not None and type(default) in (bool, int, float, str) else
+                 [t for t, word in ((bool, "bool"), (int, "int"), (float, "float"), (str, "str"))
+                  if word in annotation] or [int, float, str])
+        values[key] = _parse_value(name, key, text, kinds)
+    return values
+
+
+def _parse_value(name: str, key: str, text: str, kinds):
+    for kind in kinds:
+        if kind is bool:
+            if text.lower() in ("true", "1", "yes", "on", "false", "0", "no", "off"):
+                return text.lower() in ("true", "1", "yes", "on")
+            continue
+        try:
+            value = kind(text)
+        except ValueError:
+            continue
+        if kind is float and text.lower() in ("nan", "+nan", "-nan"):
+            continue
+        return value
+    wanted = " or ".join(k.__name__ for k in kinds)
+    raise ConfigError(f"integrator {name!r} option {key}: expects {wanted}, got {text!r}")
 
 
 def create_integrator(name: str, system, **options) -> Integrator:
@@ -50,3 +91,10 @@ def create_integrator(name: str, system, **options) -> Integrator:
     method does not take raises ConfigError.
     """
     return check_options(name, options)(system, **options)
+
+
+__all__ = ["INTEGRATORS", "ENTRY_POINT_GROUP", "Integrator", "Status", "StepReport", "ButcherTableau",
+           "ExplicitRK", "EmbeddedRK", "LinearSolverStats", "missing_facts", "installed_plugins",
+           "integrator_class", "check_options", "parse_options", "create_integrator",
+           "Euler", "Trapezoid", "Midpoint", "RK4", "SymplecticEuler", "DormandPrince45", "Fehlberg45",
+           "ImplicitEuler", "ImplicitEulerLinearised", "ImplicitMidpoint", "ProjectiveDynamics", "XPBD"]

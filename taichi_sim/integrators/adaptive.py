@@ -74,6 +74,7 @@ class EmbeddedRK(Integrator):
 
     tableau: ButcherTableau
     adaptive = True
+    stability_constant = None  # the controller picks the step
     initial_step_f_evals = 2
     takes_constraints = True
     max_growth = 10.0
@@ -82,6 +83,9 @@ class EmbeddedRK(Integrator):
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)
         cls.order = cls.tableau.order
+        # the stages, two stage inputs, the candidate and the first stage's point
+        cls.scratch_states = cls.tableau.stage_count + 4
+        cls.f_evals_per_step = float(cls.tableau.stage_count - (1 if cls.tableau.fsal else 0))
         cls.stiffness_threshold = STIFFNESS_FRACTION * cls.tableau.real_stability_boundary()
 
     def __init__(self, system: System, *, rtol: float = 1e-6, atol: float = 1e-9,
@@ -371,7 +375,7 @@ class DormandPrince45(EmbeddedRK):
 
     name = "rk45"
     tableau = DORMAND_PRINCE
-    description = "adaptive Dormand-Prince 5(4), FSAL; options rtol (1e-6), atol (1e-9)"
+    description = "adaptive Dormand-Prince 5(4), FSAL"
 
 
 class Fehlberg45(EmbeddedRK):
@@ -379,4 +383,4 @@ class Fehlberg45(EmbeddedRK):
 
     name = "rkf45"
     tableau = FEHLBERG
-    description = "adaptive Runge-Kutta-Fehlberg 4(5); options rtol (1e-6), atol (1e-9)"
+    description = "adaptive Runge-Kutta-Fehlberg 4(5)"

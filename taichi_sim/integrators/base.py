@@ -1,6 +1,8 @@
 """The integrator contract: step a caller-owned state and report what happened."""
 from __future__ import annotations
 
+import inspect
+import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from enum import Enum
@@ -45,15 +47,35 @@ class StepReport:
     message: str = ""
 
 
+class _Missing:
+    """The value of a fact a method has not declared (see :func:`missing_facts`)."""
+
+    def __repr__(self) -> str:
+        return "<missing>"
+
+
+MISSING = _Missing()
+REAL_PARTS_PER_PARTICLE = 6  # a state copy: x and v, 3 reals each
+
+
 class Integrator(ABC):
     """A time-stepping method bound to one system.
 
     Scratch (stage buffers) is allocated once in ``__init__``; ``step`` allocates nothing.
-    Class attributes: ``name`` (the registry name), ``order`` (global order of accuracy),
-    ``requires_second_order`` (only for systems with velocities), ``adaptive`` (the step size
-    is proposed by the method: ``step`` may reject, and ``initial_step`` picks the first one),
-    ``implicit`` (reports linear-solver work).
-    Options (tolerances, solver choices) are keyword-only constructor arguments.
+    Options (tolerances, solver choices) are keyword-only constructor arguments; the command
+    line and :func:`~taichi_sim.integrators.check_options` read them from the signature
+    (:meth:`options`).
+
+    A method declares its facts as class attributes, and every tool reads them from the class
+    (theory, memory, ``advise``, ``list``); :func:`missing_facts` names what is not declared,
+    and a plug-in lacking one is refused. Required: ``name`` (the registry name),
+    ``order`` (global order of accuracy, >= 1), ``description`` (one line),
+    ``stability_constant`` and the scratch (``scratch_states`` or :meth:`scratch_bytes`);
+    ``advice_note`` when the constant is inf, :meth:`amplification_squared` when it is 0.
+    Capabilities (default False): ``requires_second_order`` (only for systems with velocities),
+    ``adaptive`` (the step size is proposed by the method: ``step`` may reject, and
+    ``initial_step`` picks the first one), ``implicit`` (reports linear-solver work),
+    ``takes_constraints``.
     """
 
     name: str = ""
@@ -62,11 +84,37 @@ class Integrator(ABC):
     adaptive: bool = False
     implicit: bool = False
     description: str = ""
+
+    stability_constant = MISSING
+    """C such that the method is stable on an undamped linear oscillator of angular frequency
+    omega while h omega <= C (:mod:`taichi_sim.theory`): a positive number; 0 when it grows at
+    every step on the imaginary axis (then :meth:`amplification_squared` says how fast);
+    ``math.inf`` when no step makes it blow up (then ``advice_note`` says what "no limit"
+    means for it); None for an adaptive method, whose controller picks the step."""
+    advice_note: str = ""
+    """What ``taichi-sim advise`` prints beside the method's step limit (required for an
+    unlimited method: which scenes, what it costs instead, e.g. damping)."""
+    scratch_states = MISSING
+    """Scratch in copies of the state (6 reals per particle), for :meth:`scratch_bytes`; a
+    method whose scratch is not whole states overrides :meth:`scratch_bytes` instead."""
+    f_evals_per_step: float | None = None
+    """Evaluations of f per step as declared (None: it varies, e.g. with Newton iterations)."""
+
     takes_constraints: bool = False
     """Whether the method steps a system with constraint forces (``system.constraints``): the
     methods that only call eval_f (explicit Runge-Kutta, symplectic Euler, the embedded
     pairs) do; the implicit and positional ones, which assemble the forces term by term, do
     not and refuse such a system."""
+
+    equation = None
+    """The equation a step solves (:class:`~taichi_sim.integrators.equation.Equation`) for the
+    methods that solve a system per step; None for the explicit ones. Runs measure its residual
+    (:class:`taichi_sim.convergence.ConvergenceMonitor`)."""
+    tracks_solved_start = False
+    """Whether the method, when ``solved_start`` is set to a State, copies into it the start of
+    the last piece of a step it solved (a substep, a halving) and sets ``solved_h`` (s)."""
+    solved_start = None
+    solved_h = float("nan")
 
     def __init__(self, system: System):
         if self.requires_second_order and not system.second_order:
@@ -81,6 +129,24 @@ class Integrator(ABC):
 
     initial_step_f_evals: int = 0
 
+    @classmethod
+    def scratch_bytes(cls, particles: int, springs: int, real_bytes: int, linear_solver: str = "cg") -> int:
+        """Estimated peak bytes of the method's scratch on a system of ``particles`` and
+        ``springs`` at reals of ``real_bytes`` bytes (:mod:`taichi_sim.memory`)."""
+        return int(cls.scratch_states) * REAL_PARTS_PER_PARTICLE * real_bytes * particles
+
+    @classmethod
+    def amplification_squared(cls, theta: float) -> float | None:
+        """|R(i theta)|^2: the growth of an undamped oscillation's energy per step at
+        theta = h omega (the stability function on the imaginary axis); None when unknown."""
+        return None
+
+    @classmethod
+    def options(cls) -> dict:
+        """The method's options: keyword-only arguments of ``__init__`` and their defaults."""
+        return {p.name: p.default for p in inspect.signature(cls.__init__).parameters.values()
+                if p.kind is inspect.Parameter.KEYWORD_ONLY}
+
     def initial_step(self, state: State, t: float, t_end: float | None) -> float:
         """First step size (s) for an adaptive method when the user gives none; it costs
         ``initial_step_f_evals`` evaluations of f."""
@@ -93,3 +159,29 @@ class Integrator(ABC):
     @abstractmethod
     def step(self, state: State, t: float, h: float) -> StepReport:
         """Advance ``state`` in place from time ``t`` by ``h`` seconds."""
+
+
+def missing_facts(cls) -> list[str]:
+    """The facts (class docstring of :class:`Integrator`) that ``cls`` does not declare, or
+    declares with a value no tool can use; empty when it is complete."""
+    missing = []
+    if not (isinstance(cls.name, str) and cls.name):
+        missing.append("name (a non-empty str)")
+    if isinstance(cls.order, bool) or not isinstance(cls.order, int) or cls.order < 1:
+        missing.append("order (an int >= 1)")
+    if not (isinstance(cls.description, str) and cls.description):
+        missing.append("description (a one-line str)")
+    c = cls.stability_constant
+    if c is MISSING or not (c is None or (isinstance(c, (int, float)) and c >= 0 and not math.isnan(c))):
+        missing.append("stability_constant (a number >= 0, math.inf, or None when adaptive)")
+    elif c is None and not cls.adaptive:
+        missing.append("stability_constant (None is only for adaptive methods)")
+    elif c == math.inf and not cls.advice_note:
+        missing.append("advice_note (what 'no step limit' means for this method)")
+    elif c == 0 and cls.amplification_squared(1.0) is None:
+        missing.append("amplification_squared (how fast it grows on the imaginary axis)")
+    if cls.scratch_states is MISSING and cls.scratch_bytes.__func__ is Integrator.scratch_bytes.__func__:
+        missing.append("scratch_states or scratch_bytes (its scratch memory)")
+    if getattr(cls, "__abstractmethods__", None):
+        missing.append(f"an implementation of {', '.join(sorted(cls.__abstractmethods__))}")
+    return missing

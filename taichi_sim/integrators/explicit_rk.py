@@ -1,5 +1,8 @@
 """One generic explicit Runge-Kutta step driven by a Butcher tableau."""
 
+import math
+
+import numpy as np
 import taichi as ti
 
 from ..loops import anchor
@@ -26,6 +29,14 @@ class ExplicitRK(Integrator):
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)
         cls.order = cls.tableau.order
+        count = cls.tableau.stage_count
+        cls.scratch_states = count + (1 if count > 1 else 0)  # the stages and one stage input
+        cls.f_evals_per_step = float(count)
+
+    @classmethod
+    def amplification_squared(cls, theta: float) -> float:
+        """|R(i theta)|^2 from the tableau's stability polynomial R(z) = sum_k gamma_k z^k."""
+        return float(abs(np.polyval(cls.tableau.stability_polynomial()[::-1], 1j * theta)) ** 2)
 
     def __init__(self, system: System):
         super().__init__(system)
@@ -164,22 +175,26 @@ def weighted_stages(stages: ti.template(), weights: ti.template(), part: ti.temp
 class Euler(ExplicitRK):
     name = "euler"
     tableau = EULER
+    stability_constant = 0.0  # |1 + i theta| > 1 for every theta > 0
     description = "explicit (forward) Euler"
 
 
 class Midpoint(ExplicitRK):
     name = "midpoint"
     tableau = MIDPOINT
+    stability_constant = 0.0  # |R(i theta)|^2 = 1 + theta^4 / 4
     description = "explicit midpoint rule"
 
 
 class Trapezoid(ExplicitRK):
     name = "trapezoid"
     tableau = TRAPEZOID
+    stability_constant = 0.0  # |R(i theta)|^2 = 1 + theta^4 / 4
     description = "explicit trapezoid rule (Heun): f0=f(X), f1=f(X+h f0), X+=h/2 (f0+f1)"
 
 
 class RK4(ExplicitRK):
     name = "rk4"
     tableau = RK4
+    stability_constant = 2.0 * math.sqrt(2.0)
     description = "classical fourth-order Runge-Kutta"

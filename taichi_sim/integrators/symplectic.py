@@ -25,6 +25,9 @@ class SymplecticEuler(Integrator):
     requires_second_order = True
     takes_constraints = True
     description = "symplectic (semi-implicit) Euler, v then x"
+    stability_constant = 2.0
+    scratch_states = 1  # the derivative
+    f_evals_per_step = 1.0
 
     def __init__(self, system: System):
         super().__init__(system)

@@ -5,11 +5,12 @@ an opacity and a radius, piecewise linearly between a few keys. :class:`EffectDr
 it for every live particle in a Taichi kernel each frame and hands GGUI one ``scene.particles``
 call with per-particle RGBA colours and radii.
 
-What GGUI (Taichi 1.7.4) does with particles, found by drawing them offscreen (the README's
-Effects section): it honours the alpha of an RGBA ``per_vertex_color`` (standard "over"
-blending) and ``per_vertex_radius``; it writes depth for every particle however transparent, so
-a translucent particle hides whatever is drawn after it behind it: particles are sorted far to
-near (``ti.algorithms.parallel_sort`` on their distance to the eye) before they are handed over.
+What GGUI (Taichi 1.7.4) does with particles, found by drawing them offscreen
+(docs/rendering-and-recording.md, Particle effects): it honours the alpha of an RGBA
+``per_vertex_color`` (standard "over" blending) and ``per_vertex_radius``; it writes depth for
+every particle however transparent, so a translucent particle hides whatever is drawn after it
+behind it: particles are sorted far to near (``ti.algorithms.parallel_sort`` on their distance
+to the eye) before they are handed over.
 It lights every particle as a sphere with the scene's lights and has no additive blending and
 no emissive colour, so a flame's colours are scaled up (``glow``: GGUI does not clamp colours
 before lighting) for the lit sphere to keep them.

@@ -8,32 +8,17 @@ from __future__ import annotations
 
 import math
 import os
-import shutil
-import tempfile
 from pathlib import Path
 
 import numpy as np
 from PIL import Image
 
+from ..atomic import PendingFile, check_can_create
 from ..errors import ConfigError
-from ..paths import check_can_create
 
 MAX_SIDE = 4096  # pixels
 MAX_FPS = 240.0
 KINDS = ("mp4", "gif", "png")
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
-def _publish(tmp: Path, path: Path) -> None:
-    """Give the finished temporary file (or folder) the permissions of a newly created one,
-    then rename it to ``path``."""
-    os.chmod(tmp, (0o777 if tmp.is_dir() else 0o666) & ~_umask())
-    os.replace(tmp, path)
 
 
 def parse_size(text: str) -> tuple[int, int]:
@@ -111,13 +96,9 @@ class VideoWriter:
         self.count = 0
         self._gif_frames: list[Image.Image] = []
         self._writer = None
-        parent = self.path.parent
-        if self.kind == "png":
-            self._tmp = Path(tempfile.mkdtemp(prefix=f".{self.path.name}.", suffix=".tmp", dir=parent))
-        else:
-            fd, tmp = tempfile.mkstemp(prefix=f".{self.path.stem}.", suffix=f".tmp.{self.kind}", dir=parent)
-            os.close(fd)
-            self._tmp = Path(tmp)
+        self._pending = PendingFile(self.path, folder=self.kind == "png",
+                                    suffix=".tmp" if self.kind == "png" else f".tmp.{self.kind}")
+        self._tmp = self._pending.tmp
         if self.kind == "mp4":
             import imageio.v2 as imageio
 
@@ -162,9 +143,7 @@ class VideoWriter:
                 first.save(self._tmp, format="GIF", save_all=True, append_images=rest, loop=0,
                            duration=max(20, round(1000.0 / self.fps)), optimize=True)
                 self._gif_frames = []
-            if self.kind == "png" and self.path.exists():
-                self.path.rmdir()  # checked empty before any work
-            _publish(self._tmp, self.path)
+            self._pending.commit()  # a PNG folder target was checked empty before any work
         except BaseException:
             self.abort()
             raise
@@ -178,22 +157,15 @@ class VideoWriter:
                 writer.close()
             except Exception:  # the writer may be why we abort; its file is deleted anyway
                 pass
-        if self._tmp.is_dir():
-            shutil.rmtree(self._tmp, ignore_errors=True)
-        elif self._tmp.exists():
-            self._tmp.unlink()
+        self._pending.discard()
 
 
 def save_png(image: np.ndarray, path: str | os.PathLike) -> Path:
     """Write one (H, W, 3) uint8 image to ``path`` atomically (temporary file, then rename)."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".tmp.png", dir=path.parent)
-    os.close(fd)
+    pending = PendingFile(path, suffix=".tmp.png")
     try:
-        Image.fromarray(np.ascontiguousarray(image, np.uint8)).save(tmp, optimize=True)
-        _publish(Path(tmp), path)
+        Image.fromarray(np.ascontiguousarray(image, np.uint8)).save(pending.tmp, optimize=True)
     except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+        pending.discard()
         raise
-    return path
+    return pending.commit()

@@ -4,6 +4,25 @@ from __future__ import annotations
 import numpy as np
 
 STRUCTURAL, SHEAR, FLEX = 0, 1, 2
+# The one place that maps spring kinds to stiffness: the cloth parameter of each kind, and the
+# cloth family's ratios to the structural k (shear k/2, flex k/5; the defaults 500, 250, 100
+# N/m) that the benches use when they sweep one k.
+KIND_STIFFNESS_PARAMS = ("stiffness", "shear_stiffness", "flex_stiffness")
+KIND_RATIOS = (1.0, 0.5, 0.2)
+
+
+def kind_stiffness(kind: np.ndarray, per_kind) -> np.ndarray:
+    """(S,) stiffness (N/m) of springs of ``kind`` (0 structural, 1 shear, 2 flex; others count
+    as flex) from ``per_kind``: three values in that order, or a mapping holding the cloth's
+    parameters (:data:`KIND_STIFFNESS_PARAMS`)."""
+    if hasattr(per_kind, "keys"):
+        per_kind = [per_kind[name] for name in KIND_STIFFNESS_PARAMS]
+    return np.asarray(per_kind, float)[np.clip(np.asarray(kind, int), 0, 2)]
+
+
+def swept_stiffness(k: float) -> dict[str, float]:
+    """The cloth parameters for structural stiffness ``k`` (N/m) at the family's ratios."""
+    return {name: k * ratio for name, ratio in zip(KIND_STIFFNESS_PARAMS, KIND_RATIOS)}
 
 
 def grid_index(nx: int, ny: int) -> np.ndarray:
@@ -12,7 +31,7 @@ def grid_index(nx: int, ny: int) -> np.ndarray:
 
 
 def spring_counts(nx: int, ny: int) -> dict[int, int]:
-    """Closed-form spring counts per kind for an nx x ny grid (DESIGN.md section 4)."""
+    """Closed-form spring counts per kind for an nx x ny grid (docs/scenes.md, Force model)."""
     return {
         STRUCTURAL: (nx - 1) * ny + nx * (ny - 1),
         SHEAR: 2 * max(nx - 1, 0) * max(ny - 1, 0),

@@ -210,8 +210,7 @@ def build_cloth(preset: ScenePreset, p: dict[str, Any], seed: int) -> Scene:
     b.add_particles(x, p["particle_mass"], pinned=cloth_pins(nx, ny, p["pin"]))
     b.declare_grid(0, nx, ny)
     ends, kind = topo.grid_springs(nx, ny, structural=p["structural"], shear=p["shear"], flex=p["flex"])
-    stiffness = np.choose(kind, [p["stiffness"], p["shear_stiffness"], p["flex_stiffness"]]) \
-        if len(kind) else np.zeros(0)
+    stiffness = topo.kind_stiffness(kind, p)
     b.add_springs(ends, stiffness=stiffness, damping=p["damping"], kind=kind)
     b.add_triangles(topo.grid_triangles(nx, ny))
     if p["jitter"] > 0:  # after the springs, so rest lengths stay those of the flat grid

@@ -1,4 +1,4 @@
-"""Post-step events: applied between accepted steps, never inside f (DESIGN.md section 3).
+"""Post-step events: applied between accepted steps, never inside f (docs/design.md, Contracts).
 
 The object colliders live in :mod:`taichi_sim.scene.colliders`; tearing and emission here.
 

@@ -10,8 +10,7 @@ from __future__ import annotations
 from dataclasses import replace
 from typing import Any, Callable
 
-import numpy as np
-
+from .cloth import KIND_STIFFNESS_PARAMS, kind_stiffness
 from .scene import Scene
 
 
@@ -20,7 +19,7 @@ def _set_spring_stiffness(scene: Scene, p: dict) -> bool:
     if springs is None:
         return False
     if "shear_stiffness" in p:  # a cloth: one stiffness per spring kind
-        k = np.choose(springs.kind_np, [p["stiffness"], p["shear_stiffness"], p["flex_stiffness"]])
+        k = kind_stiffness(springs.kind_np, p)
     else:
         k = p["stiffness"]
     springs.set_parameters(stiffness=k)
@@ -99,7 +98,7 @@ def applies_live(scene: Scene, name: str) -> bool:
     """Whether parameter ``name`` can change on ``scene`` while it runs."""
     if name not in LIVE_SETTERS:
         return False
-    if name in ("stiffness", "shear_stiffness", "flex_stiffness"):
+    if name in KIND_STIFFNESS_PARAMS:
         return scene.springs is not None
     if name == "damping":
         return scene.springs is not None and scene.springs.damped

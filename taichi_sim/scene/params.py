@@ -85,3 +85,15 @@ def resolve(params: tuple[Param, ...], scene: str, given: dict[str, Any]) -> dic
         values[name] = by_name[name].parse(value) if isinstance(value, str) and by_name[name].kind is not str \
             else by_name[name].check(value)
     return values
+
+
+def scene_assignments(assignments: list[tuple[str, str]], flag: str = "--set") -> dict[str, str]:
+    """``--set`` (or ``flag``) pairs as a dict; a parameter set twice is an error (which value
+    was meant?)."""
+    params: dict[str, str] = {}
+    for name, value in assignments:
+        if name in params:
+            raise ConfigError(f"{flag} {name} given twice ({name}={params[name]} and {name}={value}); "
+                              "give each parameter once")
+        params[name] = value
+    return params

@@ -89,13 +89,14 @@ def scene_preset(name: str) -> ScenePreset:
 
 
 def check_scene_memory(preset: ScenePreset, values: dict[str, Any], *, precision: str,
-                       integrators: tuple[str, ...] = (), linear_solver: str = "cg", copies: int = 1) -> int:
+                       integrators: tuple = (), linear_solver: str = "cg", copies: int = 1) -> int:
     """Refuse (ConfigError naming the size parameters) a scene too large for the available
     memory, before anything is allocated (see :mod:`taichi_sim.memory` for the estimate's
-    basis). ``values`` are resolved parameters. Returns the estimate in bytes."""
+    basis). ``values`` are resolved parameters; ``integrators``: the classes that will step
+    it (their scratch; none when the caller does not know yet). Returns the estimate in bytes."""
     culprits = ", ".join(f"{k} = {values[k]}" for k in preset.size_params) or f"of scene {preset.name!r}"
     return check_size(preset.size(values), culprits, precision=precision,
-                      integrators=integrators or (preset.default_integrator,), linear_solver=linear_solver,
+                      integrators=integrators, linear_solver=linear_solver,
                       copies=copies)
 
 

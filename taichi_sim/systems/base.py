@@ -1,4 +1,4 @@
-"""The ODE contract every system honours (DESIGN.md section 3)."""
+"""The ODE contract every system honours (docs/design.md, Contracts)."""
 from __future__ import annotations
 
 from abc import ABC, abstractmethod

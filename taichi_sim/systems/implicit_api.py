@@ -172,7 +172,7 @@ class ImplicitAPI:
                 dissipation += r
                 if free_i:
                     f += piece
-                    scale += magnitude
+                    scale += piece.norm()
                     rounding += error
             else:
                 if free_i:

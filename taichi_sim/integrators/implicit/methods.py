@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 from ...systems.base import System
+from ..equation import EXACT, FIXED_WORK, Equation
 from .newton import ImplicitStageMethod
+
+_NEWTON_ADVICE = "raise --newton-iterations or lower --newton-tolerance or --dt"
 
 
 class ImplicitEuler(ImplicitStageMethod):
@@ -35,6 +38,9 @@ class ImplicitEuler(ImplicitStageMethod):
     stage_fraction = 1.0
     default_newton_iterations = 50
     inexact_newton = True
+    equation = Equation("backward_euler", EXACT, advice=_NEWTON_ADVICE)
+    advice_note = ("no step limit: exact backward Euler, energy never rises on conservative scenes; "
+                   "damps motion more as h omega grows")
 
 
 class ImplicitEulerLinearised(ImplicitStageMethod):
@@ -55,6 +61,10 @@ class ImplicitEulerLinearised(ImplicitStageMethod):
     description = "one linearised backward Euler step (Baraff-Witkin); can gain energy on stiff springs"
     stage_fraction = 1.0
     linearised = True
+    equation = Equation("backward_euler", FIXED_WORK,
+                        advice="it takes one linearised Newton step: use implicit_euler or lower --dt")
+    advice_note = ("no limit on linear springs only: one Newton step can gain energy on "
+                   "stretched springs at large h^2 k / m (reported diverged)")
 
     def __init__(self, system: System, *, linear_solver: str = "cg", cg_tolerance: float | None = None,
                  cg_max_iterations: int = 1000, preconditioner: str | None = None,
@@ -83,3 +93,6 @@ class ImplicitMidpoint(ImplicitStageMethod):
     description = "implicit midpoint rule (Newton iterations; conserves quadratic invariants)"
     stage_fraction = 0.5
     default_newton_iterations = 50
+    equation = Equation("implicit_midpoint", EXACT, advice=_NEWTON_ADVICE)
+    advice_note = ("no limit on linear springs (conserves their energy); on nonlinear springs "
+                   "energy can rise and Newton can fail at large h omega (reported)")

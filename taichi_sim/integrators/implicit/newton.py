@@ -137,6 +137,19 @@ class ImplicitStageMethod(Integrator):
     inexact_newton: bool = False  # forcing terms and inexact_newton_tolerance on particle systems
     inexact_newton_tolerance: float = 1e-3
     implicit = True
+    tracks_solved_start = True
+    stability_constant = math.inf  # A-stable on linear springs; see each method's advice_note
+
+    @classmethod
+    def scratch_bytes(cls, particles: int, springs: int, real_bytes: int, linear_solver: str = "cg") -> int:
+        """Newton's point, force, rhs, delta, guess, the Krylov vectors and 3 x 3 diagonal
+        blocks (about 40 reals per particle) and the cached spring Jacobian blocks (10 reals +
+        2 ids per spring); the direct solver adds a sparse matrix (9 (n + 2 S) entries of a
+        real and an index) and its Cholesky factor, taken as 4 times that."""
+        total = particles * 40 * real_bytes + springs * (10 * real_bytes + 8)
+        if linear_solver == "direct":
+            total += 4 * 9 * (particles + 2 * springs) * (real_bytes + 4)
+        return total
 
     def __init__(self, system: System, *, linear_solver: str = "cg", newton_iterations: int | None = None,
                  newton_tolerance: float | None = None, cg_tolerance: float | None = None,
@@ -239,6 +252,9 @@ class ImplicitStageMethod(Integrator):
 
     def _attempt(self, state: State, t: float, h: float) -> StepReport:
         """One try at the step from t by h, without subdividing."""
+        if self.solved_start is not None:  # the last try of a step is the piece it solved
+            self.solved_start.copy_from(state)
+            self.solved_h = h
         tau = self.stage_fraction * h
         t_stage = t + tau
         work = StepWork(h)

@@ -171,7 +171,7 @@ class VelocityStage:
                 m = self.system.mass[i]
                 g = m * (self.point.v[i] - y0.v[i]) - tau * f
                 momenta = m * (self.point.v[i].norm() + y0.v[i].norm())
-                s = momenta + tau * force_scale
+                s = m * (self.point.v[i] - y0.v[i]).norm() + tau * force_scale
                 e = momenta + tau * force_rounding
                 g2 += g.norm_sqr()
                 s2 += s * s

@@ -1,10 +1,13 @@
 """Extended position-based dynamics: springs as compliant distance constraints."""
 
+import math
+
 import taichi as ti
 
 from ... import runtime
 from ...systems.base import System
 from ..base import Integrator, StepReport
+from ..equation import FIXED_WORK, Equation
 from ..implicit.common import positive_int
 from .colouring import colour_springs
 from .external import ExplicitForces
@@ -48,7 +51,7 @@ class XPBD(Integrator):
     instead) the constraints are solved only partly: a stiff cloth (k large, so compliance ~ 0)
     stretches more than the exact solution would, by an amount that shrinks with more
     substeps, never by a blow-up. The method does not conserve energy; on conservative scenes
-    it loses energy (see the README's damping figures). First order in h.
+    it loses energy (docs/implicit.md, The trade, measured). First order in h.
 
     Args:
         system: a particle system (second order).
@@ -60,6 +63,18 @@ class XPBD(Integrator):
     order = 1
     requires_second_order = True
     description = "extended position-based dynamics: springs as compliant constraints, substepped"
+    equation = Equation("backward_euler", FIXED_WORK, explicit_external=True,
+                        advice="raise --iterations or --substeps, or lower --dt")
+    tracks_solved_start = True
+    stability_constant = math.inf  # the springs are compliant constraints, solved at any step
+    advice_note = ("no blow-up at any step; with few substeps stiff springs stay partly stretched (k >= 1e6: "
+                   "give it 50-100 substeps per 1/60 s); damping shrinks with the substep")
+
+    @classmethod
+    def scratch_bytes(cls, particles: int, springs: int, real_bytes: int, linear_solver: str = "cg") -> int:
+        """Displacement and explicit force per particle; lambda and order per spring, and the
+        edge colouring's Python ints on the host while it runs (about 120 bytes per spring)."""
+        return 6 * real_bytes * particles + springs * (real_bytes + 4 + 120)
 
     def __init__(self, system: System, *, substeps: int = 20, iterations: int = 1):
         super().__init__(system)
@@ -95,6 +110,9 @@ class XPBD(Integrator):
     def step(self, state, t: float, h: float) -> StepReport:
         dt = h / self.substeps
         for k in range(self.substeps):
+            if self.solved_start is not None and k == self.substeps - 1:
+                self.solved_start.copy_from(state)  # what the convergence monitor measures
+                self.solved_h = dt
             if self.fused:
                 self._substep(state, dt, t + k * dt)
             else:

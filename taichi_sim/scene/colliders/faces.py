@@ -18,7 +18,7 @@ import taichi as ti
 
 from ... import runtime
 from ...collide.closest_points import closest_barycentric, inside, segment_parameters
-from .contact import inelastic_friction
+from ...collide.friction import inelastic_friction
 
 # Rounds of face pushes per step (they stop when one pushes nothing): a push can move a corner
 # another face shares into the object. A cloth wrapped tight round a 0.01 m sphere took up to

@@ -6,7 +6,7 @@ import numpy as np
 import taichi as ti
 
 from ... import runtime
-from .contact import inelastic_friction
+from ...collide.friction import inelastic_friction
 from .faces import FaceContact, box_separation, segment_crosses_triangle, segment_to_triangle
 from .obstacle import Obstacle
 from .path import PathFields, SpherePath

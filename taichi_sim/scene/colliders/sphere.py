@@ -5,7 +5,7 @@ import numpy as np
 import taichi as ti
 
 from ... import runtime
-from .contact import inelastic_friction
+from ...collide.friction import inelastic_friction
 from .faces import FaceContact, sphere_to_triangle
 from .obstacle import Obstacle
 from .path import PathFields, SpherePath

@@ -1,4 +1,5 @@
-"""The velocity response every object collider shares: inelastic normal, Coulomb friction."""
+"""The velocity response every object collider shares (the scene's colliders and the self-contact
+stage's objects): inelastic normal, Coulomb friction."""
 import taichi as ti
 
 

@@ -1,0 +1,378 @@
+"""The one stepping core: a scene, an integrator, the blow-up guard and the curves, stepped in
+the house order.
+
+Every path that steps a scene goes through :class:`Stepper`: :func:`taichi_sim.run` (and
+through it ``simulate``, ``advise``, the benchmarks), the launcher's and the recorder's
+:class:`~taichi_sim.app.runner.Runner`, the throughput workers and the tests that step a scene
+by hand. One call of :meth:`Stepper.step` is one integrator call and everything after it:
+
+1. the curves set the parameters for the step's start (a force change resets the integrator
+   and re-bases the guard: energy put in from outside is not a blow-up);
+2. observers' ``before_step`` (nothing else runs between them and the integrator);
+3. ``integrator.step``;
+4. a failed step ends the run here (:meth:`_step_failed`);
+5. an accepted step: the time, the scene's post-step events (``scene.after_step``; the
+   integrator forgets what it carries when they changed the system), the guard's work count
+   and, when due or asked for, its check (a failed check ends the run on the last good state);
+6. observers' ``after_step``.
+
+A run that fails is frozen: :attr:`Stepper.failure` says what, where and what to do, in one
+place (:class:`Failure`), and the scene holds the last state that passed the guard whenever
+the state may be garbage.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from . import runtime
+from .convergence import ConvergenceMonitor
+from .errors import ConfigError
+from .guard import Guard, GuardLimits
+from .integrators import Integrator, Status, StepReport, create_integrator, integrator_class
+from .theory import stable_step_advice
+
+ADVICE = "lower the step or pick a more stable integrator"
+OK = Status.OK  # a module global: read at every step
+
+
+def check_dt(dt, *, adaptive: bool = False) -> float | None:
+    """``dt`` as a float (s), or None for an adaptive method that picks its first step; raises
+    ConfigError naming ``dt`` for anything else."""
+    if dt is None:
+        if adaptive:
+            return None
+        raise ConfigError("dt is required for a fixed-step integrator")
+    if isinstance(dt, bool) or not isinstance(dt, (int, float)) or not (math.isfinite(dt) and dt > 0):
+        raise ConfigError(f"dt must be a finite number > 0, got {dt}")
+    return float(dt)
+
+
+def failure_advice(scene, integrator: str, status: Status) -> str:
+    """What to do about a run of ``integrator`` on ``scene`` that ended with ``status``."""
+    if status is Status.DIVERGED:
+        advice = stable_step_advice(scene, integrator)
+        return f"{advice}: {ADVICE}" if advice else ADVICE
+    if status is Status.STIFF:
+        return "the problem is stiff: use an implicit method (implicit_euler)"
+    if status is Status.STEP_TOO_SMALL:
+        return "loosen rtol/atol or use f64"
+    return ADVICE
+
+
+@dataclass(frozen=True)
+class Failure:
+    """Why and where a run stopped.
+
+    Attributes:
+        status: anything but OK.
+        step, t: the step that failed, or at which the guard caught the blow-up, and its time (s).
+        integrator: its registry name; h: the step size (s) of the failing call.
+        detail: what the method or the guard saw ("energy rose to ..."), or "".
+        good_step, good_t: the state left in the scene when it was put back to the last one
+            that passed the guard (a DIVERGED run); None when the state was left as it was.
+        advice: what to do about it (:func:`failure_advice`).
+    """
+
+    status: Status
+    step: int
+    t: float
+    integrator: str
+    h: float
+    detail: str
+    good_step: int | None
+    good_t: float | None
+    advice: str
+
+    @property
+    def summary(self) -> str:
+        """Short form for a HUD: "diverged at t = 0.24 s (energy rose to ...)"."""
+        detail = f" ({self.detail})" if self.detail else ""
+        return f"{self.status.value.replace('_', ' ')} at t = {self.t:.4g} s{detail}"
+
+    @property
+    def message(self) -> str:
+        """One line: what stopped the run, where, with what, the state returned and the advice."""
+        detail = f" ({self.detail})" if self.detail else ""
+        text = (f"{self.status.value} at step {self.step} (t = {self.t:.6g} s) with {self.integrator}, "
+                f"h = {self.h:.3g} s{detail}")
+        if self.good_step is not None:
+            text += (f"; the state returned is that of step {self.good_step} (t = {self.good_t:.6g} s), "
+                     f"the last that passed the blow-up check")
+        return f"{text}; {self.advice}"
+
+
+class Stepper:
+    """Steps ``scene.state`` with one integrator, watched by a :class:`~taichi_sim.guard.Guard`.
+
+    Args:
+        scene: the scene to step (the stepper owns its state from now on).
+        integrator: an integrator bound to ``scene.system``, or a registry name.
+        dt: the step (s) of a fixed-step method; for an adaptive one the first step (None: the
+            method picks it at the first step).
+        limits: the guard's limits (default :class:`~taichi_sim.guard.GuardLimits`).
+        curves: parameter name -> :class:`~taichi_sim.curves.Spline` driving the scene from t = 0.
+        observers: objects with any of ``before_step(stepper, h)`` (just before the integrator
+            call), ``after_step(stepper, report)`` (after an accepted step and its guard check)
+            and ``after_check(stepper) -> str | None`` (after the guard passed the state, before
+            it becomes the last good one; a string refuses it: the run ends DIVERGED with that
+            detail, on the state before).
+
+    Attributes:
+        t: simulated time (s); steps: accepted steps; rejected: steps an adaptive method retried.
+        h: the next step (s): ``dt``, or the adaptive method's proposal.
+        f_evals, linear_iterations: work in total; linear_residual: that of the last solve.
+        checked: whether the guard checked (and passed) the state after the last accepted step.
+        failure: a :class:`Failure` once the run stopped, else None; ``status`` its status (OK
+            while running).
+    """
+
+    def __init__(self, scene, integrator: Integrator | str, dt: float | None, *,
+                 limits: GuardLimits | None = None, curves: dict | None = None, observers=(),
+                 max_residual: float | None = None):
+        if isinstance(integrator, str):  # a bad dt is refused before anything is bound
+            check_dt(dt, adaptive=integrator_class(integrator).adaptive)
+            integrator = create_integrator(integrator, scene.system)
+        self.scene = scene
+        self.dt = check_dt(dt, adaptive=integrator.adaptive)
+        self.guard = Guard(scene, limits)
+        self.max_residual = max_residual
+        # bound once: each attribute lookup is paid at every step
+        self._events, self._spend = scene.after_step, self.guard.spend
+        self.driver = None
+        self._before, self._after, self._on_check = [], [], []
+        for observer in observers:
+            self.add_observer(observer)
+        self.set_integrator(integrator)
+        self.restart()
+        if curves:
+            self.set_curves(curves)
+
+    # -- configuration ------------------------------------------------------------------------
+
+    def add_observer(self, observer) -> None:
+        """Call ``observer``'s hooks (see the class docstring) from now on."""
+        for hook, calls in (("before_step", self._before), ("after_step", self._after),
+                            ("after_check", self._on_check)):
+            if hasattr(observer, hook):
+                calls.append(getattr(observer, hook))
+
+    def set_integrator(self, integrator: Integrator) -> None:
+        """Step with ``integrator`` (bound to the scene's system) from the current state on."""
+        if self.dt is None and not integrator.adaptive:
+            raise ConfigError("dt is required for a fixed-step integrator")
+        self.integrator = integrator
+        # read once: an attribute of a Taichi data-oriented object costs about a microsecond
+        self._integrate = integrator.step
+        self.adaptive, self.implicit = integrator.adaptive, integrator.implicit
+        integrator.reset()  # a method switched back to may hold a stale f
+        # How far each step is from the equation the method solves (convergence.py); a method
+        # that promises the solved step on a scene its precision cannot resolve is refused.
+        self.monitor = ConvergenceMonitor(self.scene, integrator, self.max_residual)
+        self.refusal = self.monitor.check_precision(self.scene.state, runtime.precision(),
+                                                    runtime.machine_epsilon())
+        self.warnings: list[str] = []
+        self.h = self.dt
+
+    def set_dt(self, dt: float) -> None:
+        """Step ``dt`` (s) from the next step on (an adaptive method's next proposal)."""
+        self.dt = check_dt(dt, adaptive=self.adaptive)
+        self.h = self.dt
+        self._base_t, self._base_steps = self.t, self.steps
+
+    def set_curves(self, curves: dict | None) -> None:
+        """Drive parameters along ``curves`` (name -> Spline; None or empty: stop) from the
+        current time on (ConfigError for a parameter the scene cannot change while it runs)."""
+        from .curves import CurveDriver
+
+        if self.driver is not None:
+            self.driver.detach()
+            self.driver = None
+        if curves:
+            self.driver = CurveDriver(self.scene, curves)
+            if self.driver.apply(self.t):
+                self.system_changed()
+
+    def system_changed(self) -> None:
+        """Call after changing the running system from outside (a parameter, the wind, the grab
+        target): the integrator forgets what it carries between steps, and the guard takes the
+        current state as its new reference (energy put in from outside is not a blow-up)."""
+        self.integrator.reset()
+        if self.failure is None:
+            self.guard.rebase(self.t, self.steps)
+
+    def restart(self) -> None:
+        """Back to t = 0 from the scene's current state (after ``scene.reset()`` or
+        ``scene.restore()``): counters cleared, the guard re-based, the curves from their start."""
+        self.t = 0.0
+        self.steps = self.rejected = self.f_evals = self.linear_iterations = 0
+        self.linear_residual = 0.0
+        self.failure, self.status, self.checked = None, Status.OK, False
+        self.h = self.dt
+        self._base_t, self._base_steps = 0.0, 0  # fixed steps: t = base_t + (steps - base_steps) dt
+        if self.driver is not None:
+            self.driver.restart()
+            self.driver.apply(0.0)
+        self.integrator.reset()  # the state jumped: a cached f is stale
+        self.guard.rebase(0.0, 0)
+        self.monitor.clear()
+        self.warnings = []
+
+    # -- stepping -----------------------------------------------------------------------------
+
+    def step(self, h: float | None = None, check: bool = False, land: float | None = None) -> StepReport:
+        """One integrator call from :attr:`t` of ``h`` s (default :attr:`h`) and everything after
+        it (module docstring). ``check``: check the state after it even when the guard is not
+        due. ``land``: the time an accepted step of the full ``h`` ends at (the caller shortened
+        ``h`` to reach it), used instead of t + h. Returns the integrator's report; a step
+        that fails sets :attr:`failure`."""
+        if h is None:
+            h = self.h if self.h is not None else self._first_step(None)
+        t = self.t
+        if self.driver is not None and self.driver.apply(t):  # 1. parameters at the start
+            self.system_changed()
+        if self.refusal:
+            self.fail(Status.NOT_CONVERGED, self.steps + 1, t, h, self.refusal, restore=False)
+            return StepReport(accepted=False, h=0.0, next_h=h, f_evals=0, status=Status.NOT_CONVERGED,
+                              message=self.refusal)
+        for hook in self._before:  # 2.
+            hook(self, h)
+        monitor = self.monitor
+        if monitor.active:
+            monitor.before_step(self.scene.state)
+        report = self._integrate(self.scene.state, t, h)  # 3.
+        self.f_evals += report.f_evals
+        self.linear_iterations += report.linear_iterations
+        if self.implicit:
+            self.linear_residual = report.linear_residual
+        if report.status is not OK:  # 4.
+            self._step_failed(report, h)
+            return report
+        if self.adaptive:
+            self.h = report.next_h
+        if not report.accepted:
+            self.rejected += 1
+            return report
+        self.steps += 1  # 5. an accepted step
+        if land is not None and report.h == h:
+            self.t = land
+            self._base_t, self._base_steps = land, self.steps
+        elif self.adaptive or h != self.dt:
+            self.t = t + report.h
+            self._base_t, self._base_steps = self.t, self.steps
+        else:
+            self.t = self._base_t + (self.steps - self._base_steps) * h  # no drift over many steps
+        due = self._spend(report.f_evals + report.linear_iterations) or check
+        # The residual is the method's: measured before the post-step events move the state.
+        if due and monitor.active and not self._converged(report.h):
+            return report
+        if self._events(self.t, report.h):
+            self.integrator.reset()  # an event changed the system (e.g. tore springs)
+        if due:
+            self.check(report.h)
+        else:
+            self.checked = False
+        if self._after and self.failure is None:  # 6.
+            for hook in self._after:
+                hook(self, report)
+        return report
+
+    def step_toward(self, t_end: float, check: bool = False) -> StepReport:
+        """:meth:`step`, shortened to land exactly on ``t_end`` (s) when it would reach it."""
+        h = self.h if self.h is not None else self._first_step(t_end)
+        if self.t + h >= t_end * (1 - 1e-12):
+            return self.step(t_end - self.t, check, t_end)
+        return self.step(h, check)
+
+    def advance_to(self, t_end: float, *, whole_steps: bool = False, max_calls: int | None = None) -> int:
+        """Step until :attr:`t` reaches ``t_end`` (s), the run fails or ``max_calls`` integrator
+        calls were made; returns the calls made. The last step is shortened to land on ``t_end``;
+        with ``whole_steps`` a fixed-step method takes only whole steps of ``dt`` (the rest is
+        left for a later call). Checks the state at the end when work was done since the last
+        check."""
+        calls = 0
+        while self.failure is None and (max_calls is None or calls < max_calls):
+            left = t_end - self.t
+            if whole_steps and not self.adaptive:
+                if left < self.dt * (1.0 - 1e-9):
+                    break
+                self.step(self.dt)
+            else:
+                if left <= 1e-12 * max(1.0, abs(self.t)):
+                    break
+                self.step_toward(t_end)
+            calls += 1
+        if self.failure is None and self.guard.work:
+            self.check()
+        return calls
+
+    def advance(self, duration: float, **options) -> int:
+        """:meth:`advance_to` ``t + duration``."""
+        return self.advance_to(self.t + duration, **options)
+
+    def check(self, h: float | None = None) -> bool:
+        """Check the current state now (the guard, then observers' ``after_check``); a state
+        that fails ends the run DIVERGED on the last good one. ``h``: the step named in the
+        failure (default :attr:`h`). True when it passed."""
+        hooks = self._on_check
+        breach = self.guard.check(self.t, self.steps, keep=not hooks)
+        detail = None if breach is None else breach.detail
+        if detail is None and hooks:
+            for hook in hooks:
+                detail = hook(self)
+                if detail:
+                    break
+            if not detail:
+                self.guard.keep(self.t, self.steps)
+        self.checked = not detail
+        if detail:
+            self.fail(Status.DIVERGED, self.steps, self.t, self.h if h is None else h, detail, restore=True)
+        return self.checked
+
+    def _converged(self, h: float) -> bool:
+        """Sample the residual of the step that just ended; a method that promises the solved
+        step and missed the bound ends the run NOT_CONVERGED (False), a fixed-work one warns
+        once (:attr:`warnings`) and goes on."""
+        monitor = self.monitor
+        residual = monitor.measure(self.scene.state, self.t, h)
+        if not monitor.exceeds(residual):
+            return True
+        if monitor.promises_exact:
+            self.fail(Status.NOT_CONVERGED, self.steps, self.t, h, monitor.breach_message(residual, self.t),
+                      restore=False)
+            return False
+        if not monitor.warned:
+            monitor.warned = True
+            self.warnings.append(monitor.warning_message(residual, self.t))
+        return True
+
+    def fail(self, status: Status, step: int, t: float, h: float, detail: str, *, restore: bool) -> None:
+        """End the run with ``status`` at ``step`` (time ``t`` s, step size ``h`` s); with
+        ``restore`` put the last state that passed the guard back into the scene."""
+        good_step = good_t = None
+        if restore:
+            self.guard.restore()
+            good_step, good_t = self.guard.good_step, self.guard.good_t
+            self.t, self.steps = good_t, good_step
+            self._base_t, self._base_steps = good_t, good_step
+        self.status = status
+        self.failure = Failure(status, step, t, self.integrator.name, h, detail or "", good_step, good_t,
+                               failure_advice(self.scene, self.integrator.name, status))
+
+    def _step_failed(self, report: StepReport, h: float) -> None:
+        status, detail = report.status, report.message
+        failed_step, failed_t = self.steps + 1, (self.t + h if report.accepted else self.t)
+        if status is not Status.DIVERGED and self.guard.work:
+            # The failed attempt left the state at t: check what the steps since the last check
+            # made of it (it may have blown up before the method gave up).
+            breach = self.guard.check(self.t, self.steps)
+            if breach is not None:
+                status, detail = Status.DIVERGED, breach.detail
+        # A diverged state may hold non-finite values: put back the last good one.
+        self.fail(status, failed_step, failed_t, h, detail, restore=status is Status.DIVERGED)
+
+    def _first_step(self, t_end: float | None) -> float:
+        """An adaptive method's first step (s) when none was given (costs its f evaluations)."""
+        self.h = self.integrator.initial_step(self.scene.state, self.t, t_end)
+        self.f_evals += self.integrator.initial_step_f_evals
+        return self.h
