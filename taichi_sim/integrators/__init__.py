@@ -32,8 +32,9 @@ def integrator_class(name: str) -> type[Integrator]:
     plugins = installed_plugins()
     if name in plugins:
         return load_entry_point(name, plugins[name], INTEGRATORS)
-    raise ConfigError(unknown_name("unknown integrator", name, [*INTEGRATORS, *plugins])
-                      + "; or name your own class as package.module:Class or path/to/file.py:Class")
+    raise ConfigError(unknown_name("unknown integrator", name, [*INTEGRATORS, *plugins],
+                                   otherwise=", or name your own class as package.module:Class or "
+                                             "path/to/file.py:Class"))
 
 
 def check_options(name: str, options: dict) -> type[Integrator]:
