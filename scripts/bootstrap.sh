@@ -1,18 +1,28 @@
-# Sourced by run.sh and test.sh: make .venv (Python 3.11) and install the package with the
-# extras named in $TS_EXTRAS, once per change of pyproject.toml.
+# Sourced by run.sh and test.sh: make .venv (Python 3.11, 3.12 or 3.13) and install the package
+# with the extras named in $TS_EXTRAS, once per change of pyproject.toml.
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 venv="$root/.venv"
 
+# taichi 1.7.4 ships wheels for CPython 3.11 to 3.13 (pyproject's requires-python). $PYTHON,
+# when set, is the only candidate; otherwise 3.11 comes first, then 3.12 and 3.13: the whole
+# suite and the documented measurements run on 3.11, the newer two on a few test files.
 find_python() {
-  for cand in "${PYTHON:-}" python3.11 python3; do
-    [ -n "$cand" ] || continue
+  local cand cands=(python3.11 python3.12 python3.13 python3)
+  [ -z "${PYTHON:-}" ] || cands=("$PYTHON")
+  for cand in "${cands[@]}"; do
     if command -v "$cand" >/dev/null 2>&1 && \
-       "$cand" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))' 2>/dev/null; then
+       "$cand" -c 'import sys; sys.exit(not (3, 11) <= sys.version_info[:2] <= (3, 13))' 2>/dev/null; then
       echo "$cand"; return 0
     fi
   done
-  echo "taichi_sim needs Python 3.11 (taichi 1.7.4 wheels); set PYTHON=/path/to/python3.11" >&2
+  if [ -n "${PYTHON:-}" ]; then
+    echo "taichi_sim needs Python 3.11, 3.12 or 3.13 (taichi 1.7.4 has wheels for those) and" \
+         "PYTHON=$PYTHON is not one of them; set PYTHON=/path/to/python3.13 (or 3.12, 3.11)" >&2
+  else
+    echo "taichi_sim needs Python 3.11, 3.12 or 3.13 (taichi 1.7.4 has wheels for those) and none" \
+         "is on the PATH; install one, or set PYTHON=/path/to/python3.13 (or 3.12, 3.11)" >&2
+  fi
   return 1
 }
 

@@ -13,6 +13,8 @@ import tempfile
 from pathlib import Path
 from typing import Any, Callable
 
+from .errors import ConfigError
+
 
 def _umask() -> int:
     mask = os.umask(0)  # the only portable way to read it is to set it
@@ -94,3 +96,17 @@ def write_atomically(path: str | os.PathLike, write: Callable[[Any], None], *, b
         pending.discard()
         raise
     return pending.commit()
+
+
+def check_can_create(target: str | os.PathLike, folder: str | os.PathLike) -> None:
+    """Raise ConfigError naming ``target`` unless a file can be created in ``folder`` (where
+    ``target`` will be written), before any work is done. os.access trusts the mode bits: root
+    passes them everywhere, and /proc, a read-only mount or a full disk refuse what they allow.
+    The write makes a temporary file beside the target, so one is made here and removed."""
+    try:
+        fd, probe = tempfile.mkstemp(prefix=f".{Path(target).name}.", suffix=".check", dir=folder)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        raise ConfigError(f"cannot write {os.fspath(target)!r}: creating a file in {os.fspath(folder)!r} "
+                          f"fails ({exc.strerror or exc})") from None

@@ -9,6 +9,11 @@ from .errors import ConfigError
 from .scene.params import scene_assignments
 
 EXIT_USAGE = 2
+# The most steps one `simulate` takes. The cheapest scene (the circle ODE, RK4) runs at about a
+# thousand steps a second on a loaded 2-core machine, a few thousand on an idle one: 10^8 steps
+# are already a day or more, so a larger count (--steps 100000000000000, or --t-end 1e6 --dt
+# 1e-6) is a typo, not a plan. A long run wants a larger --dt or an adaptive integrator.
+MAX_STEPS = 10**8
 
 
 class _Parser(argparse.ArgumentParser):
@@ -198,8 +203,9 @@ def build_parser() -> argparse.ArgumentParser:
                      help="colour the cloth by spring strain, with a colour bar")
     dest = rec.add_mutually_exclusive_group(required=True)
     dest.add_argument("--out", help="FILE.mp4, FILE.gif, or DIR/ for PNG frames")
-    dest.add_argument("--showcase", metavar="DIR",
-                      help="record the showcase (a GIF and a PNG per entry) into DIR")
+    dest.add_argument("--showcase", metavar="DIR", nargs="?", const="media",
+                      help="record the full showcase, the README's gallery (a GIF and a PNG per "
+                           "entry, 5 to 15 minutes), into DIR (default media/)")
     rec.add_argument("--quiet", action="store_true", help="no summary line or progress bar")
 
     bench = sub.add_parser("bench", help="measure accuracy, stability and speed (CSV, JSON and PNG into --out)")
@@ -280,10 +286,17 @@ def build_parser() -> argparse.ArgumentParser:
 def cmd_check(args) -> int:
     """Self-intersections in every frame of a saved run (x_history, or the final x): exit 0 when
     none, 1 when some frame has any."""
+    import os
+    import zipfile
+
     import numpy as np
 
     from .geometry import self_intersections
 
+    # np.load reads any file but a zip or .npy as a pickle, and refuses it talking of pickles
+    if os.path.isfile(args.npz) and not zipfile.is_zipfile(args.npz):
+        raise ConfigError(f"{args.npz} is not a run's npz (not a zip archive): give a file "
+                          "written by `taichi-sim simulate --out RUN.npz`")
     try:
         with np.load(args.npz) as data:
             arrays = {k: data[k] for k in ("triangles", "x", "x_history", "t_history", "t", "scene")
@@ -359,12 +372,12 @@ def cmd_simulate(args) -> int:
     from . import io, runtime
     from .convergence import check_max_residual
     from .guard import GuardLimits
-    from .theory import stability_warning
     from .integrators import check_options, create_integrator, integrator_class, parse_options
     from .run import check_run_args, planned_steps, run
     from .scene import build_scene, scene_preset
     from .scene.params import resolve
     from .scene.presets import check_scene_memory
+    from .theory import stability_warning
 
     preset = scene_preset(args.scene)
     integrator_name = args.integrator or preset.default_integrator
@@ -380,6 +393,7 @@ def cmd_simulate(args) -> int:
     adaptive = check_options(integrator_name, options).adaptive
     dt = args.dt if args.dt is not None or adaptive else preset.default_dt
     check_run_args(dt, args.steps, args.t_end, adaptive=adaptive)
+    _check_step_count(args.steps, dt, args.t_end, planned_steps)
     if args.energy_every is not None and args.energy_every < 0:
         raise ConfigError(f"--energy-every must be >= 0, got {args.energy_every}")
     if args.save_every is not None and args.save_every < 1:
@@ -442,6 +456,18 @@ def cmd_simulate(args) -> int:
             print(f"{scene.name}: largest |C| over the constraints {float(result.constraint_violation.max()):.3g} m "
                   f"over the run, {result.constraint_violation[-1]:.3g} m at the end")
     return 0 if result.status.value == "ok" else 1
+
+
+def _check_step_count(steps: int | None, dt: float | None, t_end: float | None, planned_steps) -> None:
+    """Refuse more than MAX_STEPS steps, given as --steps or as --t-end / --dt (an adaptive
+    run's count is unknown beforehand: not checked)."""
+    if steps is not None and steps > MAX_STEPS:
+        raise ConfigError(f"--steps {steps:,} is over the limit of {MAX_STEPS:,} steps (a day or more of "
+                          "computing on the cheapest scene); take fewer, larger steps")
+    if steps is None and dt is not None and planned_steps(dt, t_end) > MAX_STEPS:
+        raise ConfigError(f"--t-end {t_end:g} s at --dt {dt:g} s is {planned_steps(dt, t_end):,} steps, over the "
+                          f"limit of {MAX_STEPS:,} (a day or more of computing on the cheapest scene); "
+                          "raise --dt, shorten --t-end or pick an adaptive integrator")
 
 
 def _residual_time(result) -> float:
@@ -552,12 +578,11 @@ def cmd_record(args) -> int:
             raise ConfigError(f"--showcase records its own scenes and settings; drop {', '.join(extra)}")
         try:
             runtime.init(arch=args.arch, precision=args.precision)
-            recordings = record_showcase(args.showcase, progress=None if not args.quiet else False)
+            record_showcase(args.showcase, progress=None if not args.quiet else False,
+                            on_clip=None if args.quiet else _print_clip)
         except RenderUnavailable as exc:
             print(f"taichi-sim: error: {exc}", file=sys.stderr)
             return EXIT_USAGE
-        if not args.quiet:
-            _print_showcase(recordings)
         return 0
     if args.scene is None:
         raise ConfigError("record needs a SCENE (or --showcase DIR)")
@@ -584,19 +609,25 @@ def cmd_record(args) -> int:
     return 1 if result.stopped else 0
 
 
-def _print_showcase(recordings) -> None:
-    for r in recordings:
-        print(f"  {r.path}  {r.still}  ({r.frames} frames, {r.wall:.1f} s)")
+def _print_clip(k: int, count: int, entry, recording) -> None:
+    """One line per recorded clip, as it is done (flushed: also when stdout is a file or a pipe)."""
+    print(f"  [{k}/{count}] {recording.path}  {recording.still}  ({recording.frames} frames, "
+          f"{recording.wall:.1f} s): {entry.title}", flush=True)
+
+
+QUICK_SHOWCASE_DIR = "out/showcase"  # untracked (git-ignored); media/ is the README's gallery
 
 
 def cmd_default() -> int:
-    """No arguments: the launcher where a display exists, else the showcase recorded into
-    media/."""
+    """No arguments: the launcher where a display exists, else a short showcase recorded into
+    out/showcase/ (the full one, into media/, is ``record --showcase``)."""
+    from pathlib import Path
+
     from . import runtime
     from .app.display import display_problem
     from .app.launcher import Launcher
     from .app.session import Session
-    from .app.showcase import record_showcase
+    from .app.showcase import QUICK_SHOWCASE, record_showcase
     from .render import RenderUnavailable
 
     try:
@@ -605,17 +636,73 @@ def cmd_default() -> int:
         if problem is None:
             Launcher(Session("cloth", ["symplectic_euler"], interactive=True)).run()
             return 0
-        print(f"taichi-sim: {problem}: recording the showcase into media/ instead", file=sys.stderr)
-        recordings = record_showcase("media")
+        print(f"taichi-sim: {problem}: recording a short showcase into {QUICK_SHOWCASE_DIR}/ instead",
+              file=sys.stderr)
+        print(f"Recording {len(QUICK_SHOWCASE)} short clips into {QUICK_SHOWCASE_DIR}/ (open the GIFs in "
+              "a browser; the full gallery: taichi-sim record --showcase):", flush=True)
+        try:
+            Path(QUICK_SHOWCASE_DIR).parent.mkdir(exist_ok=True)
+        except OSError as exc:
+            raise ConfigError(f"cannot create {QUICK_SHOWCASE_DIR}/: {exc.strerror or exc}") from None
+        record_showcase(QUICK_SHOWCASE_DIR, entries=QUICK_SHOWCASE, on_clip=_print_clip)
     except RenderUnavailable as exc:
         print(f"taichi-sim: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
-    print("Showcase recorded into media/ (open the GIFs in a browser):")
-    _print_showcase(recordings)
     return 0
 
 
+EXIT_CLOSED_PIPE = 128 + 13  # what a shell reports for a program ended by SIGPIPE
+
+
+def _stdout_closed() -> bool:
+    """Whether stdout is a pipe whose reader has gone (``| head`` has read its lines)."""
+    import select
+
+    try:
+        poll = select.poll()
+        poll.register(sys.stdout.fileno(), select.POLLOUT)
+        return any(events & select.POLLERR for _, events in poll.poll(0))
+    except (AttributeError, OSError, ValueError):  # not a file (captured), or already closed
+        return False
+
+
+def _closed_pipe() -> int:
+    """End quietly after the reader of stdout went away: what is still buffered goes to
+    /dev/null (else Python's final flush reports the broken pipe), and the exit status is a
+    closed pipe's."""
+    import os
+
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (AttributeError, OSError, ValueError):
+        pass
+    return EXIT_CLOSED_PIPE
+
+
 def main(argv: list[str] | None = None) -> int:
+    """Run one command; its exit status (0 done, 1 the run or check failed, 2 bad input, 130
+    interrupted, 141 stdout closed by its reader)."""
+    try:
+        code = _main(argv)
+        sys.stdout.flush()  # a closed pipe shows here, not in Python's flush at exit
+        return code
+    except SystemExit:  # --help and --version print, then exit
+        try:
+            sys.stdout.flush()
+        except BrokenPipeError:
+            if _stdout_closed():
+                raise SystemExit(_closed_pipe()) from None
+            raise
+        raise
+    except BrokenPipeError:
+        if not _stdout_closed():  # another pipe (ffmpeg's, say) broke: a real error
+            raise
+        return _closed_pipe()
+
+
+def _main(argv: list[str] | None) -> int:
     parser = build_parser()
     try:
         args = parser.parse_args(argv)

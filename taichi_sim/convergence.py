@@ -26,6 +26,7 @@ about 1, a step solved to a Newton tolerance of 1e-6 about 1e-6 or less.
 from __future__ import annotations
 
 import math
+
 import numpy as np
 
 from .errors import ConfigError

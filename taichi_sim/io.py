@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .atomic import write_atomically
+from .atomic import check_can_create, write_atomically
 from .errors import ConfigError
 from .integrators import Integrator
 from .run import RunResult
@@ -27,6 +27,7 @@ def check_output_path(path: str | os.PathLike, suffix: str = ".npz") -> Path:
         raise ConfigError(f"cannot write {str(path)!r}: directory {str(parent)!r} does not exist")
     if not os.access(parent, os.W_OK) or (path.exists() and not os.access(path, os.W_OK)):
         raise ConfigError(f"cannot write {str(path)!r}: permission denied")
+    check_can_create(path, parent)
     return path
 
 

@@ -36,6 +36,7 @@ from typing import Mapping
 
 import numpy as np
 
+
 def method_class(method):
     """The integrator class of ``method``: a class, an instance, or a name (a built-in's, an
     installed or already loaded plug-in's, or a ``module:Class`` spec)."""
@@ -222,22 +223,36 @@ def scene_omega_max(scene, method: str = "bound", **options) -> float | None:
     raise ValueError(f"unknown omega_max method {method!r}")
 
 
-def stability_warning(scene, integrator_name, dt: float | None) -> str | None:
+def stability_warning(scene, integrator_name, dt: float | None, *, power_iterations: int = 200) -> str | None:
     """One line for ``simulate`` when ``dt`` exceeds the predicted stability limit of
-    ``integrator_name`` on ``scene`` (with the cheap bound on omega_max, so the limit is
-    conservative), else None. Methods with no finite positive limit (adaptive, implicit, or
-    never stable on the imaginary axis) get no warning."""
+    ``integrator_name`` (a name or class) on ``scene``, else None: C / omega_max with omega_max
+    by power iteration, the figure that :func:`stable_step_advice` and ``taichi-sim advise``
+    print, so a run that warns and then fails names one limit. The cheap Gershgorin bound (never
+    below omega_max) skips the iteration when ``dt`` is within even its smaller limit. Methods
+    with no finite positive limit (adaptive, implicit, or never stable on the imaginary axis) get
+    no warning."""
     c = stability_constant(integrator_name)
     if dt is None or c is None or c == 0.0 or math.isinf(c):
         return None
-    omega = scene_omega_max(scene, "bound")
-    if not omega:
+    bound = scene_omega_max(scene, "bound")
+    if not bound or dt <= c / bound:
         return None
-    limit = c / omega
-    if dt <= limit:
+    omega = _omega_power(scene, power_iterations)
+    if not omega or dt <= c / omega:
         return None
-    return (f"dt = {dt:g} s exceeds the predicted stability limit {limit:.3g} s of {integrator_name} "
-            f"for this scene (omega_max = {omega:.4g} rad/s, limit {c:.3g} / omega_max); expect divergence")
+    return (f"dt = {dt:g} s exceeds the predicted stable step {c / omega:.3g} s of "
+            f"{method_class(integrator_name).name} here (C / omega_max = {c:.3g} / {omega:.4g} rad/s; "
+            "see taichi-sim advise); expect divergence")
+
+
+def _omega_power(scene, power_iterations: int) -> float | None:
+    """omega_max (rad/s) by power iteration at the initial positions, or None when there is none
+    (a prediction must never hide the run or the failure it explains)."""
+    try:
+        omega = scene_omega_max(scene, "power", max_iterations=power_iterations, tol=1e-8)
+    except Exception:
+        return None
+    return omega if omega and math.isfinite(omega) else None
 
 
 def stable_step_advice(scene, name, *, power_iterations: int = 200) -> str:
@@ -251,11 +266,8 @@ def stable_step_advice(scene, name, *, power_iterations: int = 200) -> str:
         return ""
     if c is None or math.isinf(c):
         return ""
-    try:
-        omega = scene_omega_max(scene, "power", max_iterations=power_iterations, tol=1e-8)
-    except Exception:  # a prediction must never hide the failure it explains
-        return ""
-    if not omega or not math.isfinite(omega):
+    omega = _omega_power(scene, power_iterations)
+    if omega is None:
         return ""
     if c == 0.0:
         others = [m for m in ("symplectic_euler", "rk4") if scene.system.second_order or m == "rk4"]

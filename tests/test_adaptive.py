@@ -3,14 +3,13 @@ import math
 
 import numpy as np
 import pytest
+from helpers import fitted_order
 from scipy.integrate import solve_ivp
 
 import taichi_sim as ts
 from taichi_sim.cli import main
 from taichi_sim.integrators import INTEGRATORS
 from taichi_sim.integrators.tableau import DORMAND_PRINCE, FEHLBERG, ButcherTableau
-
-from helpers import fitted_order
 
 PAIRS = {"rk45": DORMAND_PRINCE, "rkf45": FEHLBERG}
 # Tolerances so loose that every step is accepted: the pair then steps like a fixed-step method

@@ -219,12 +219,25 @@ def test_simulate_warns_beyond_the_predicted_limit_but_still_runs(tmp_path, caps
     err = capsys.readouterr().err
     assert code in (0, 1) and path.exists()
     warnings = [line for line in err.splitlines() if "warning" in line]
-    assert len(warnings) == 1 and "exceeds the predicted stability limit 0.02 s of symplectic_euler" in warnings[0]
+    assert len(warnings) == 1 and "exceeds the predicted stable step 0.02 s of symplectic_euler" in warnings[0]
     # Below the limit: no warning. (Near it, at h omega = 1.8 to 2, this swinging spring's energy
     # swells past the blow-up guard's bound and the run is reported diverged.)
     code = main(["simulate", "spring", "--set", "stiffness=1e4", "--set", "gravity=0", "--dt", "0.015",
                  "--steps", "300", "--out", str(path), "--quiet"])
     assert code == 0 and "warning" not in capsys.readouterr().err
+
+
+def test_a_run_that_warns_then_fails_names_one_stable_step(tmp_path, capsys):
+    """The pendulum chain's Gershgorin bound (200 rad/s) is above its omega_max (188 rad/s):
+    the warning and the failure both print the power iteration's figure, as advise does."""
+    import re
+
+    code = main(["simulate", "pendulum", "--integrator", "symplectic_euler", "--dt", "0.02", "--t-end", "2",
+                 "--out", str(tmp_path / "run.npz"), "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 1
+    figures = re.findall(r"predicted stable step (?:of symplectic_euler here: )?(\S+) s", err)
+    assert len(figures) == 2 and figures[0] == figures[1] == "0.0106", err
 
 
 @pytest.mark.parametrize("argv, problem", [

@@ -4,8 +4,14 @@ import numpy as np
 import pytest
 import taichi as ti
 
-from taichi_sim.collide.ccd import (_segment_distance, edge_edge_hit, edge_edge_hit_between, point_triangle_distance,
-                                   vertex_triangle_hit, vertex_triangle_hit_between)
+from taichi_sim.collide.ccd import (
+    _segment_distance,
+    edge_edge_hit,
+    edge_edge_hit_between,
+    point_triangle_distance,
+    vertex_triangle_hit,
+    vertex_triangle_hit_between,
+)
 from taichi_sim.collide.impact_zones import ImpactZones
 
 DELTA = 1e-6

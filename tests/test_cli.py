@@ -129,6 +129,18 @@ def test_unwritable_output_exits_2_before_running(tmp_path, capsys, out, problem
     assert sorted(p.name for p in tmp_path.iterdir()) == ["adir.npz"]
 
 
+@pytest.mark.skipif(not os.path.isdir("/proc/self"), reason="needs Linux's /proc")
+def test_an_output_folder_that_refuses_files_exits_2_before_running(capsys):
+    """/proc passes os.access for root, but no file can be created there: refused at once."""
+    code = main(["simulate", "spring", "--steps", "3", "--out", "/proc/taichi-sim-run.npz"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.startswith("taichi-sim: error: cannot write '/proc/taichi-sim-run.npz': ")
+    assert len(err.splitlines()) == 1 and "spring:" not in err
+    assert not os.path.exists("/proc/taichi-sim-run.npz")
+    assert main(["record", "spring", "--out", "/proc/taichi-sim-clip.gif"]) == 2
+    assert capsys.readouterr().err.startswith("taichi-sim: error: cannot write '/proc/taichi-sim-clip.gif': ")
+
+
 def test_diverged_run_writes_status_and_exits_1(tmp_path, capsys):
     code, path = simulate(tmp_path, "cloth", "--set", "nx=6", "--set", "ny=6", "--set", "stiffness=1e6",
                           "--integrator", "euler", "--dt", "0.01", "--t-end", "30")

@@ -3,14 +3,13 @@ import math
 
 import numpy as np
 import pytest
+from helpers import step_checked
 
 import taichi_sim as ts
 from taichi_sim.cli import main
 from taichi_sim.scene import cloth as topo
 from taichi_sim.scene.builder import SceneBuilder
 from taichi_sim.scene.colliders import SpherePath
-
-from helpers import step_checked
 
 
 def cloth_builder(n=16, size=0.5, height=0.0, stiffness=5.0, mass=0.01):

@@ -3,6 +3,7 @@ import math
 
 import numpy as np
 import pytest
+from helpers import fitted_order
 
 import taichi_sim as ts
 from taichi_sim.app.session import Session, compatible_integrators
@@ -13,8 +14,6 @@ from taichi_sim.reference import constraint_violation, particle_energy, particle
 from taichi_sim.scene import SceneBuilder, build_scene
 from taichi_sim.scene.live import LIVE_SETTERS, applies_live
 from taichi_sim.systems.constraints import Constraints
-
-from helpers import fitted_order
 
 
 def test_rk4_keeps_the_bead_on_its_wire_within_a_micrometre_for_10_s(f64):
@@ -56,8 +55,8 @@ def test_double_pendulum_conserves_energy_to_the_integrators_order(f64, name, or
 
 @pytest.mark.parametrize("sign", [+1, -1])
 def test_small_oscillations_have_the_normal_mode_frequencies(f64, sign):
-    """Equal masses and rods: omega^2 = (g/l)(2 -+ sqrt 2), theta2 = +-sqrt(2) theta1."""
-    g, l, eps = 9.8, 1.0, 0.01
+    """Equal masses and rods: omega^2 = (g/L)(2 -+ sqrt 2), theta2 = +-sqrt(2) theta1."""
+    g, rod, eps = 9.8, 1.0, 0.01
     scene = build_scene("rod-pendulum", {"angle": math.degrees(eps),
                                          "angle2": math.degrees(sign * math.sqrt(2) * eps)})
     result = ts.run(scene, "rk4", dt=5e-3, t_end=6.0, energy_every=0, save_every=1)
@@ -67,7 +66,7 @@ def test_small_oscillations_have_the_normal_mode_frequencies(f64, sign):
     cross = np.flatnonzero(np.sign(theta1[:-1]) != np.sign(theta1[1:]))
     times = t[cross] - theta1[cross] * (t[cross + 1] - t[cross]) / (theta1[cross + 1] - theta1[cross])
     omega = math.pi * (len(times) - 1) / (times[-1] - times[0])
-    expected = math.sqrt(g / l * (2 - sign * math.sqrt(2)))
+    expected = math.sqrt(g / rod * (2 - sign * math.sqrt(2)))
     assert omega == pytest.approx(expected, rel=1e-3)
     # a pure mode: the second rod keeps its ratio to the first
     x2 = result.x_history[:, 2, :] - x1

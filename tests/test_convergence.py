@@ -6,8 +6,13 @@ import numpy as np
 import pytest
 
 import taichi_sim as ts
-from taichi_sim.convergence import (DEFAULT_MAX_RESIDUAL, ConvergenceMonitor, ForceModel, check_max_residual,
-                                    relative_residual)
+from taichi_sim.convergence import (
+    DEFAULT_MAX_RESIDUAL,
+    ConvergenceMonitor,
+    ForceModel,
+    check_max_residual,
+    relative_residual,
+)
 from taichi_sim.errors import ConfigError
 from taichi_sim.integrators import Status
 from taichi_sim.integrators.equation import EXACT, FIXED_WORK, Equation

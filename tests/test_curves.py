@@ -8,8 +8,7 @@ import pytest
 
 import taichi_sim as ts
 from taichi_sim.cli import main
-from taichi_sim.curves import (MAX_POINTS, CurveDriver, Spline, check_curves, load_curves,
-                               parse_curves, save_curves)
+from taichi_sim.curves import MAX_POINTS, CurveDriver, Spline, check_curves, load_curves, parse_curves, save_curves
 from taichi_sim.errors import ConfigError
 from taichi_sim.scene import build_scene, scene_preset
 

@@ -7,17 +7,27 @@ one window per process); the rest need no window.
 import numpy as np
 import pytest
 import taichi as ti
+from helpers import OffscreenWindows
 
 import taichi_sim as ts
-from helpers import OffscreenWindows
 from taichi_sim.app.energy import EnergySample, EnergyTrace, curves_of, sample
 from taichi_sim.app.energy_view import EnergyView, panel_centres
 from taichi_sim.app.record import CHART_AREA, LEGEND, Clip, record
 from taichi_sim.app.runner import Runner
 from taichi_sim.app.session import Session
 from taichi_sim.render import Renderer, vulkan
-from taichi_sim.render.chart import (CURVE_COLOURS, PLOT_BACKGROUND, Rect, chart_rects, common_ranges,
-                                     curve_points, energy_charts, legend_bar, segments, strain_colours)
+from taichi_sim.render.chart import (
+    CURVE_COLOURS,
+    PLOT_BACKGROUND,
+    Rect,
+    chart_rects,
+    common_ranges,
+    curve_points,
+    energy_charts,
+    legend_bar,
+    segments,
+    strain_colours,
+)
 from taichi_sim.scene import build_scene
 
 SIZE = (320, 200)

@@ -4,14 +4,12 @@ import math
 
 import numpy as np
 import pytest
-
 import taichi as ti
+from helpers import fitted_order, run_fixed, spring_exact
 
 import taichi_sim as ts
 from taichi_sim.integrators import INTEGRATORS
 from taichi_sim.integrators.tableau import RK4, ButcherTableau
-
-from helpers import fitted_order, run_fixed, spring_exact
 
 # R(z) of each method: x + iy is multiplied by R(ih) every step.
 STABILITY_POLYNOMIAL = {

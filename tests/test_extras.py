@@ -3,12 +3,11 @@ import math
 
 import numpy as np
 import pytest
+from helpers import step_checked
 
 import taichi_sim as ts
 from taichi_sim.cli import main
 from taichi_sim.scene import cloth as topo
-
-from helpers import step_checked
 
 
 def step_and_check(scene, integrator_name, dt, steps, check):

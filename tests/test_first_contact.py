@@ -291,3 +291,86 @@ def test_api_page_example_continues_from_the_run(capsys):
     assert t == pytest.approx(0.05 + h, rel=1e-5) and h > 0  # the step continued from t_end, not from 0
     assert shown[0].startswith("ok 2.0 2000 8000 ") and shown[-1].startswith("accepted h = ")
     assert all(line.startswith("rejected h = ") for line in shown[1:-1])
+
+
+@pytest.mark.parametrize("argv", [["list"], ["simulate", "--help"], ["advise", "spring"]])
+def test_a_closed_stdout_ends_quietly(argv):
+    """``taichi-sim ... | head -0``: the reader is gone before the first line; the command ends
+    as a program ended by SIGPIPE would (exit 141), without a traceback."""
+    import subprocess
+    import sys
+
+    read, write = os.pipe()
+    os.close(read)  # nobody will read: every write to the pipe fails
+    try:
+        done = subprocess.run([sys.executable, "-m", "taichi_sim", *argv], stdout=write,
+                              stderr=subprocess.PIPE, text=True, timeout=300, cwd=ROOT)
+    finally:
+        os.close(write)
+    # argparse drops a failed write of --help itself, then exits 0: quiet too
+    assert done.stderr == "" and done.returncode in ((0, 141) if "--help" in argv else (141,)), done.stderr
+
+
+@pytest.mark.parametrize("argv, expected", [
+    (["cloth", "--set", "stifness=5"], "scene 'cloth' has no parameter 'stifness': did you mean 'stiffness'?"),
+    (["cloht"], "unknown scene 'cloht': did you mean 'cloth'?"),
+    (["cloth", "--integrator", "sympletic_euler"],
+     "unknown integrator 'sympletic_euler': did you mean 'symplectic_euler'?"),
+])
+def test_a_misspelt_name_gets_a_suggestion(tmp_path, capsys, argv, expected):
+    out = tmp_path / "run.npz"
+    assert main(["simulate", *argv, "--steps", "1", "--out", str(out)]) == 2
+    line = _one_line_error(capsys)
+    assert expected in line and len(line) < 160  # not every one of the cloth's 70-odd names
+    assert not out.exists()
+
+
+def test_a_name_far_from_all_lists_them_all(tmp_path, capsys):
+    assert main(["simulate", "spring", "--set", "wibble=1", "--steps", "1", "--out", str(tmp_path / "r.npz")]) == 2
+    line = _one_line_error(capsys)
+    assert "no parameter 'wibble' (choose from stiffness, rest_length," in line and "did you mean" not in line
+
+
+@pytest.mark.parametrize("argv, expected", [
+    (["simple", "--steps", "100000000000000"],
+     "--steps 100,000,000,000,000 is over the limit of 100,000,000 steps"),
+    (["spring", "--t-end", "1000000", "--dt", "1e-6"],
+     "--t-end 1e+06 s at --dt 1e-06 s is 1,000,000,000,000 steps, over the limit of 100,000,000"),
+    (["spring", "--t-end", "10000000"], "at --dt 0.01 s is 1,000,000,000 steps, over the limit"),  # the scene's dt
+])
+def test_an_absurd_step_count_is_refused_naming_the_limit(tmp_path, capsys, argv, expected):
+    out = tmp_path / "run.npz"
+    assert main(["simulate", *argv, "--out", str(out)]) == 2
+    assert expected in _one_line_error(capsys)
+    assert not out.exists()
+
+
+def test_the_step_limit_itself_is_allowed():
+    from taichi_sim.cli import MAX_STEPS, _check_step_count
+    from taichi_sim.run import planned_steps
+
+    _check_step_count(MAX_STEPS, 1e-3, None, planned_steps)
+    _check_step_count(None, 1e-3, MAX_STEPS * 1e-3, planned_steps)
+    _check_step_count(None, None, 1e9, planned_steps)  # adaptive: the count is not known
+
+
+@pytest.mark.parametrize("minor", [10, 11, 12, 13, 14])
+def test_bootstrap_takes_the_pythons_that_taichi_has_wheels_for(tmp_path, minor):
+    """pyproject and scripts/bootstrap.sh agree: Python 3.11, 3.12 and 3.13 (taichi 1.7.4's
+    wheels), and the refusal says which ones to install."""
+    import subprocess
+    import sys
+
+    requires = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["requires-python"]
+    assert requires == ">=3.11,<3.14"
+    stub = tmp_path / f"python3.{minor}"  # answers bootstrap's version check as Python 3.<minor>
+    stub.write_text(f"#!{sys.executable}\nimport sys\nsys.version_info = (3, {minor}, 0, 'final', 0)\n"
+                    "exec(sys.argv[2])\n")
+    stub.chmod(0o755)
+    script = (f"set -euo pipefail; eval \"$(sed -n '/^find_python()/,/^}}/p' scripts/bootstrap.sh)\"; "
+              f"PYTHON={stub} find_python")
+    done = subprocess.run(["bash", "-c", script], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    if 11 <= minor <= 13:
+        assert done.returncode == 0 and done.stdout.strip() == str(stub), done.stderr
+    else:
+        assert done.returncode == 1 and "needs Python 3.11, 3.12 or 3.13" in done.stderr

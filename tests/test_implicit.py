@@ -5,14 +5,13 @@ extremes in test_implicit_energy.py."""
 
 import numpy as np
 import pytest
+from helpers import fitted_order, spring_exact
 
 import taichi_sim as ts
 from taichi_sim.cli import main
 from taichi_sim.errors import ConfigError
 from taichi_sim.integrators import Status, create_integrator
 from taichi_sim.integrators.implicit.common import LINEARISED_CG_TOLERANCE
-
-from helpers import fitted_order, spring_exact
 
 STIFF_CLOTH = {"nx": 12, "ny": 12, "stiffness": 1e8, "shear_stiffness": 1e8, "flex_stiffness": 1e8}
 

@@ -139,3 +139,9 @@ def test_check_command_reports_frames_with_intersections(f64, tmp_path, capsys):
     assert main(["check", str(spring)]) == 2
     assert "no cloth surface" in capsys.readouterr().err
     assert main(["check", str(tmp_path / "missing.npz")]) == 2
+    capsys.readouterr()
+    (tmp_path / "notes.md").write_text("# not a run\n")
+    assert main(["check", str(tmp_path / "notes.md")]) == 2
+    err = capsys.readouterr().err
+    assert err == (f"taichi-sim: error: {tmp_path / 'notes.md'} is not a run's npz (not a zip archive): "
+                   "give a file written by `taichi-sim simulate --out RUN.npz`\n")

@@ -201,20 +201,47 @@ def test_a_bad_display_is_found_before_glfw_would_end_the_process(monkeypatch, c
 def test_the_default_command_falls_back_to_the_showcase_on_a_bad_display(monkeypatch, capsys, tmp_path):
     import taichi_sim.app.launcher as launcher_module
     import taichi_sim.app.showcase as showcase_module
+    from taichi_sim.app.record import Recording
     from taichi_sim.cli import main
 
     recorded = []
-    monkeypatch.setattr(showcase_module, "record_showcase", lambda folder: recorded.append(folder) or [])
+
+    def record(clip, out, *, still, still_at, progress):  # what the short showcase asks for
+        recorded.append((clip, out))
+        return Recording(path=out, frames=clip.frame_count, wall=1.0, still=still, failures=())
+
+    monkeypatch.setattr(showcase_module, "record", record)
     monkeypatch.setattr(launcher_module, "Launcher", lambda *a, **k: pytest.fail("no window here"))
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
     bad = f":{free_display_number()}"
     monkeypatch.setenv("DISPLAY", bad)
     monkeypatch.chdir(tmp_path)
     assert main([]) == 0
-    assert recorded == ["media"]
-    err = capsys.readouterr().err.strip()
-    assert err == (f"taichi-sim: cannot open the X display {bad!r}: recording the showcase into "
-                   "media/ instead")
+    # a short showcase into the untracked out/showcase/, never into the README's media/
+    assert {out.parent.as_posix() for _, out in recorded} == {"out/showcase"}
+    assert 3 <= len(recorded) <= 4 and all(clip.seconds <= 2 and clip.supersample == 1 for clip, _ in recorded)
+    assert sum(c.frame_count * c.size[0] * c.size[1] * len(c.integrators) for c, _ in recorded) < 4e7
+    captured = capsys.readouterr()
+    assert captured.err.strip() == (f"taichi-sim: cannot open the X display {bad!r}: recording a short "
+                                    "showcase into out/showcase/ instead")
+    # a line per clip as it is done, though stdout is no terminal here
+    lines = captured.out.splitlines()
+    assert lines[0].startswith(f"Recording {len(recorded)} short clips into out/showcase/")
+    assert [line.split("]")[0] for line in lines[1:]] == [f"  [{k}/{len(recorded)}" for k in range(1, len(recorded) + 1)]
+    assert all("out/showcase/" in line for line in lines[1:])
+    assert not (tmp_path / "media").exists()
+
+
+def test_record_showcase_without_a_folder_writes_the_gallery_in_media(monkeypatch, tmp_path):
+    import taichi_sim.app.showcase as showcase_module
+    from taichi_sim.cli import main
+
+    folders = []
+    monkeypatch.setattr(showcase_module, "record_showcase", lambda folder, **kw: folders.append(folder) or [])
+    monkeypatch.chdir(tmp_path)
+    assert main(["record", "--showcase", "--quiet"]) == 0
+    assert main(["record", "--showcase", "mine", "--quiet"]) == 0
+    assert folders == ["media", "mine"]
 
 
 def test_a_failed_showcase_leaves_no_empty_folder(monkeypatch, tmp_path):
@@ -257,17 +284,30 @@ def test_reset_restores_torn_and_emitting_scenes_in_place(runtime, name, params)
 
 
 def test_the_imgui_ini_file_is_taken_back(tmp_path):
-    from taichi_sim.app import launcher
+    from taichi_sim.render import vulkan
 
     new, old = tmp_path / "new" / "imgui.ini", tmp_path / "old" / "imgui.ini"
     old.parent.mkdir()
     new.parent.mkdir()
     old.write_text("[Window][Mine]\n")
-    launcher._watch_ini(new)
-    launcher._watch_ini(old)
+    vulkan.watch_imgui_ini(new)
+    vulkan.watch_imgui_ini(old)
     new.write_text("[Window][Controls]\n")  # what ImGui writes when its window goes
     old.write_text("[Window][Controls]\n")
-    launcher._watch_ini(old)  # a second launcher in the process keeps the first "before"
-    launcher._take_back_ini(new)
-    launcher._take_back_ini(old)
+    vulkan.watch_imgui_ini(old)  # a second launcher in the process keeps the first "before"
+    vulkan.take_back_imgui_ini(new)
+    vulkan.take_back_imgui_ini(old)
     assert not new.exists() and old.read_text() == "[Window][Mine]\n"
+
+
+@pytest.mark.parametrize("size", [(1280, 800), (1024, 640), (800, 600)])
+def test_the_help_overlay_holds_all_its_lines(size):
+    """GGUI clips text at a panel's edges: every help line fits the panel's width and height."""
+    from taichi_sim.app.input import help_lines
+    from taichi_sim.app.launcher import HUD_CHAR_PX, LINE_PX, help_window
+
+    (x, y, width, height), lines = help_window(size)
+    assert max(len(line) for line in lines) * HUD_CHAR_PX <= width * size[0] - 2 * HUD_CHAR_PX
+    assert (len(lines) + 1.5) * LINE_PX <= height * size[1]  # the lines under a title bar
+    assert 0 <= y and y + height <= 1 and 0 <= x and x + width <= 1
+    assert " ".join(lines).split() == " ".join(help_lines()).split()  # wrapped, nothing lost

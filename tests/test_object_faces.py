@@ -3,16 +3,14 @@ small box pressed into a cloth at several of their sizes per step. Checked in ev
 geometry written apart from the kernels (numpy distances, exact triangle intersection tests)."""
 import numpy as np
 import pytest
+from helpers import step_checked
 
-import taichi_sim as ts
 from taichi_sim.collide.mesh_check import _point_triangle_distance, _segment_distance
 from taichi_sim.geometry.intersections import _triangles_intersect
 from taichi_sim.scene import cloth as topo
 from taichi_sim.scene.builder import SceneBuilder
 from taichi_sim.scene.colliders import SpherePath
 from taichi_sim.scene.colliders.faces import ALLOWED_OVERLAP
-
-from helpers import step_checked
 
 # faces may end a step overlapping an object by ALLOWED_OVERLAP of its thinnest size (plus the
 # march's touching distance, 1e-4 of it)

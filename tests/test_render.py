@@ -10,17 +10,16 @@ import os
 import imageio.v2 as imageio
 import numpy as np
 import pytest
+from helpers import OffscreenWindows
 
 import taichi_sim as ts
-from helpers import OffscreenWindows
 from taichi_sim.app.record import Clip, frame_labels, record
 from taichi_sim.app.runner import Runner
 from taichi_sim.app.session import Session
 from taichi_sim.app.showcase import SHOWCASE, record_showcase, shortened
 from taichi_sim.cli import main
 from taichi_sim.integrators import Status
-from taichi_sim.render import DrawOptions, Renderer, RenderUnavailable, open_window
-from taichi_sim.render import vulkan
+from taichi_sim.render import DrawOptions, Renderer, RenderUnavailable, open_window, vulkan
 from taichi_sim.render.drawer import SceneDrawer
 from taichi_sim.render.renderer import BACKGROUND
 from taichi_sim.scene.visual import describe
@@ -278,6 +277,25 @@ def test_launcher_draws_panel_hud_and_help_offscreen(window):
     assert launcher.renderer.drawers[0].trail_count == 1  # restarted, not joined to the old path
 
 
+@pytest.mark.parametrize("scene", ["cloth", "pendulum"])
+def test_the_launcher_frames_the_scene_clear_of_its_panels(window, scene):
+    """Nothing of the start-up scene (the cloth's pinned corners, the pendulum's pin) lies under
+    the control panel or the Status panel, energy charts shown or not."""
+    from taichi_sim.app.launcher import HUD, PANEL, Launcher
+
+    session = Session(scene, ["symplectic_euler"], interactive=True)
+    launcher = Launcher(session, SIZE, window=window)
+    for energy in (True, False):
+        session.options.energy = energy
+        launcher.draw_frame()
+        launcher.renderer.read_image()
+        x0 = np.asarray(session.runners[0].scene.x0) + launcher.renderer.offsets[0]
+        uv, depth = launcher.renderer.camera.project(x0)
+        assert (depth > 0).all() and (uv > 0).all() and (uv < 1).all()
+        assert (uv[:, 0] > PANEL[2]).all()
+        assert not ((uv[:, 0] > HUD[0]) & (uv[:, 1] > 1 - HUD[3])).any(), uv
+
+
 # -- recording ------------------------------------------------------------------------------------
 
 def test_record_mp4_and_gif_read_back_with_the_right_frames(own_windows, tmp_path):
@@ -370,7 +388,8 @@ def test_without_vulkan_record_says_what_to_install(runtime, monkeypatch, capsys
     assert code == 0  # the simulation commands do not need Vulkan
 
 
-def test_record_command_writes_an_mp4(own_windows, tmp_path):
+def test_record_command_writes_an_mp4(own_windows, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # where ImGui writes its imgui.ini: taken back
     out = tmp_path / "pendulum.mp4"
     assert main(["record", "pendulum", "--side-by-side", "euler,symplectic_euler", "--dt", "0.005",
                  "--seconds", "0.5", "--fps", "8", "--size", "64x48", "--out", str(out), "--quiet"]) == 0

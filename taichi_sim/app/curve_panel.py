@@ -63,7 +63,9 @@ class CurvePanel:
         editor, s = self.editor, self.editor.session
         editor.sync()
         u0, v0, u1, v1 = EDITOR_RECT
-        pts32 = lambda pts: np.array(pts, np.float32)  # the canvas's y runs up, as the editor's v
+        def pts32(pts):  # the canvas's y runs up, as the editor's v
+            return np.array(pts, np.float32)
+
         self._curve_back.from_numpy(pts32([(u0, v0), (u1, v0), (u1, v1), (u0, v0), (u1, v1), (u0, v1)]))
         canvas.triangles(self._curve_back, color=CURVE_BACK)
         now = editor.time_marker()
@@ -92,7 +94,9 @@ class CurvePanel:
                 g.text("nothing in this scene can follow a curve")
                 return
             names = editor.choices()
-            label = lambda n: n + (" *" if n in s.curves else "")
+            def label(n):
+                return n + (" *" if n in s.curves else "")
+
             g.text("curve of (* = driven): " + label(editor.param))
             if g.button("next parameter"):
                 guard(editor.select, names[(names.index(editor.param) + 1) % len(names)])

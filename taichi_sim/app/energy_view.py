@@ -11,8 +11,16 @@ from typing import Sequence
 
 import numpy as np
 
-from ..render.chart import (CURVE_COLOURS, ChartGeometry, Rect, chart_labels, chart_rects, energy_charts,
-                            legend_bar, legend_labels)
+from ..render.chart import (
+    CURVE_COLOURS,
+    ChartGeometry,
+    Rect,
+    chart_labels,
+    chart_rects,
+    energy_charts,
+    legend_bar,
+    legend_labels,
+)
 from ..render.overlay import Label
 from .energy import CAPACITY, COMPONENTS, curves_of
 

@@ -6,7 +6,6 @@ without a window); this module only draws widgets and passes events on.
 """
 from __future__ import annotations
 
-import atexit
 import json
 import math
 import os
@@ -14,7 +13,6 @@ import signal
 import textwrap
 import threading
 import time
-from pathlib import Path
 
 import numpy as np
 import taichi as ti
@@ -25,7 +23,7 @@ from ..errors import ConfigError
 from ..render import RenderUnavailable
 from ..render.chart import Rect
 from ..render.renderer import Renderer
-from ..render.vulkan import open_window
+from ..render.vulkan import open_window, take_back_imgui_ini, watch_imgui_ini
 from ..scene import SCENES
 from .curve_panel import CurvePanel
 from .display import display_problem
@@ -37,7 +35,8 @@ from .session import DT_RANGE, SUBSTEPS_MAX, Session, compatible_integrators
 PANEL = (0.0, 0.0, 0.27, 1.0)  # control panel: x, y, width, height (fractions of the window)
 HUD = (0.62, 0.0, 0.38, 0.3)
 HUD_CHAR_PX = 7.5  # width of a character of GGUI's font, for wrapping the HUD's lines
-HELP = (0.33, 0.1, 0.36, 0.68)
+HELP = (0.33, 0.1, 0.36, 0.68)  # x, y, width and the most height (help_window fits it to the lines)
+LINE_PX = 17  # height of a line of GGUI's text, for sizing a panel to its lines
 WARNING = (1.0, 0.45, 0.38)
 CURRENT = (0.55, 0.85, 1.0)  # the current entry of a list
 #: The energy charts (normalised, y up): the curve editor's strip, which hides them when shown.
@@ -47,36 +46,16 @@ LEGEND = Rect(0.955, 0.36, 0.975, 0.64)  # the strain colour bar
 #: STATUS_EVERY seconds and when it closes (what the real-window test reads).
 STATUS_ENV = "TAICHI_SIM_STATUS"
 STATUS_EVERY = 0.25  # s
-#: ImGui (inside GGUI) saves its window layout to this file in the current directory.
-IMGUI_INI = "imgui.ini"
-
-
-#: imgui.ini paths a launcher watched -> their content before (None: there was none).
-_INI_BEFORE: dict[Path, bytes | None] = {}
-
-
-def _watch_ini(path: Path) -> Path:
-    """Note what ``path`` holds before ImGui may write it (once per process and path), and make
-    sure it is taken back at exit even when the window is destroyed by someone else."""
-    if path not in _INI_BEFORE:
-        if not _INI_BEFORE:
-            atexit.register(lambda: [_take_back_ini(p) for p in list(_INI_BEFORE)])
-        _INI_BEFORE[path] = path.read_bytes() if path.is_file() else None
-    return path
-
-
-def _take_back_ini(path: Path) -> None:
-    """Remove the ini file ImGui wrote, or put back the one that was there before."""
-    if path not in _INI_BEFORE:
-        return
-    before = _INI_BEFORE[path]
-    try:
-        if before is None:
-            path.unlink(missing_ok=True)
-        elif not path.is_file() or path.read_bytes() != before:
-            path.write_bytes(before)  # someone else's layout file: left as found
-    except OSError:
-        pass  # the directory went away or turned read-only: nothing of ours to take back
+def help_window(size: tuple[int, int]) -> tuple[tuple[float, float, float, float], list[str]]:
+    """The help overlay's (x, y, width, height), fractions of a window of ``size`` pixels, and
+    its lines wrapped to that width: GGUI clips text at a panel's edges, which cut off the
+    mouse help's last line. The panel is as tall as its lines (a title bar and margins over),
+    moved up where the window is too short for it below HELP's y."""
+    width = max(20, int(HELP[2] * size[0] / HUD_CHAR_PX) - 2)
+    lines = [part for line in help_lines()
+             for part in (textwrap.wrap(line, width, subsequent_indent="    ") or [""])]
+    height = min(0.98, (len(lines) + 3) * LINE_PX / size[1])
+    return (HELP[0], max(0.01, min(HELP[1], 0.99 - height)), HELP[2], height), lines
 
 
 def _terminate(signum, frame):
@@ -101,7 +80,7 @@ class Launcher:
         self.session = session
         self.size = size
         self.owns_window = window is None
-        self._ini = _watch_ini(Path.cwd() / IMGUI_INI)
+        self._ini = watch_imgui_ini()
         if window is None:
             problem = display_problem()
             if problem is not None:  # GLFW would end the process with "cannot initialize GLFW"
@@ -131,7 +110,9 @@ class Launcher:
         key = tuple(id(scene) for scene in self.session.scenes)
         renderer = self._renderers.get(key)
         if renderer is None:
-            renderer = Renderer(self.window, self.session.visuals(), self.size, inset=PANEL[2])
+            # framed beside the control panel and below the Status panel, which hid the cloth's
+            # pinned corners and the pendulum's pin
+            renderer = Renderer(self.window, self.session.visuals(), self.size, inset=PANEL[2], top=HUD[3])
             self._renderers[key] = renderer
         else:
             renderer.clear_trails()
@@ -176,7 +157,7 @@ class Launcher:
         try:
             self.window.destroy()  # ImGui writes its ini file now
         finally:
-            _take_back_ini(self._ini)
+            take_back_imgui_ini(self._ini)
 
     def write_status(self, *, final: bool = False) -> None:
         """Write the status JSON to :attr:`status_path` (through a temporary file, so a reader
@@ -412,7 +393,8 @@ class Launcher:
         self.curve_panel.draw(self.renderer.canvas, self.gui, self._guard)
 
     def _help(self) -> None:
-        with self.gui.sub_window("Help", *HELP) as g:
-            for line in help_lines():
+        rect, lines = help_window(self.size)
+        with self.gui.sub_window("Help", *rect) as g:
+            for line in lines:
                 g.text(line)
 

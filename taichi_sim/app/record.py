@@ -15,7 +15,7 @@ from ..render.chart import Rect
 from ..render.overlay import WARNING, Label, burn
 from ..render.renderer import Renderer
 from ..render.video import MAX_SIDE, VideoWriter, check_output, save_png
-from ..render.vulkan import open_window
+from ..render.vulkan import open_window, take_back_imgui_ini
 from .energy import curves_of
 from .energy_view import EnergyView, panel_centres
 from .session import Session
@@ -179,6 +179,7 @@ def record(clip: Clip, out: str | Path, *, still: str | Path | None = None, stil
         raise
     finally:
         window.destroy()
+        take_back_imgui_ini()
     failures = tuple(f"{r.name}: {r.message}" for r in session.runners if r.frozen)
     return Recording(path=path, frames=frames, wall=time.perf_counter() - start,
                      still=still_path, failures=failures, stopped=session.frozen)

@@ -16,11 +16,11 @@ from ..errors import ConfigError
 from ..integrators import INTEGRATORS, integrator_class
 from ..render.drawer import DrawOptions
 from ..scene import SCENES, build_scene, scene_preset
-from ..scene.params import Param, resolve
 from ..scene.live import LIVE_SETTERS, applies_live
+from ..scene.params import Param, resolve
 from ..scene.scene import Scene
-from ..stepper import check_dt
 from ..scene.visual import describe
+from ..stepper import check_dt
 from .pacing import Pacer, factor_text
 from .runner import Runner
 

@@ -428,8 +428,7 @@ def advise_main(args) -> int:
     from .. import runtime
     from ..integrators import INTEGRATORS, integrator_class
     from ..scene import build_scene, scene_preset
-    from ..scene.params import scene_assignments
-    from ..scene.params import resolve
+    from ..scene.params import resolve, scene_assignments
     from ..scene.presets import check_scene_memory
     from .advise import check, recommend, scene_omegas, stability_table
 

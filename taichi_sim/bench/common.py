@@ -17,7 +17,7 @@ from typing import Any, Callable, Iterable
 
 import numpy as np
 
-from ..atomic import write_atomically
+from ..atomic import check_can_create, write_atomically
 from ..errors import ConfigError
 
 
@@ -32,6 +32,7 @@ def prepare_out_dir(path: str | os.PathLike) -> Path:
         raise ConfigError(f"--out {str(out)!r}: cannot create the directory ({exc.strerror})") from None
     if not os.access(out, os.W_OK | os.X_OK):
         raise ConfigError(f"--out {str(out)!r}: permission denied")
+    check_can_create(out / "bench", out)
     return out
 
 

@@ -61,6 +61,7 @@ def reference_solution(size: int, k: float, t_end: float) -> tuple[np.ndarray, f
     """(positions (n, 3) at t_end, the step used (s), the cloth's omega_max bound (rad/s)) of
     the reference (see the module doc)."""
     import taichi_sim as ts
+
     from ..theory import omega_max_bound
 
     fresh_runtime()
@@ -79,6 +80,7 @@ def timed_run(size: int, k: float, name: str, options: dict, h: float, t_end: fl
     """One run of ``t_end`` s at step h from a fresh scene, after an untimed two-step run
     (compilation); the state is reset before the timed run."""
     import taichi_sim as ts
+
     from ..integrators import create_integrator
 
     fresh_runtime()

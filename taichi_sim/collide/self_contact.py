@@ -28,8 +28,13 @@ import taichi as ti
 
 from .. import runtime
 from .candidates import CandidatePairs, PairList
-from .ccd import (edge_edge_hit, edge_edge_hit_between, point_triangle_distance, vertex_triangle_hit,
-                  vertex_triangle_hit_between)
+from .ccd import (
+    edge_edge_hit,
+    edge_edge_hit_between,
+    point_triangle_distance,
+    vertex_triangle_hit,
+    vertex_triangle_hit_between,
+)
 from .closest_points import closest_barycentric, segment_parameters
 from .hash_grid import PrimitiveHash
 from .impact_zones import ImpactZones

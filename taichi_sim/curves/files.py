@@ -20,7 +20,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from ..errors import ConfigError
+from ..errors import ConfigError, unknown_name
 from .spline import Spline
 
 FORMAT = "taichi-sim curves"
@@ -82,7 +82,8 @@ def check_curves(curves: Curves, preset) -> Curves:
     for name, spline in curves.items():
         p = params.get(name)
         if p is None:
-            raise ConfigError(f"curve {name}: scene {preset.name!r} has no parameter {name!r}")
+            raise ConfigError(f"curve {name}: " + unknown_name(f"scene {preset.name!r} has no parameter",
+                                                               name, params))
         if p.kind not in (int, float) or name not in LIVE_SETTERS:
             live = ", ".join(n for n in LIVE_SETTERS if n in params and params[n].kind in (int, float))
             raise ConfigError(f"curve {name}: parameter {name!r} cannot change while {preset.name} runs "

@@ -3,7 +3,7 @@
 ``path/to/file.py:Class`` (:mod:`.plugins`)."""
 from __future__ import annotations
 
-from ..errors import ConfigError
+from ..errors import ConfigError, unknown_name
 from .adaptive import DormandPrince45, EmbeddedRK, Fehlberg45
 from .base import Integrator, Status, StepReport, missing_facts
 from .explicit_rk import RK4, Euler, ExplicitRK, Midpoint, Trapezoid
@@ -32,9 +32,9 @@ def integrator_class(name: str) -> type[Integrator]:
     plugins = installed_plugins()
     if name in plugins:
         return load_entry_point(name, plugins[name], INTEGRATORS)
-    choices = ", ".join([*INTEGRATORS, *plugins])
-    raise ConfigError(f"unknown integrator {name!r} (choose from {choices}, or name your own class "
-                      f"as package.module:Class or path/to/file.py:Class)")
+    raise ConfigError(unknown_name("unknown integrator", name, [*INTEGRATORS, *plugins],
+                                   otherwise=", or name your own class as package.module:Class or "
+                                             "path/to/file.py:Class"))
 
 
 def check_options(name: str, options: dict) -> type[Integrator]:

@@ -16,8 +16,7 @@ from ..errors import ConfigError
 from ..state import State, finite
 from ..systems.base import System
 from .base import Integrator, Status, StepReport
-from .explicit_rk import state_parts
-from .explicit_rk import weighted_stages
+from .explicit_rk import state_parts, weighted_stages
 from .tableau import DORMAND_PRINCE, FEHLBERG, ButcherTableau
 
 STIFFNESS_FRACTION = 0.98  # h |lambda| above this fraction of the real stability boundary is stiff

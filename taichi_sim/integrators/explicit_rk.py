@@ -119,7 +119,7 @@ class StagePlan:
         matrix = tab.matrix()
         self.velocity_weights = tuple(float(sum(w)) for w in self.weights)
         self.acceleration_weights = tuple(
-            tuple(float(sum(w[j] * matrix[j, l] for j in range(len(w)))) for l in range(tab.stage_count))
+            tuple(float(sum(w[j] * matrix[j, k] for j in range(len(w)))) for k in range(tab.stage_count))
             for w in self.weights)
         self.particle_count = y.particle_count
         self.serial = rk.system.serial_loops
@@ -146,10 +146,10 @@ class StagePlan:
     @ti.func
     def _combine(self, s: ti.template(), p, h):
         velocity = self.y.v[p]
-        change = ti.Vector.zero(self.y.x.dtype, 3)  # h sum_l (w^T A)_l a_l
-        for l in ti.static(range(len(self.derivatives))):
-            if ti.static(self.acceleration_weights[s][l] != 0.0):
-                change += self.acceleration_weights[s][l] * self.derivatives[l].v[p]
+        change = ti.Vector.zero(self.y.x.dtype, 3)  # h sum_k (w^T A)_k a_k
+        for k in ti.static(range(len(self.derivatives))):
+            if ti.static(self.acceleration_weights[s][k] != 0.0):
+                change += self.acceleration_weights[s][k] * self.derivatives[k].v[p]
         mean_velocity = self.velocity_weights[s] * velocity + h * change
         ti.static(self.targets[s].x)[p] = self.y.x[p] + h * ti.select(
             self.free[p] != 0, mean_velocity, ti.Vector.zero(self.y.x.dtype, 3))

@@ -27,15 +27,18 @@ class OrbitCamera:
             is drawn centred in the rest, which framing fills.
         bottom: fraction of the image height covered at the bottom (by the energy charts),
             likewise left out of the framing.
+        top: fraction of the image height covered at the top (by a status panel), likewise.
     """
 
     def __init__(self, aspect: float, target=(0.0, 0.0, 0.0), distance: float = 3.0,
                  yaw: float = 0.0, pitch: float = 0.0, fov: float = 45.0, inset: float = 0.0,
-                 bottom: float = 0.0):
+                 bottom: float = 0.0, top: float = 0.0):
         if not 0.0 <= inset < 0.9:
             raise ValueError(f"inset must be in [0, 0.9), got {inset}")
         if not 0.0 <= bottom < 0.9:
             raise ValueError(f"bottom must be in [0, 0.9), got {bottom}")
+        if not (0.0 <= top and bottom + top < 0.9):
+            raise ValueError(f"top must be >= 0 and bottom + top < 0.9, got top {top}, bottom {bottom}")
         self.aspect = float(aspect)
         self.target = np.asarray(target, np.float64).reshape(3).copy()
         self.distance = float(distance)
@@ -44,6 +47,7 @@ class OrbitCamera:
         self.fov = float(fov)
         self.inset = float(inset)
         self.bottom = float(bottom)
+        self.top = float(top)
 
     # -- pose ---------------------------------------------------------------------------------
 
@@ -70,10 +74,11 @@ class OrbitCamera:
     @property
     def look_at(self) -> np.ndarray:
         """The point the camera looks at (m): the target, shifted sideways so that the target
-        appears centred in the part of the image right of the inset and above the bottom strip."""
+        appears centred in the part of the image right of the inset, above the bottom strip and
+        below the top one."""
         right, up, _ = self.basis()
         tan_h, tan_v = self.tan_half
-        return self.target - self.distance * (self.inset * tan_h * right + self.bottom * tan_v * up)
+        return self.target - self.distance * (self.inset * tan_h * right + (self.bottom - self.top) * tan_v * up)
 
     @property
     def position(self) -> np.ndarray:
@@ -101,7 +106,7 @@ class OrbitCamera:
         right, up, back = self.basis()
         tan_h, tan_v = self.tan_half
         tan_h *= (1.0 - self.inset) / margin
-        tan_v *= (1.0 - self.bottom) / margin
+        tan_v *= (1.0 - self.bottom - self.top) / margin
         depth = corners @ back  # toward the camera
         needed = np.maximum(np.abs(corners @ right) / tan_h, np.abs(corners @ up) / tan_v) + depth
         self.distance = max(float(needed.max()), float(depth.max()) + 0.2, 1e-2)
@@ -110,7 +115,7 @@ class OrbitCamera:
         """Distance (m) at which a sphere of ``radius`` (m) around the target just fits the
         narrower view angle (beside the inset)."""
         tan_h, tan_v = self.tan_half
-        return radius / math.sin(math.atan(min(tan_v * (1.0 - self.bottom), tan_h * (1.0 - self.inset))))
+        return radius / math.sin(math.atan(min(tan_v * (1.0 - self.bottom - self.top), tan_h * (1.0 - self.inset))))
 
     # -- matrices and mappings ----------------------------------------------------------------
 

@@ -44,10 +44,11 @@ class Renderer:
         inset: fraction of the window width a control panel covers on the left; the scenes are
             framed in the rest.
         bottom: fraction of the window height the energy charts cover at the bottom (likewise).
+        top: fraction of the window height a status panel covers at the top (likewise).
     """
 
     def __init__(self, window, visuals: Sequence[SceneVisual], size: tuple[int, int], *,
-                 inset: float = 0.0, bottom: float = 0.0):
+                 inset: float = 0.0, bottom: float = 0.0, top: float = 0.0):
         if not visuals:
             raise ValueError("Renderer needs at least one scene visual")
         self.window = window
@@ -63,7 +64,7 @@ class Renderer:
         yaw, pitch = self.visuals[0].view
         self.camera = OrbitCamera(self.size[0] / self.size[1], yaw=math.radians(yaw),
                                   pitch=math.radians(pitch), inset=inset,
-                                  bottom=bottom)
+                                  bottom=bottom, top=top)
         self.home()
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:

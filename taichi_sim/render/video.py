@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from ..atomic import PendingFile
+from ..atomic import PendingFile, check_can_create
 from ..errors import ConfigError
 
 MAX_SIDE = 4096  # pixels
@@ -71,6 +71,7 @@ def check_output(path: str | os.PathLike, size: tuple[int, int], fps: float) -> 
         raise ConfigError(f"cannot write {str(target)!r}: directory {str(parent)!r} does not exist")
     if not os.access(parent, os.W_OK) or (target.exists() and not os.access(target, os.W_OK)):
         raise ConfigError(f"cannot write {str(target)!r}: permission denied")
+    check_can_create(target, parent)
     return kind, target
 
 

@@ -9,10 +9,12 @@ breaks every other window still open, and a window must be closed before ``ti.in
 """
 from __future__ import annotations
 
+import atexit
 import contextlib
 import glob
 import os
 import platform
+from pathlib import Path
 
 INSTALL_HINT = ("install a Vulkan driver, e.g. on Debian/Ubuntu `sudo apt-get install "
                 "mesa-vulkan-drivers` (Mesa's software renderer works without a GPU)")
@@ -46,6 +48,41 @@ def _quiet_stderr():
         os.close(saved)
 
 
+#: ImGui (inside GGUI) saves its window layout to this file in the current directory, when a
+#: window closes, even an offscreen one; Taichi offers no way to turn that off.
+IMGUI_INI = "imgui.ini"
+
+#: imgui.ini paths a window was opened beside -> their content before (None: there was none).
+_INI_BEFORE: dict[Path, bytes | None] = {}
+
+
+def watch_imgui_ini(path: Path | None = None) -> Path:
+    """Note what ``path`` (default: ``imgui.ini`` in the current directory) holds before ImGui
+    may write it (once per process and path), and make sure it is taken back at exit even when
+    the window is destroyed by someone else."""
+    path = Path.cwd() / IMGUI_INI if path is None else path
+    if path not in _INI_BEFORE:
+        if not _INI_BEFORE:
+            atexit.register(lambda: [take_back_imgui_ini(p) for p in list(_INI_BEFORE)])
+        _INI_BEFORE[path] = path.read_bytes() if path.is_file() else None
+    return path
+
+
+def take_back_imgui_ini(path: Path | None = None) -> None:
+    """Remove the ini file ImGui wrote, or put back the one that was there before."""
+    path = Path.cwd() / IMGUI_INI if path is None else path
+    if path not in _INI_BEFORE:
+        return
+    before = _INI_BEFORE[path]
+    try:
+        if before is None:
+            path.unlink(missing_ok=True)
+        elif not path.is_file() or path.read_bytes() != before:
+            path.write_bytes(before)  # someone else's layout file: left as found
+    except OSError:
+        pass  # the directory went away or turned read-only: nothing of ours to take back
+
+
 def open_window(title: str, size: tuple[int, int], *, visible: bool = False):
     """A ``ti.ui.Window`` of ``size`` = (width, height) pixels (Taichi must be initialised).
 
@@ -62,6 +99,7 @@ def open_window(title: str, size: tuple[int, int], *, visible: bool = False):
     if platform.system() == "Linux" and not explicit and not _icd_files():
         raise RenderUnavailable(f"rendering needs Vulkan and no Vulkan driver is installed (no ICD "
                                 f"file in {ICD_DIRS[0]}): {INSTALL_HINT}")
+    watch_imgui_ini()  # destroying the window writes it: take_back_imgui_ini() after
     try:
         with _quiet_stderr():
             return ti.ui.Window(title, tuple(int(s) for s in size), vsync=visible, show_window=visible)
@@ -79,4 +117,5 @@ def vulkan_problem() -> str | None:
     except RenderUnavailable as exc:
         return str(exc)
     window.destroy()
+    take_back_imgui_ini()
     return None

@@ -1,7 +1,7 @@
 """Scenes: a builder that allocates only what a scene asks for, and the presets over it."""
 from .builder import SceneBuilder
-from .params import Param
 from .grab import Grabber
+from .params import Param
 from .preset import ScenePreset
 from .presets import SCENES, build_scene, scene_preset
 from .scene import Scene

@@ -17,7 +17,6 @@ from .events import Emitter, EmitterSpec, Tearing
 from .grab import Grabber
 from .scene import Scene
 
-
 _GENERAL_PATHS = ContextVar("general_paths", default=False)
 
 

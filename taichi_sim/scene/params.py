@@ -5,7 +5,7 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-from ..errors import ConfigError
+from ..errors import ConfigError, unknown_name
 
 
 @dataclass(frozen=True)
@@ -79,8 +79,7 @@ def resolve(params: tuple[Param, ...], scene: str, given: dict[str, Any]) -> dic
     by_name = {p.name: p for p in params}
     unknown = [k for k in given if k not in by_name]
     if unknown:
-        raise ConfigError(f"scene {scene!r} has no parameter {unknown[0]!r} "
-                          f"(it has: {', '.join(by_name)})")
+        raise ConfigError(unknown_name(f"scene {scene!r} has no parameter", unknown[0], by_name))
     values = {p.name: p.default for p in params}
     for name, value in given.items():
         values[name] = by_name[name].parse(value) if isinstance(value, str) and by_name[name].kind is not str \

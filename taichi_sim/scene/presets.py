@@ -4,7 +4,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import ConfigError
+from ..errors import ConfigError, unknown_name
 from ..memory import Size, check_size
 from ..systems.circle import CircleSystem
 from .builder import SceneBuilder
@@ -85,7 +85,7 @@ def scene_preset(name: str) -> ScenePreset:
     try:
         return SCENES[name]
     except KeyError:
-        raise ConfigError(f"unknown scene {name!r} (choose from {', '.join(SCENES)})") from None
+        raise ConfigError(unknown_name("unknown scene", name, SCENES)) from None
 
 
 def check_scene_memory(preset: ScenePreset, values: dict[str, Any], *, precision: str,

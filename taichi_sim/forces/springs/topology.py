@@ -1,6 +1,7 @@
 """The CSR incidence of springs (or triangles) on particles, built with numpy."""
 import numpy as np
 
+
 def incidence_of(particle_count: int, elements: np.ndarray):
     """CSR incidence of elements (springs (S, 2), triangles (T, 3)) on particles.
 

@@ -12,8 +12,7 @@ The parts, each readable on its own:
 * :mod:`.newton_krylov`: Newton-Krylov (GMRES) for systems without spring Jacobians;
 * :mod:`.common`: solver statistics, tolerances (fixed, and Eisenstat-Walker forcing terms).
 """
-from .common import (LINEAR_SOLVERS, PRECONDITIONERS, LinearSolverStats, default_cg_tolerance,
-                     default_newton_tolerance)
+from .common import LINEAR_SOLVERS, PRECONDITIONERS, LinearSolverStats, default_cg_tolerance, default_newton_tolerance
 from .methods import ImplicitEuler, ImplicitEulerLinearised, ImplicitMidpoint
 from .newton import ImplicitStageMethod
 

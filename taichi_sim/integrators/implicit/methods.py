@@ -2,8 +2,8 @@
 (Baraff & Witkin) and the implicit midpoint rule, all on the Newton driver of :mod:`.newton`."""
 from __future__ import annotations
 
-from ..equation import EXACT, FIXED_WORK, Equation
 from ...systems.base import System
+from ..equation import EXACT, FIXED_WORK, Equation
 from .newton import ImplicitStageMethod
 
 _NEWTON_ADVICE = "raise --newton-iterations or lower --newton-tolerance or --dt"

@@ -43,8 +43,16 @@ from ...errors import ConfigError
 from ...state import State
 from ...systems.base import System
 from ..base import Integrator, Status, StepReport
-from .common import (LINEAR_SOLVERS, LinearSolverStats, StepWork, default_cg_tolerance,
-                     default_newton_tolerance, forcing_tolerance, positive_int, tolerance)
+from .common import (
+    LINEAR_SOLVERS,
+    LinearSolverStats,
+    StepWork,
+    default_cg_tolerance,
+    default_newton_tolerance,
+    forcing_tolerance,
+    positive_int,
+    tolerance,
+)
 from .conjugate_gradients import checked_preconditioner
 from .newton_krylov import GMRES_RESTART, NewtonKrylovStage
 from .velocity_stage import VelocityStage

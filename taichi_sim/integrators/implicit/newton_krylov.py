@@ -16,7 +16,7 @@ import taichi as ti
 from ... import runtime
 from ...state import State, finite
 from ...systems.base import System
-from .common import Evaluation, LinearOutcome, LinearSolverStats
+from .common import Evaluation, LinearOutcome
 
 GMRES_RESTART = 20  # Krylov vectors kept before GMRES restarts (memory: this many states)
 

@@ -9,8 +9,8 @@ import taichi as ti
 from ... import runtime
 from ...errors import ConfigError
 from ...systems.base import System
-from ..equation import FIXED_WORK, Equation
 from ..base import Integrator, Status, StepReport
+from ..equation import FIXED_WORK, Equation
 from ..implicit.common import positive_int
 from .external import ExplicitForces
 from .global_matrix import GlobalMatrix

@@ -6,8 +6,8 @@ import taichi as ti
 
 from ... import runtime
 from ...systems.base import System
-from ..equation import FIXED_WORK, Equation
 from ..base import Integrator, StepReport
+from ..equation import FIXED_WORK, Equation
 from ..implicit.common import positive_int
 from .colouring import colour_springs
 from .external import ExplicitForces
