@@ -6,34 +6,15 @@ import sys
 
 from ..errors import ConfigError
 from . import common
+from .options import _float_list, _fmt, _meta, _names  # noqa: F401 (the planners here use them)
 
 BENCH_NAMES = ("work-precision", "stability", "throughput")  # what `bench all` runs
-
-
-def _names(text: str | None, allowed, what: str) -> list[str] | None:
-    if text is None:
-        return None
-    names = [n.strip() for n in text.split(",") if n.strip()]
-    if not names:
-        raise ConfigError(f"--{what} needs at least one name")
-    unknown = [n for n in names if n not in allowed]
-    if unknown:
-        raise ConfigError(f"unknown {what[:-1] if what.endswith('s') else what} {unknown[0]!r} "
-                          f"(choose from {', '.join(allowed)})")
-    return names
-
-
-def _meta(name: str, args, config: dict) -> dict:
-    return {"benchmark": name, "command": common.command_line(), "quick": bool(args.quick),
-            "machine": common.machine_info(), "config": config,
-            "note": "timings come from a machine that may be shared with other work: compare them "
-                    "within one run, not across runs"}
 
 
 def bench_main(args) -> int:
     """Dispatch ``taichi-sim bench NAME``; every name checks its options before any work."""
     which = list(BENCH_NAMES) if args.bench_command == "all" else [args.bench_command]
-    plans = [(name, PLANNERS[name](args)) for name in which]  # validate every option first
+    plans = [(name, _planners()[name](args)) for name in which]  # validate every option first
     out = common.prepare_out_dir(args.out)
     code = 0
     for name, run in plans:
@@ -269,137 +250,11 @@ def print_throughput(rows: list[dict], details: dict) -> None:
                 print(f"peer unavailable ({key}, {s['precision']}, n = {s['n']}): {s[f'{key}_unavailable']}")
 
 
-def _float_list(text: str | None, what: str, default) -> list[float]:
-    if text is None:
-        return list(default)
-    try:
-        values = [_fraction(v) for v in text.split(",") if v.strip()]
-    except (ValueError, ZeroDivisionError):
-        raise ConfigError(f"--{what} expects comma-separated numbers, got {text!r}") from None
-    if not values or not all(math.isfinite(v) and v > 0 for v in values):
-        raise ConfigError(f"--{what} expects finite numbers > 0, got {text!r}")
-    return values
+def _planners() -> dict:
+    from .studies import plan_extremes, plan_precision, plan_stiff_cloth
 
-
-def _fraction(text: str) -> float:
-    """``"1/60"`` or ``"0.5"`` as a float (ValueError otherwise)."""
-    top, sep, bottom = text.strip().partition("/")
-    return float(top) / float(bottom) if sep else float(top)
-
-
-def _plan_extremes(args):
-    from ..integrators import INTEGRATORS
-    from .extremes import QUICK_SCENES, SCENES, STEP_SIZES, STEPS, STIFFNESSES
-
-    scenes_all = dict(QUICK_SCENES if args.quick else SCENES)
-    asked = getattr(args, "scenes", None)
-    for name in (asked or "").split(","):  # clothN: an N x N cloth
-        name = name.strip()
-        if name.startswith("cloth") and name[5:].isdigit():
-            if not 2 <= int(name[5:]) <= 256:
-                raise ConfigError(f"--scenes: {name} needs a side from 2 to 256")
-            scenes_all[name] = ("cloth", {"nx": int(name[5:]), "ny": int(name[5:])})
-    try:
-        scenes = _names(asked, list(scenes_all), "scenes") or list(scenes_all)
-    except ConfigError as exc:
-        raise ConfigError(f"{str(exc)[:-1]}, or clothN for an N x N cloth)") from None
-    integrators = _names(getattr(args, "integrators", None), list(INTEGRATORS), "integrators") or list(INTEGRATORS)
-    stiffnesses = _float_list(getattr(args, "stiffnesses", None), "stiffnesses", STIFFNESSES)
-    step_sizes = _float_list(getattr(args, "step_sizes", None), "step-sizes", STEP_SIZES)
-    steps = getattr(args, "steps", None) or (10 if args.quick else STEPS)
-
-    def run(out):
-        from .. import runtime
-        from . import plots
-        from .extremes import outcome_table, run_extremes, task_count
-
-        runtime.init(arch="cpu", precision="f64")
-        chosen = {s: scenes_all[s] for s in scenes}
-        with common.progress_bar(task_count(chosen, integrators, stiffnesses, step_sizes), "extremes",
-                                 args.quiet) as bar:
-            rows = run_extremes(chosen, integrators, stiffnesses, step_sizes, steps=steps, progress=bar)
-        table = outcome_table(rows)
-        payload = {**_meta("extremes", args, {"scenes": {s: list(scenes_all[s]) for s in scenes},
-                                               "integrators": integrators, "stiffnesses": stiffnesses,
-                                               "step_sizes": step_sizes, "steps": steps, "precision": "f64"}),
-                   "outcomes": table}
-        paths = common.write_outputs(out, "extremes", rows, payload, lambda f: plots.extremes(rows, f))
-        if not args.quiet:
-            print_extremes(rows, table)
-        common.report_written(paths, args.quiet)
-        silent = sum(c["silent"] + c["error"] for c in table.values())
-        if silent:
-            print(f"taichi-sim: {silent} runs blew up silently or crashed (see extremes.csv)", file=sys.stderr)
-        return 1 if silent else 0
-
-    return run
-
-
-def _plan_stiff_cloth(args):
-    from .stiffcloth import METHODS, STEPS
-
-    size = getattr(args, "size", None) or (8 if args.quick else 32)
-    if not 2 <= size <= 256:
-        raise ConfigError(f"--size must be from 2 to 256, got {size}")
-    stiffnesses = _float_list(getattr(args, "stiffnesses", None), "stiffnesses",
-                              (1e4,) if args.quick else (1e2, 1e4, 1e8))
-    if any(k <= 0 for k in stiffnesses):
-        raise ConfigError("--stiffnesses must all be > 0")
-    steps = _float_list(getattr(args, "step_sizes", None), "step-sizes", STEPS[:2] if args.quick else STEPS)
-    t_end = getattr(args, "t_end", None) or (0.1 if args.quick else 0.5)
-    budget = getattr(args, "budget", None) or (10.0 if args.quick else 60.0)
-    studied = list(dict.fromkeys(name for name, _ in METHODS))
-    chosen = _names(getattr(args, "integrators", None), studied, "integrators") or studied
-    methods = tuple(m for m in METHODS if m[0] in chosen)
-
-    def run(out):
-        from .. import runtime
-        from . import plots
-        from .stiffcloth import run_stiff_cloth, task_count
-
-        runtime.init(arch="cpu", precision="f64")
-        with common.progress_bar(task_count(stiffnesses, steps, methods), "stiff-cloth", args.quiet) as bar:
-            rows, details = run_stiff_cloth(size, stiffnesses, steps, methods, t_end=t_end, budget_s=budget,
-                                            progress=bar)
-        payload = {**_meta("stiff-cloth", args, {"size": size, "stiffnesses": stiffnesses, "step_sizes": steps,
-                                                  "t_end": t_end, "budget_s": budget, "precision": "f64"}),
-                   **details}
-        paths = common.write_outputs(out, "stiff-cloth", rows, payload, lambda f: plots.stiff_cloth(rows, details, f))
-        if not args.quiet:
-            print_stiff_cloth(rows, details)
-        common.report_written(paths, args.quiet)
-
-    return run
-
-
-def print_stiff_cloth(rows: list[dict], details: dict) -> None:
-    print(f"{details['size']}x{details['size']} cloth, rms position error at T = {details['t_end']:g} s against "
-          f"symplectic Euler at a quarter of its stable step (f64):")
-    print(common.format_table(
-        ["k (N/m)", "method", "h (s)", "status", "ms/step", "rms error (m)"],
-        [[f"{r['k']:g}", r["method"], f"{r['h']:.3g}", r["status"], _fmt(r.get("ms_per_step")),
-          _fmt(r.get("error_rms"))] for r in rows]))
-    print("Artificial damping (no dashpots, no drag; h = 1/60 s, 1 s):")
-    print(common.format_table(
-        ["k (N/m)", "method", "status", "energy lost per s", "highest rise above start (J)"],
-        [[f"{d['k']:g}", d["method"], d["status"], f"{100 * d['fraction_lost_per_s']:.1f} %",
-          _fmt(max(d["energy_rise"], 0.0))] for d in details["damping"]]))
-
-
-def print_extremes(rows: list[dict], table: dict) -> None:
-    print("Runs at the extremes: ok (bounded, status ok), reported (status not ok, with a message), "
-          "silent (status ok, but the audit finds a blow-up), error (a crash):")
-    print(common.format_table(["integrator", "ok", "reported", "silent", "error"],
-                              [[name, c["ok"], c["reported"], c["silent"], c["error"]]
-                               for name, c in table.items()]))
-    for row in rows:
-        if row["outcome"] in ("silent", "error"):
-            print(f"  {row['outcome']}: {row['scene']} {row['integrator']} k={row['stiffness']:g} "
-                  f"dt={row['dt']:g}: {row['reason']}")
-
-
-PLANNERS = {"stiff-cloth": _plan_stiff_cloth, "work-precision": _plan_work_precision, "stability": _plan_stability, "throughput": _plan_throughput,
-            "extremes": _plan_extremes}
+    return {"stiff-cloth": plan_stiff_cloth, "work-precision": _plan_work_precision, "stability": _plan_stability,
+            "throughput": _plan_throughput, "extremes": plan_extremes, "precision": plan_precision}
 
 
 def advise_main(args) -> int:
@@ -454,11 +309,3 @@ def advise_main(args) -> int:
     return 0
 
 
-def _fmt(value) -> str:
-    if value is None:
-        return "-"
-    if isinstance(value, float):
-        if math.isinf(value):
-            return "unbounded"
-        return f"{value:.6g}"
-    return str(value)

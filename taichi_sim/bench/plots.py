@@ -7,7 +7,8 @@ COLORS = {"euler": "#d62728", "trapezoid": "#ff7f0e", "midpoint": "#bcbd22", "rk
           "symplectic_euler": "#2ca02c", "rk45": "#9467bd", "rkf45": "#8c564b",
           "implicit_euler": "#e377c2", "implicit_euler_linearised": "#f7b6d2",
           "implicit_midpoint": "#17becf", "projective_dynamics": "#7f7f7f", "xpbd": "#000000"}
-OUTCOME_COLORS = {"ok": "#2ca02c", "reported": "#ffbf00", "silent": "#d62728", "error": "#000000"}
+OUTCOME_COLORS = {"ok": "#2ca02c", "reported": "#ffbf00", "silent": "#d62728", "error": "#000000",
+                  "timeout": "#7f7f7f"}
 DPI = 72
 
 
@@ -149,6 +150,7 @@ def extremes(rows: list[dict], out) -> None:
     from matplotlib.colors import ListedColormap
     from matplotlib.patches import Patch
 
+    rows = [r for r in rows if r.get("stiffness") is not None]  # a timed-out case has no runs to show
     names = list(dict.fromkeys(r["integrator"] for r in rows))
     columns = list(dict.fromkeys((r["scene"], r["stiffness"], r["dt"]) for r in rows))
     codes = {name: i for i, name in enumerate(OUTCOME_COLORS)}
@@ -256,6 +258,33 @@ def stiff_cloth(rows: list[dict], details: dict, out) -> None:
         ax.set_ylabel("rms position error at T (m)")
         ax.grid(True, which="major", alpha=0.3)
     axes[0][0].legend(fontsize=7, loc="best")
+    fig.tight_layout()
+    fig.savefig(out, format="png", dpi=DPI)
+    plt.close(fig)
+
+
+def precision(rows: list[dict], disagree: float, out) -> None:
+    """Per scene: how far each method's f32 run ends from its f64 run (over the cloth's size),
+    with the line above which an ``ok`` f32 run is a finding."""
+    import matplotlib.pyplot as plt
+
+    scenes = list(dict.fromkeys(r["scene"] for r in rows))
+    fig, axes = plt.subplots(1, len(scenes), figsize=(5.6 * len(scenes), 4.4), squeeze=False)
+    for ax, scene in zip(axes[0], scenes):
+        mine = [r for r in rows if r["scene"] == scene and r.get("precision") == "f32"]
+        names = [r["integrator"] for r in mine]
+        values = [r.get("f32_vs_f64_rel") if _finite(r.get("f32_vs_f64_rel")) else math.nan for r in mine]
+        ax.bar(range(len(names)), [max(v, 1e-18) if math.isfinite(v) else 0.0 for v in values],
+               color=["#d62728" if r.get("finding") else _color(r["integrator"]) for r in mine])
+        for i, (r, v) in enumerate(zip(mine, values)):
+            if not math.isfinite(v):
+                ax.text(i, 1e-17, str(r.get("status")), rotation=90, fontsize=6, ha="center", va="bottom")
+        ax.axhline(disagree, color="k", linestyle="--", linewidth=0.8, label=f"finding above {disagree:g}")
+        ax.set_yscale("log")
+        ax.set_xticks(range(len(names)), names, rotation=60, ha="right", fontsize=7)
+        ax.set_ylabel("|x_f32 - x_f64| max / cloth size")
+        ax.set_title(f"{scene} cloth")
+        ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(out, format="png", dpi=DPI)
     plt.close(fig)

@@ -1,0 +1,196 @@
+"""The benches that run on the sweep engine (:mod:`taichi_sim.bench.sweep`): ``bench
+extremes``, ``bench stiff-cloth`` and ``bench precision``. Each plans its cases, runs those its
+table does not hold yet (``--jobs`` at once, or on ``--scheduler``), then writes the JSON and
+the plot and prints its summary from the table as written."""
+from __future__ import annotations
+
+import sys
+
+from ..errors import ConfigError
+from . import common
+from .options import _float_list, _fmt, _meta, _names
+
+
+def open_sweep(args, study, planned, out):
+    """The :class:`Sweep` for the bench's sweep options (all checked here, before any case)."""
+    from .sweep import Sweep
+
+    return Sweep(study, planned, out, jobs=getattr(args, "jobs", None), scheduler=getattr(args, "scheduler", None),
+                 timeout_s=getattr(args, "case_timeout", None), fresh=getattr(args, "fresh", False),
+                 quiet=args.quiet)
+
+
+def sweep_meta(sweep, rows: list[dict]) -> dict:
+    """What the JSON says about how the cases ran (timings depend on it)."""
+    overlap = [r.get("concurrency") for r in rows if isinstance(r.get("concurrency"), int)]
+    return {"sweep": {"where": sweep.pool.where, "case_timeout_s": sweep.timeout_s, "table": str(sweep.path),
+                      "cases_run_now": len(sweep.ran), "most_at_once": max(overlap, default=None)}}
+
+
+def timing_note(rows: list[dict], column: str) -> None:
+    """Say when timed cases shared the machine (their ``column`` then measures a loaded one)."""
+    shared = [r for r in rows if isinstance(r.get("concurrency"), int) and r["concurrency"] > 1
+              and r.get(column) is not None]
+    if shared:
+        most = max(r["concurrency"] for r in shared)
+        print(f"note: {len(shared)} timed rows ran with up to {most} cases at once (column `concurrency`): their "
+              f"{column} are slower than alone; --jobs 1 times each case alone")
+
+
+def plan_extremes(args):
+    from ..integrators import INTEGRATORS
+    from .extremes import QUICK_SCENES, SCENES, STEP_SIZES, STEPS, STIFFNESSES
+
+    scenes_all = dict(QUICK_SCENES if args.quick else SCENES)
+    asked = getattr(args, "scenes", None)
+    for name in (asked or "").split(","):  # clothN: an N x N cloth
+        name = name.strip()
+        if name.startswith("cloth") and name[5:].isdigit():
+            if not 2 <= int(name[5:]) <= 256:
+                raise ConfigError(f"--scenes: {name} needs a side from 2 to 256")
+            scenes_all[name] = ("cloth", {"nx": int(name[5:]), "ny": int(name[5:])})
+    try:
+        scenes = _names(asked, list(scenes_all), "scenes") or list(scenes_all)
+    except ConfigError as exc:
+        raise ConfigError(f"{str(exc)[:-1]}, or clothN for an N x N cloth)") from None
+    integrators = _names(getattr(args, "integrators", None), list(INTEGRATORS), "integrators") or list(INTEGRATORS)
+    stiffnesses = _float_list(getattr(args, "stiffnesses", None), "stiffnesses", STIFFNESSES)
+    step_sizes = _float_list(getattr(args, "step_sizes", None), "step-sizes", STEP_SIZES)
+    steps = getattr(args, "steps", None) or (10 if args.quick else STEPS)
+
+    def run(out):
+        from . import plots
+        from .extremes import outcome_table, plan_cases, study
+
+        chosen = {s: scenes_all[s] for s in scenes}
+        cases = plan_cases(chosen, integrators, stiffnesses, step_sizes, steps)
+        sweep = open_sweep(args, study(), cases, out)
+        try:
+            rows = sweep.run(cases, "extremes")
+        finally:
+            sweep.close()
+        table = outcome_table(rows)
+        payload = {**_meta("extremes", args, {"scenes": {s: list(scenes_all[s]) for s in scenes},
+                                               "integrators": integrators, "stiffnesses": stiffnesses,
+                                               "step_sizes": step_sizes, "steps": steps, "precision": "f64"}),
+                   **sweep_meta(sweep, rows), "outcomes": table}
+        paths = common.write_outputs(out, "extremes", rows, payload, lambda f: plots.extremes(rows, f))
+        if not args.quiet:
+            print_extremes(rows, table)
+        common.report_written(paths, args.quiet)
+        bad = sum(c["silent"] + c["error"] + c["timeout"] for c in table.values())
+        if bad:
+            print(f"taichi-sim: {bad} runs blew up silently, crashed or timed out (see extremes.csv)", file=sys.stderr)
+        return 1 if bad else 0
+
+    return run
+
+
+def print_extremes(rows: list[dict], table: dict) -> None:
+    print("Runs at the extremes: ok (bounded, status ok), reported (status not ok, with a message), "
+          "silent (status ok, but the audit finds a blow-up), error (a crash), timeout (a stopped case):")
+    print(common.format_table(["integrator", "ok", "reported", "silent", "error", "timeout"],
+                              [[name, c["ok"], c["reported"], c["silent"], c["error"], c["timeout"]]
+                               for name, c in table.items()]))
+    for row in rows:
+        if row["outcome"] in ("silent", "error", "timeout"):
+            where = "" if row.get("stiffness") is None else f" k={row['stiffness']:g} dt={row['dt']:g}"
+            print(f"  {row['outcome']}: {row['scene']} {row['integrator']}{where}: {row['reason']}")
+
+
+def plan_stiff_cloth(args):
+    from .stiffcloth import METHODS, STEPS
+
+    size = getattr(args, "size", None) or (8 if args.quick else 32)
+    if not 2 <= size <= 256:
+        raise ConfigError(f"--size must be from 2 to 256, got {size}")
+    stiffnesses = _float_list(getattr(args, "stiffnesses", None), "stiffnesses",
+                              (1e4,) if args.quick else (1e2, 1e4, 1e8))
+    steps = _float_list(getattr(args, "step_sizes", None), "step-sizes", STEPS[:2] if args.quick else STEPS)
+    t_end = getattr(args, "t_end", None) or (0.1 if args.quick else 0.5)
+    budget = getattr(args, "budget", None) or (10.0 if args.quick else 60.0)
+    studied = list(dict.fromkeys(name for name, _ in METHODS))
+    chosen = _names(getattr(args, "integrators", None), studied, "integrators") or studied
+    methods = tuple(m for m in METHODS if m[0] in chosen)
+
+    def run(out):
+        from . import plots
+        from .stiffcloth import plan_cases, split_rows, study, with_reference
+
+        references, studied_cases = plan_cases(size, stiffnesses, steps, methods, t_end=t_end, budget_s=budget)
+        sweep = open_sweep(args, study(), references + studied_cases, out)
+        try:
+            sweep.run(references, "stiff-cloth references", needs_arrays=True)
+            solved = {case.params["k"]: sweep.arrays(case)["x"] for case in references
+                      if sweep.finished(case, needs_arrays=True)}
+            missing = sorted(set(c.params["k"] for c in references) - set(solved))
+            if missing:
+                print(f"taichi-sim: stiff-cloth: no reference for k = {', '.join(f'{k:g}' for k in missing)} "
+                      f"(see the reference rows): those stiffnesses are not studied", file=sys.stderr)
+            runnable = [with_reference(c, solved[c.params["k"]]) for c in studied_cases if c.params["k"] in solved]
+            sweep.run(runnable, "stiff-cloth")
+            rows = sweep.rows(references + studied_cases)
+        finally:
+            sweep.close()
+        accuracy, details = split_rows(rows, size, t_end, budget)
+        payload = {**_meta("stiff-cloth", args, {"size": size, "stiffnesses": stiffnesses, "step_sizes": steps,
+                                                  "t_end": t_end, "budget_s": budget, "precision": "f64"}),
+                   **sweep_meta(sweep, rows), **details}
+        paths = common.write_outputs(out, "stiff-cloth", rows, payload,
+                                     lambda f: plots.stiff_cloth(accuracy, details, f))
+        if not args.quiet:
+            print_stiff_cloth(accuracy, details)
+            timing_note(accuracy + details["damping"], "wall_s")
+        common.report_written(paths, args.quiet)
+
+    return run
+
+
+def print_stiff_cloth(rows: list[dict], details: dict) -> None:
+    print(f"{details['size']}x{details['size']} cloth, rms position error at T = {details['t_end']:g} s against "
+          f"symplectic Euler at a quarter of its stable step (f64):")
+    print(common.format_table(
+        ["k (N/m)", "method", "h (s)", "status", "ms/step", "rms error (m)"],
+        [[f"{r['k']:g}", r["method"], _fmt(r.get("h")), r["status"], _fmt(r.get("ms_per_step")),
+          _fmt(r.get("error_rms"))] for r in rows]))
+    print("Artificial damping (no dashpots, no drag; h = 1/60 s, 1 s):")
+    print(common.format_table(
+        ["k (N/m)", "method", "status", "energy lost per s", "highest rise above start (J)"],
+        [[f"{d['k']:g}", d["method"], d["status"],
+          "-" if d.get("fraction_lost_per_s") is None else f"{100 * d['fraction_lost_per_s']:.1f} %",
+          "-" if d.get("energy_rise") is None else _fmt(max(d["energy_rise"], 0.0))] for d in details["damping"]]))
+
+
+def plan_precision(args):
+    from ..integrators import INTEGRATORS
+    from .precision import QUICK_T_END, SCENES, T_END
+
+    scenes = _names(getattr(args, "scenes", None), list(SCENES), "scenes") or list(SCENES)
+    integrators = _names(getattr(args, "integrators", None), list(INTEGRATORS), "integrators") or list(INTEGRATORS)
+    t_end = getattr(args, "t_end", None) or (QUICK_T_END if args.quick else T_END)
+
+    def run(out):
+        from . import plots
+        from .precision import DISAGREE, findings, plan_cases, study, summary_rows
+
+        cases = plan_cases(integrators, scenes, t_end)
+        sweep = open_sweep(args, study(), cases, out)
+        try:
+            rows = sweep.run(cases, "precision")
+        finally:
+            sweep.close()
+        payload = {**_meta("precision", args, {"scenes": {s: dict(zip(("stiffness", "dt"), SCENES[s])) for s in scenes},
+                                                "integrators": integrators, "t_end": t_end, "disagree": DISAGREE}),
+                   **sweep_meta(sweep, rows), "findings": findings(rows)}
+        paths = common.write_outputs(out, "precision", rows, payload, lambda f: plots.precision(rows, DISAGREE, f))
+        if not args.quiet:
+            print(f"f32 against f64, same method and step, T = {t_end:g} s (distance: largest particle distance "
+                  f"over the cloth's size; residual: the worst solver residual, '-' for explicit methods):")
+            print(common.format_table(["scene", "integrator", "f64", "f32", "f32 vs f64", "residual f64",
+                                       "residual f32", ""], summary_rows(rows)))
+            for r in findings(rows):
+                print(f"  finding: {r['scene']} {r['integrator']}: {r['finding']}")
+        common.report_written(paths, args.quiet)
+        return 0
+
+    return run
