@@ -150,18 +150,26 @@ def extremes(rows: list[dict], out) -> None:
     from matplotlib.colors import ListedColormap
     from matplotlib.patches import Patch
 
-    rows = [r for r in rows if r.get("stiffness") is not None]  # a timed-out case has no runs to show
     names = list(dict.fromkeys(r["integrator"] for r in rows))
-    columns = list(dict.fromkeys((r["scene"], r["stiffness"], r["dt"]) for r in rows))
+    runs = [r for r in rows if r.get("stiffness") is not None]
+    stopped = [r for r in rows if r.get("stiffness") is None]  # a case that timed out or crashed: no runs
+    columns = list(dict.fromkeys((r["scene"], r["stiffness"], r["dt"]) for r in runs))
+    columns += [(scene, None, None) for scene in dict.fromkeys(r["scene"] for r in stopped)
+                if not any(c[0] == scene for c in columns)]
     codes = {name: i for i, name in enumerate(OUTCOME_COLORS)}
     grid = [[math.nan] * len(columns) for _ in names]
-    for r in rows:
+    for r in runs:
         grid[names.index(r["integrator"])][columns.index((r["scene"], r["stiffness"], r["dt"]))] = codes[r["outcome"]]
+    for r in stopped:  # every run of the case is shown as its outcome
+        for j, column in enumerate(columns):
+            if column[0] == r["scene"]:
+                grid[names.index(r["integrator"])][j] = codes[r["outcome"]]
     fig, ax = plt.subplots(figsize=(max(6.0, 0.32 * len(columns) + 3), 0.32 * len(names) + 2.4))
     ax.imshow(grid, cmap=ListedColormap(list(OUTCOME_COLORS.values())), vmin=-0.5, vmax=len(codes) - 0.5,
               aspect="auto", interpolation="nearest")
     ax.set_yticks(range(len(names)), names, fontsize=7)
-    ax.set_xticks(range(len(columns)), [f"{s} k={k:g} h={h:.3g}" for s, k, h in columns], fontsize=6,
+    ax.set_xticks(range(len(columns)), [f"{s} k={k:g} h={h:.3g}" if k is not None else f"{s} (stopped)"
+                                           for s, k, h in columns], fontsize=6,
                   rotation=90)
     ax.legend(handles=[Patch(color=c, label=o) for o, c in OUTCOME_COLORS.items()], fontsize=7, ncol=4,
               loc="lower center", bbox_to_anchor=(0.5, 1.0), frameon=False)

@@ -187,7 +187,7 @@ def plan_precision(args):
             print(f"f32 against f64, same method and step, T = {t_end:g} s (distance: largest particle distance "
                   f"over the cloth's size; residual: the worst solver residual, '-' for explicit methods):")
             print(common.format_table(["scene", "integrator", "f64", "f32", "f32 vs f64", "residual f64",
-                                       "residual f32", ""], summary_rows(rows)))
+                                       "residual f32", "finding"], summary_rows(rows)))
             for r in findings(rows):
                 print(f"  finding: {r['scene']} {r['integrator']}: {r['finding']}")
         common.report_written(paths, args.quiet)

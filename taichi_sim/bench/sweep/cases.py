@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import re
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
@@ -35,7 +36,8 @@ class Case:
     @property
     def key(self) -> str:
         digest = hashlib.sha1(canonical([self.function, self.params]).encode()).hexdigest()[:12]
-        return "-".join(str(v) for v in self.columns.values()) + "-" + digest
+        name = "-".join(str(v) for v in self.columns.values())
+        return re.sub(r"[^A-Za-z0-9._=+-]+", "_", name).strip("_") + "-" + digest
 
     def payload(self) -> str:
         """What the worker reads on stdin."""

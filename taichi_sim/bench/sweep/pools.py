@@ -97,7 +97,9 @@ class DaskPool:
         futures = {self.client.submit(execute, case.payload(), timeout_s, pure=False,
                                       key=f"taichi-sim-case-{case.key}"): case for case in cases}
         try:
-            for future in as_completed(list(futures)):
+            with self.client.as_current():
+                finished = as_completed(list(futures))
+            for future in finished:
                 try:
                     outcome = future.result()
                 except Exception as exc:  # the Dask worker died, or lost the task
