@@ -150,3 +150,25 @@ def test_bench_precision_writes_both_runs_of_each_case(tmp_path):
     assert all(0 < float(r["f32_vs_f64_rel"]) < 1e-4 for r in f32)  # rounding, not a finding
     assert rows[0]["worst_residual"] == "" and float(rows[2]["worst_residual"]) > 0  # explicit: none
     assert (tmp_path / "precision.png").stat().st_size > 0
+
+
+def _echo_cases(sleeps):
+    from taichi_sim.bench.sweep import Case
+
+    return [Case("tests.sweep_cases:sleep_then_echo", {"value": i, "seconds": s}, {"n": i})
+            for i, s in enumerate(sleeps)]
+
+
+def test_the_table_is_in_plan_order_whatever_order_cases_end_in(tmp_path):
+    from taichi_sim.bench.sweep import Study, Sweep
+
+    cases = _echo_cases([1.2, 0.6, 0.0])  # with three at once they end last-first
+    sweep = Sweep(Study("echo", 1), cases, tmp_path, jobs=3, quiet=True)
+    rows = sweep.run(cases, "echo")
+    assert sweep.ran[0] == cases[2].key
+    assert [r["value"] for r in rows] == [0, 1, 2] and [r["square"] for r in rows] == [0, 1, 4]
+    assert table(tmp_path / "echo.csv") == [{k: str(v) for k, v in r.items() if k not in TIMES} for r in rows]
+    assert max(r["concurrency"] for r in rows) == 3
+    again = Sweep(Study("echo", 1), cases + _echo_cases([0, 0, 0, 0])[3:], tmp_path, jobs=2, quiet=True)
+    assert again.run(cases + _echo_cases([0, 0, 0, 0])[3:], "echo")[:3] == rows  # read back as written
+    assert len(again.ran) == 1  # only the new case ran
