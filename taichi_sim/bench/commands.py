@@ -82,42 +82,14 @@ def print_orders(details: dict, scenes: list[str], integrators: list[str]) -> No
           + "".join(f"; {o['integrator']} on {o['scene']}: {o['observed']:.3f}" for o in fixed if o not in within))
 
 
-def _plan_stability(args):
-    from ..integrators import INTEGRATORS
-    from .stability import QUICK_SYSTEMS, SYSTEMS
-
-    systems = QUICK_SYSTEMS if args.quick else SYSTEMS
-    names = _names(getattr(args, "systems", None), list(systems), "systems") or list(systems)
-    integrators = _names(getattr(args, "integrators", None), list(INTEGRATORS), "integrators") or list(INTEGRATORS)
-    periods = getattr(args, "periods", None) or (100.0 if args.quick else 1000.0)
-    rel_tol = getattr(args, "rel_tol", None) or (1e-2 if args.quick else 1e-3)
-    max_steps = getattr(args, "max_steps", None) or 20000
-
-    def run(out):
-        from .. import runtime
-        from . import plots
-        from .stability import run_stability, task_count
-
-        runtime.init(arch="cpu", precision="f64")
-        chosen = {s: systems[s] for s in names}
-        with common.progress_bar(task_count(chosen, integrators), "stability", args.quiet) as bar:
-            rows, details = run_stability(chosen, integrators, periods=periods, rel_tol=rel_tol,
-                                          max_steps=max_steps, progress=bar)
-        payload = {**_meta("stability", args, {"systems": names, "integrators": integrators, "periods": periods,
-                                                "rel_tol": rel_tol, "max_steps": max_steps, "precision": "f64"}),
-                   **details}
-        paths = common.write_outputs(out, "stability", rows, payload, lambda f: plots.stability(rows, details, f))
-        if not args.quiet:
-            print_stability(rows)
-        common.report_written(paths, args.quiet)
-
-    return run
-
-
 def print_stability(rows: list[dict]) -> None:
     table = []
     for r in rows:
         if r["kind"] == "n/a":
+            continue
+        if r.get("stiffness") is None:  # a case that timed out or crashed
+            table.append([r["system"], "-", None, r["integrator"], None, None, None,
+                          f"{r['kind']}: {str(r.get('note', ''))[:80]}"])
             continue
         bracket = (f"{r['ratio']:.4f} - {r['ratio_above']:.4f}" if isinstance(r.get("ratio"), float)
                    and isinstance(r.get("ratio_above"), float) else r.get("ratio"))
@@ -251,9 +223,9 @@ def print_throughput(rows: list[dict], details: dict) -> None:
 
 
 def _planners() -> dict:
-    from .studies import plan_extremes, plan_precision, plan_stiff_cloth
+    from .studies import plan_extremes, plan_precision, plan_stability, plan_stiff_cloth
 
-    return {"stiff-cloth": plan_stiff_cloth, "work-precision": _plan_work_precision, "stability": _plan_stability,
+    return {"stiff-cloth": plan_stiff_cloth, "work-precision": _plan_work_precision, "stability": plan_stability,
             "throughput": _plan_throughput, "extremes": plan_extremes, "precision": plan_precision}
 
 

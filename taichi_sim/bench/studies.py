@@ -194,3 +194,39 @@ def plan_precision(args):
         return 0
 
     return run
+
+
+def plan_stability(args):
+    from ..integrators import INTEGRATORS
+    from .stability import QUICK_SYSTEMS, SYSTEMS
+
+    systems = QUICK_SYSTEMS if args.quick else SYSTEMS
+    names = _names(getattr(args, "systems", None), list(systems), "systems") or list(systems)
+    integrators = _names(getattr(args, "integrators", None), list(INTEGRATORS), "integrators") or list(INTEGRATORS)
+    periods = getattr(args, "periods", None) or (100.0 if args.quick else 1000.0)
+    rel_tol = getattr(args, "rel_tol", None) or (1e-2 if args.quick else 1e-3)
+    max_steps = getattr(args, "max_steps", None) or 20000
+
+    def run(out):
+        from . import plots
+        from .commands import print_stability
+        from .stability import plan_cases, study, system_info
+
+        chosen = {s: systems[s] for s in names}
+        cases = plan_cases(chosen, integrators, periods=periods, rel_tol=rel_tol, max_steps=max_steps)
+        sweep = open_sweep(args, study(), cases, out)
+        try:
+            rows = sweep.run(cases, "stability")
+        finally:
+            sweep.close()
+        details = {"systems": {s: system_info(systems[s]) for s in names}, "periods": periods, "rel_tol": rel_tol,
+                   "max_steps": max_steps}
+        payload = {**_meta("stability", args, {"systems": names, "integrators": integrators, "periods": periods,
+                                                "rel_tol": rel_tol, "max_steps": max_steps, "precision": "f64"}),
+                   **sweep_meta(sweep, rows), **details}
+        paths = common.write_outputs(out, "stability", rows, payload, lambda f: plots.stability(rows, details, f))
+        if not args.quiet:
+            print_stability(rows)
+        common.report_written(paths, args.quiet)
+
+    return run

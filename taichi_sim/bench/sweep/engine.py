@@ -67,9 +67,10 @@ class Sweep:
         elif not self.quiet and todo:
             print(f"{desc}: {len(todo)} cases on {self.pool.where}", file=sys.stderr)
         if todo:
+            outcomes = self.pool.run(todo, self.timeout_s)
             try:
                 with common.progress_bar(len(todo), desc, self.quiet) as bar:
-                    for case, outcome, overlap in self.pool.run(todo, self.timeout_s):
+                    for case, outcome, overlap in outcomes:
                         self._record(case, outcome, overlap)
                         bar.update(1)
             except KeyboardInterrupt:
@@ -77,6 +78,8 @@ class Sweep:
                       f"{len(cases)} cases are in {self.path}: the same command finishes the others",
                       file=sys.stderr)
                 raise
+            finally:
+                outcomes.close()  # now, not at garbage collection: stop the cases still running
         return self.rows(cases)
 
     def rows(self, cases: list[Case]) -> list[dict]:
