@@ -257,7 +257,7 @@ def build_parser() -> argparse.ArgumentParser:
     pr = bench_parsers["precision"]
     pr.add_argument("--scenes", metavar="A,B,...", help="of stiff,soft (default: both)")
     pr.add_argument("--t-end", type=_positive_float, help="simulated time in s (default 0.25; --quick 0.02)")
-    for name in ("extremes", "stiff-cloth", "precision", "stability", "all"):  # on the sweep engine (docs/sweeps.md)
+    for name in ("extremes", "stiff-cloth", "precision", "stability", "work-precision", "all"):  # docs/sweeps.md
         p = bench_parsers[name]
         p.add_argument("--jobs", type=_positive_int, metavar="N",
                        help="cases at once on this machine, each in its own process (default: the cores)")

@@ -6,7 +6,7 @@ import sys
 
 from ..errors import ConfigError
 from . import common
-from .options import _float_list, _fmt, _meta, _names  # noqa: F401 (the planners here use them)
+from .options import _fmt, _meta, _names
 
 BENCH_NAMES = ("work-precision", "stability", "throughput")  # what `bench all` runs
 
@@ -20,45 +20,6 @@ def bench_main(args) -> int:
     for name, run in plans:
         code = max(code, run(out) or 0)
     return code
-
-
-def _plan_work_precision(args):
-    from ..integrators import INTEGRATORS
-    from .workprec import EXACT_SCENES, PROBLEMS, QUICK_PROBLEMS
-
-    problems = QUICK_PROBLEMS if args.quick else PROBLEMS
-    scenes = _names(getattr(args, "scenes", None), list(problems), "scenes") or list(problems)
-    integrators = _names(getattr(args, "integrators", None), list(INTEGRATORS), "integrators") or list(INTEGRATORS)
-    repeats = getattr(args, "repeats", None) or (1 if args.quick else 5)
-    unsolvable = [] if common.have_scipy() else [s for s in scenes if s not in EXACT_SCENES]
-    if unsolvable:
-        why = (f"their truth is scipy's reference solution and scipy is not installed "
-               f"({common.INSTALL_HINT})")
-        scenes = [s for s in scenes if s not in unsolvable]
-        if not scenes:
-            raise ConfigError(f"work-precision cannot measure {', '.join(unsolvable)}: {why}")
-        print(f"taichi-sim: work-precision skips {', '.join(unsolvable)}: {why}", file=sys.stderr)
-    budget = getattr(args, "budget", None) or (20.0 if args.quick else 120.0)
-
-    def run(out):
-        from .. import runtime
-        from . import plots
-        from .workprec import run_work_precision, task_count
-
-        runtime.init(arch="cpu", precision="f64")
-        chosen = {s: problems[s] for s in scenes}
-        with common.progress_bar(task_count(chosen, integrators), "work-precision", args.quiet) as bar:
-            rows, details = run_work_precision(chosen, integrators, repeats=repeats, budget_s=budget, progress=bar)
-        payload = {**_meta("work-precision", args, {"scenes": scenes, "integrators": integrators,
-                                                     "repeats": repeats, "budget_s": budget,
-                                                     "precision": "f64", "backend": runtime.backend()}),
-                   **details}
-        paths = common.write_outputs(out, "work-precision", rows, payload, lambda f: plots.work_precision(rows, details, f))
-        if not args.quiet:
-            print_orders(details, scenes, integrators)
-        common.report_written(paths, args.quiet)
-
-    return run
 
 
 def print_orders(details: dict, scenes: list[str], integrators: list[str]) -> None:
@@ -223,9 +184,9 @@ def print_throughput(rows: list[dict], details: dict) -> None:
 
 
 def _planners() -> dict:
-    from .studies import plan_extremes, plan_precision, plan_stability, plan_stiff_cloth
+    from .studies import plan_extremes, plan_precision, plan_stability, plan_stiff_cloth, plan_work_precision
 
-    return {"stiff-cloth": plan_stiff_cloth, "work-precision": _plan_work_precision, "stability": plan_stability,
+    return {"stiff-cloth": plan_stiff_cloth, "work-precision": plan_work_precision, "stability": plan_stability,
             "throughput": _plan_throughput, "extremes": plan_extremes, "precision": plan_precision}
 
 

@@ -230,3 +230,70 @@ def plan_stability(args):
         common.report_written(paths, args.quiet)
 
     return run
+
+
+def plan_work_precision(args):
+    from ..integrators import INTEGRATORS
+    from .workprec import EXACT_SCENES, PROBLEMS, QUICK_PROBLEMS
+
+    problems = QUICK_PROBLEMS if args.quick else PROBLEMS
+    scenes = _names(getattr(args, "scenes", None), list(problems), "scenes") or list(problems)
+    integrators = _names(getattr(args, "integrators", None), list(INTEGRATORS), "integrators") or list(INTEGRATORS)
+    repeats = getattr(args, "repeats", None) or (1 if args.quick else 5)
+    unsolvable = [] if common.have_scipy() else [s for s in scenes if s not in EXACT_SCENES]
+    if unsolvable:
+        why = (f"their truth is scipy's reference solution and scipy is not installed "
+               f"({common.INSTALL_HINT})")
+        scenes = [s for s in scenes if s not in unsolvable]
+        if not scenes:
+            raise ConfigError(f"work-precision cannot measure {', '.join(unsolvable)}: {why}")
+        print(f"taichi-sim: work-precision skips {', '.join(unsolvable)}: {why}", file=sys.stderr)
+    budget = getattr(args, "budget", None) or (20.0 if args.quick else 120.0)
+
+    def run(out):
+        from . import plots
+        from .commands import print_orders
+        from .workprec import orders, plan_cases, study, truth_of, with_truth
+
+        chosen = {s: problems[s] for s in scenes}
+        truth_cases, sweep_cases = plan_cases(chosen, integrators, repeats=repeats, budget_s=budget)
+        sweep = open_sweep(args, study(), truth_cases + sweep_cases, out)
+        try:
+            sweep.run(truth_cases, "work-precision truths", needs_arrays=True)
+            truths = {}
+            for case in truth_cases:
+                row = next(iter(sweep.rows([case])), None)
+                if row is not None and row.get("status") == "ok" and sweep.finished(case, needs_arrays=True):
+                    truths[case.columns["scene"]] = truth_of(row, sweep.arrays(case))
+                else:
+                    print(f"taichi-sim: work-precision: no truth for {case.columns['scene']} "
+                          f"({(row or {}).get('note', 'see the table')}): its runs are skipped", file=sys.stderr)
+            sweep.run([with_truth(c, truths[c.columns["scene"]]) for c in sweep_cases
+                       if c.columns["scene"] in truths], "work-precision")
+            rows = sweep.rows(truth_cases + sweep_cases)
+        finally:
+            sweep.close()
+        runs = [r for r in rows if r.get("kind") == "run"]
+        details = {"problems": {}, "orders": orders(runs, truths)}
+        for r in rows:
+            if r.get("kind") == "truth":
+                truth = truths.get(r["scene"])
+                details["problems"][r["scene"]] = (
+                    {"params": r.get("params"), "t_end": r.get("t_end"), "particles": r.get("particles"),
+                     "springs": r.get("springs"), "truth": truth.kind, "truth_info": truth.info,
+                     "error_floor": truth.floor, "size": truth.size, "omega_max_bound": r.get("omega_max_bound"),
+                     "energy_scale": truth.energy_scale} if truth is not None else
+                    {"params": chosen[r["scene"]].params, "t_end": chosen[r["scene"]].t_end,
+                     "truth": "unavailable", "error": r.get("note")})
+        payload = {**_meta("work-precision", args, {"scenes": scenes, "integrators": integrators,
+                                                     "repeats": repeats, "budget_s": budget,
+                                                     "precision": "f64", "backend": "cpu"}),
+                   **sweep_meta(sweep, rows), **details}
+        paths = common.write_outputs(out, "work-precision", rows, payload,
+                                     lambda f: plots.work_precision(runs, details, f))
+        if not args.quiet:
+            print_orders(details, scenes, integrators)
+            timing_note(runs, "wall_s")
+        common.report_written(paths, args.quiet)
+
+    return run

@@ -61,7 +61,9 @@ class Sweep:
         """Run those of ``cases`` not finished yet; the rows of all of ``cases``, in plan order.
         ``needs_arrays``: a case whose saved arrays are missing runs again."""
         todo = [case for case in cases if not self.finished(case, needs_arrays)]
-        if not self.quiet and len(todo) < len(cases):
+        if not self.quiet and cases and not todo:
+            print(f"{desc}: all {len(cases)} cases already in {self.path}", file=sys.stderr)
+        elif not self.quiet and len(todo) < len(cases):
             print(f"{desc}: {len(cases) - len(todo)} of {len(cases)} cases already in {self.path}, "
                   f"running the other {len(todo)} on {self.pool.where}", file=sys.stderr)
         elif not self.quiet and todo:
