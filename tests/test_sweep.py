@@ -108,6 +108,7 @@ def test_bad_input_exits_2_and_overwrites_nothing(tmp_path, capsys):
     out = ["--out", str(tmp_path)]
     assert "--jobs" in _bad(STUDY + out + ["--jobs", "0"], capsys)
     assert "cannot reach a Dask scheduler" in _bad(STUDY + out + ["--scheduler", "tcp://127.0.0.1:9"], capsys)
+    assert "give one of them" in _bad(STUDY + out + ["--scheduler", "tcp://127.0.0.1:9", "--jobs", "2"], capsys)
     assert not list(tmp_path.iterdir())
     header = "study,study_version,case,scene,integrator,status\n"
     for name, text, said in [

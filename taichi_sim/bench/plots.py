@@ -273,7 +273,7 @@ def stiff_cloth(rows: list[dict], details: dict, out) -> None:
 
 def precision(rows: list[dict], disagree: float, out) -> None:
     """Per scene: how far each method's f32 run ends from its f64 run (over the cloth's size),
-    with the line above which an ``ok`` f32 run is a finding."""
+    with the line above which an ``ok`` f32 run is a finding (hatched)."""
     import matplotlib.pyplot as plt
 
     scenes = list(dict.fromkeys(r["scene"] for r in rows))
@@ -282,8 +282,12 @@ def precision(rows: list[dict], disagree: float, out) -> None:
         mine = [r for r in rows if r["scene"] == scene and r.get("precision") == "f32"]
         names = [r["integrator"] for r in mine]
         values = [r.get("f32_vs_f64_rel") if _finite(r.get("f32_vs_f64_rel")) else math.nan for r in mine]
-        ax.bar(range(len(names)), [max(v, 1e-18) if math.isfinite(v) else 0.0 for v in values],
-               color=["#d62728" if r.get("finding") else _color(r["integrator"]) for r in mine])
+        bars = ax.bar(range(len(names)), [max(v, 1e-18) if math.isfinite(v) else 0.0 for v in values],
+                      color=[_color(r["integrator"]) for r in mine])
+        for bar, r in zip(bars, mine):
+            if r.get("finding"):  # disagrees and says ok
+                bar.set_hatch("///")
+                bar.set_edgecolor("black")
         for i, (r, v) in enumerate(zip(mine, values)):
             if not math.isfinite(v):
                 ax.text(i, 1e-17, str(r.get("status")), rotation=90, fontsize=6, ha="center", va="bottom")

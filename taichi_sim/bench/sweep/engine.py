@@ -35,6 +35,8 @@ class Sweep:
                  quiet: bool = False):
         if jobs is not None and jobs < 1:
             raise ConfigError(f"--jobs must be >= 1, got {jobs}")
+        if jobs is not None and scheduler:
+            raise ConfigError("--jobs is for this machine, --scheduler sends the cases to a cluster: give one of them")
         if timeout_s is not None and not (math.isfinite(timeout_s) and timeout_s > 0):
             raise ConfigError(f"--case-timeout must be a finite number > 0, got {timeout_s}")
         keys = [case.key for case in planned]

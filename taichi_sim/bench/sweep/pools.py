@@ -5,6 +5,7 @@ cluster: the cluster's worker threads, an upper bound, since the driver cannot w
 from __future__ import annotations
 
 import threading
+import uuid
 from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 from typing import Iterator
 
@@ -79,6 +80,7 @@ class DaskPool:
         except ImportError:
             raise ConfigError("--scheduler needs dask.distributed: pip install 'dask[distributed]' "
                               "(the bench extra has it)") from None
+        _check_reachable(address, connect_timeout_s)
         try:
             self.client = Client(address, timeout=connect_timeout_s, set_as_default=False)
         except (OSError, TimeoutError, ValueError, TypeError) as exc:
@@ -94,8 +96,9 @@ class DaskPool:
     def run(self, cases: list[Case], timeout_s: float | None) -> Iterator[tuple[Case, dict, int]]:
         from distributed import as_completed
 
+        run = uuid.uuid4().hex[:8]  # two studies on one cluster never share a task
         futures = {self.client.submit(execute, case.payload(), timeout_s, pure=False,
-                                      key=f"taichi-sim-case-{case.key}"): case for case in cases}
+                                      key=f"taichi-sim-{run}-{case.key}"): case for case in cases}
         try:
             with self.client.as_current():
                 finished = as_completed(list(futures))
@@ -111,3 +114,26 @@ class DaskPool:
 
     def close(self) -> None:
         self.client.close()
+
+
+def _check_reachable(address: str, timeout_s: float) -> None:
+    """ConfigError unless ``address`` parses and, for TCP, something listens there: checked
+    with a plain socket first, since a Dask client that fails half-way complains again at exit."""
+    import socket
+
+    from distributed.comm import parse_address, parse_host_port
+
+    try:
+        scheme, location = parse_address(address)
+        if scheme in ("inproc", "ucx"):
+            return
+        if scheme not in ("tcp", "tls", "ws", "wss"):
+            raise ValueError(f"Dask speaks tcp, tls, ws, wss, ucx or inproc, not {scheme}")
+        host, port = parse_host_port(location)
+    except (ValueError, TypeError) as exc:
+        raise ConfigError(f"--scheduler {address}: not a scheduler address like tcp://host:8786 ({exc})") from None
+    try:
+        socket.create_connection((host, port), timeout=timeout_s).close()
+    except OSError as exc:
+        raise ConfigError(f"--scheduler {address}: cannot reach a Dask scheduler there "
+                          f"({exc.strerror or type(exc).__name__})") from None
