@@ -205,8 +205,9 @@ def build_parser() -> argparse.ArgumentParser:
     rec.add_argument("--quiet", action="store_true", help="no summary line or progress bar")
 
     bench = sub.add_parser("bench", help="measure accuracy, stability and speed (CSV, JSON and PNG into --out)")
-    bench_sub = bench.add_subparsers(dest="bench_command", parser_class=_Parser, required=True,
-                                     metavar="{work-precision,stability,throughput,extremes,stiff-cloth,precision,all}")
+    bench_sub = bench.add_subparsers(
+        dest="bench_command", parser_class=_Parser, required=True,
+        metavar="{work-precision,stability,throughput,extremes,stiff-cloth,precision,all}")
     descriptions = {
         "work-precision": "error against cost for every integrator on each scene, and the observed orders",
         "stability": "largest stable step of every integrator, bisected, against C/omega_max",

@@ -20,9 +20,9 @@ and the spring strains against bounds ten times looser than the guard's:
 Outcomes: ``ok`` (status ok and the audit passes), ``reported`` (status not ok, with a message,
 and a finite returned state), ``silent`` (status ok but the audit fails: a blow-up that said
 ``ok``), ``error`` (an exception, or a worker process that died), ``timeout`` (the bench's case
-ran past its time limit and was stopped: one row for the case's scene and integrator). The CI suite (tests/test_extremes.py) runs a small matrix and
-requires no ``silent`` and no ``error``; ``taichi-sim bench extremes`` runs the full one and
-writes the table of outcomes.
+ran past its time limit and was stopped: one row for the case's scene and integrator). The CI
+suite (tests/test_extremes.py) runs a small matrix and requires no ``silent`` and no ``error``;
+``taichi-sim bench extremes`` runs the full one and writes the table of outcomes.
 """
 from __future__ import annotations
 
