@@ -348,7 +348,7 @@ def plan_cases(problems: dict[str, Problem], integrators: list[str], *, repeats:
                    {"kind": "truth", "scene": p.scene}) for p in problems.values()]
     sweeps = [Case("taichi_sim.bench.workprec:method_case",
                    {"problem": _problem_data(p), "name": name, "repeats": repeats, "budget_s": budget_s},
-                   {"kind": "run", "scene": p.scene, "integrator": name}, timed=True)
+                   {"kind": "run", "scene": p.scene, "integrator": name})
               for p in problems.values() for name in integrators]
     return truths, sweeps
 

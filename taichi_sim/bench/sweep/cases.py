@@ -31,7 +31,6 @@ class Case:
     params: dict
     columns: dict
     inputs: dict = field(default_factory=dict)
-    timed: bool = False  # its figures include wall times: the table says how many ran at once
 
     @property
     def key(self) -> str:

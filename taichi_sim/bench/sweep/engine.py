@@ -12,7 +12,7 @@ from ...errors import ConfigError
 from .. import common
 from .cases import Case, Study
 from .pools import DaskPool, LocalPool
-from .table import roundtrip, CASE, CASE_WALL, CONCURRENCY, STUDY, VERSION, read_table, table_path, write_table
+from .table import CASE, CASE_WALL, CONCURRENCY, STUDY, VERSION, read_table, roundtrip, table_path, write_table
 
 
 def default_jobs() -> int:
