@@ -173,3 +173,24 @@ def test_the_table_is_in_plan_order_whatever_order_cases_end_in(tmp_path):
     again = Sweep(Study("echo", 1), cases + _echo_cases([0, 0, 0, 0])[3:], tmp_path, jobs=2, quiet=True)
     assert again.run(cases + _echo_cases([0, 0, 0, 0])[3:], "echo")[:3] == rows  # read back as written
     assert len(again.ran) == 1  # only the new case ran
+
+
+def test_sigterm_stops_the_running_cases_and_keeps_the_finished_ones(tmp_path):
+    # The cases run in sessions of their own, so the driver must stop them: a case left
+    # sleeping would keep the driver waiting (its thread joins the child) for 60 s.
+    script = ("import sys\nfrom taichi_sim.bench.sweep import Case, Study, Sweep\n"
+              "cases = [Case('tests.sweep_cases:sleep_then_echo', {'value': i, 'seconds': s}, {'n': i})\n"
+              "         for i, s in enumerate([0.0, 60.0])]\n"
+              "Sweep(Study('echo', 1), cases, sys.argv[1], jobs=2, quiet=True).run(cases, 'echo')\n")
+    env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    proc = subprocess.Popen([sys.executable, "-c", script, str(tmp_path)], env=env, stderr=subprocess.PIPE, text=True)
+    path = tmp_path / "echo.csv"
+    deadline = time.monotonic() + 60
+    while not path.exists() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    stopped = time.monotonic()
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=50)
+    assert time.monotonic() - stopped < 20, err
+    assert proc.returncode != 0 and "the same command finishes the others" in err
+    assert len(cases_of(path)) == 1  # the finished case, kept

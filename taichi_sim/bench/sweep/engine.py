@@ -5,7 +5,9 @@ from __future__ import annotations
 import math
 import os
 import shutil
+import signal
 import sys
+import threading
 from pathlib import Path
 
 from ...errors import ConfigError
@@ -17,6 +19,19 @@ from .table import CASE, CASE_WALL, CONCURRENCY, STUDY, VERSION, read_table, rou
 
 def default_jobs() -> int:
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
+def _interrupt(signum, frame):
+    raise KeyboardInterrupt
+
+
+def _stop_on_sigterm():
+    """Until the returned function is called, SIGTERM stops the study as Ctrl-C does (the case
+    processes run in sessions of their own: a killed driver must stop them itself)."""
+    if threading.current_thread() is not threading.main_thread():
+        return lambda: None
+    previous = signal.signal(signal.SIGTERM, _interrupt)
+    return lambda: signal.signal(signal.SIGTERM, previous)
 
 
 class Sweep:
@@ -72,6 +87,7 @@ class Sweep:
             print(f"{desc}: {len(todo)} cases on {self.pool.where}", file=sys.stderr)
         if todo:
             outcomes = self.pool.run(todo, self.timeout_s)
+            stop = _stop_on_sigterm()
             try:
                 with common.progress_bar(len(todo), desc, self.quiet) as bar:
                     for case, outcome, overlap in outcomes:
@@ -84,6 +100,7 @@ class Sweep:
                 raise
             finally:
                 outcomes.close()  # now, not at garbage collection: stop the cases still running
+                stop()
         return self.rows(cases)
 
     def rows(self, cases: list[Case]) -> list[dict]:
