@@ -224,10 +224,6 @@ def run_case(scene: str, scene_name: str, scene_params: dict, integrator: str, s
     return run_extremes({scene: (scene_name, scene_params)}, [integrator], stiffnesses, step_sizes, steps=steps)
 
 
-def task_count(scenes: dict, integrators: list[str], stiffnesses, step_sizes) -> int:
-    return len(scenes) * len(integrators) * len(stiffnesses) * len(step_sizes)
-
-
 def outcome_table(rows: list[dict]) -> dict[str, dict[str, int]]:
     """integrator -> outcome -> count."""
     table: dict[str, dict[str, int]] = {}

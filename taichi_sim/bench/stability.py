@@ -365,7 +365,3 @@ def run_case(system: dict, integrator: str, periods: float, rel_tol: float, max_
     rows, _ = run_stability({chosen.name: chosen}, [integrator], periods=periods, rel_tol=rel_tol,
                             max_steps=max_steps)
     return rows
-
-
-def task_count(systems: dict[str, StabilitySystem], integrators: list[str]) -> int:
-    return sum(len(s.stiffnesses) for s in systems.values()) * len(integrators)

@@ -410,14 +410,3 @@ def orders(rows: list[dict], truths: dict[str, Truth]) -> list[dict]:
             fits.append({"scene": scene, "integrator": name, "declared": cls.order,
                          **observed_order(mine, truth, cls.adaptive)})
     return fits
-
-
-def task_count(problems: dict[str, Problem], integrators: list[str]) -> int:
-    from ..integrators import integrator_class
-
-    total = 0
-    for problem in problems.values():
-        for name in integrators:
-            cls = integrator_class(name)
-            total += len(problem.rtols) if cls.adaptive else problem.levels
-    return total
