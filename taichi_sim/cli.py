@@ -209,8 +209,9 @@ def build_parser() -> argparse.ArgumentParser:
     rec.add_argument("--quiet", action="store_true", help="no summary line or progress bar")
 
     bench = sub.add_parser("bench", help="measure accuracy, stability and speed (CSV, JSON and PNG into --out)")
-    bench_sub = bench.add_subparsers(dest="bench_command", parser_class=_Parser, required=True,
-                                     metavar="{work-precision,stability,throughput,extremes,stiff-cloth,all}")
+    bench_sub = bench.add_subparsers(
+        dest="bench_command", parser_class=_Parser, required=True,
+        metavar="{work-precision,stability,throughput,extremes,stiff-cloth,precision,all}")
     descriptions = {
         "work-precision": "error against cost for every integrator on each scene, and the observed orders",
         "stability": "largest stable step of every integrator, bisected, against C/omega_max",
@@ -219,6 +220,8 @@ def build_parser() -> argparse.ArgumentParser:
                     "blow-up (exit 1)",
         "stiff-cloth": "the large-step methods on a stiff cloth: error against wall time against a fine "
                        "symplectic Euler reference, and their artificial damping",
+        "precision": "every method on a stiff and a soft cloth in f32 and f64: how far f32 ends from f64, the "
+                     "statuses and solver residuals (an f32 run that disagrees and says ok is a finding)",
         "all": "work-precision, stability and throughput, one after the other, with their default "
                "options (extremes is not included: run `bench extremes`); each writes its NAME.csv, "
                "NAME.json and NAME.png into --out",
@@ -256,6 +259,19 @@ def build_parser() -> argparse.ArgumentParser:
     sc.add_argument("--t-end", type=_positive_float, help="simulated time in s (default 0.5)")
     sc.add_argument("--budget", type=_positive_float, metavar="S",
                     help="seconds of one run above which finer steps of that method are skipped (default 60)")
+    pr = bench_parsers["precision"]
+    pr.add_argument("--scenes", metavar="A,B,...", help="of stiff,soft (default: both)")
+    pr.add_argument("--t-end", type=_positive_float, help="simulated time in s (default 0.25; --quick 0.02)")
+    for name in ("extremes", "stiff-cloth", "precision", "stability", "work-precision", "all"):  # docs/sweeps.md
+        p = bench_parsers[name]
+        p.add_argument("--jobs", type=_positive_int, metavar="N",
+                       help="cases at once on this machine, each in its own process (default: the cores)")
+        p.add_argument("--scheduler", metavar="ADDRESS",
+                       help="run the cases on the Dask cluster at ADDRESS (tcp://host:8786) instead")
+        p.add_argument("--case-timeout", type=_positive_float, metavar="S", default=1800.0,
+                       help="stop a case after S s and record `timeout` (default 1800)")
+        p.add_argument("--fresh", action="store_true",
+                       help="replace the table in --out (default: keep its finished cases and run the rest)")
     tp = bench_parsers["throughput"]
     tp.add_argument("--sizes", metavar="N,N,...", help="grid sides (default 32,64,128,256,512; --quick 8,16)")
     tp.add_argument("--precisions", metavar="f32,f64", help="default both (--quick f32)")

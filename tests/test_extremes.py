@@ -79,7 +79,7 @@ def test_bench_extremes_writes_its_table_and_fails_on_a_silent_run(tmp_path, cap
     assert [(r["integrator"], r["outcome"]) for r in rows] == [
         ("symplectic_euler", "ok"), ("symplectic_euler", "reported"),
         ("implicit_euler", "ok"), ("implicit_euler", "ok")]
-    assert (out / "extremes.csv").read_text().startswith("scene,integrator,stiffness,dt,")
+    assert (out / "extremes.csv").read_text().startswith("study,study_version,case,scene,integrator,stiffness,dt,")
     assert (out / "extremes.png").stat().st_size > 1000
     table = capsys.readouterr().out
     assert "silent" in table and "symplectic_euler" in table

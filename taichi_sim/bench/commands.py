@@ -6,168 +6,20 @@ import sys
 
 from ..errors import ConfigError
 from . import common
+from .options import _fmt, _integrator_names, _meta, _names
 
 BENCH_NAMES = ("work-precision", "stability", "throughput")  # what `bench all` runs
-
-
-def _names(text: str | None, allowed, what: str) -> list[str] | None:
-    if text is None:
-        return None
-    names = [n.strip() for n in text.split(",") if n.strip()]
-    if not names:
-        raise ConfigError(f"--{what} needs at least one name")
-    unknown = [n for n in names if n not in allowed]
-    if unknown:
-        raise ConfigError(f"unknown {what[:-1] if what.endswith('s') else what} {unknown[0]!r} "
-                          f"(choose from {', '.join(allowed)})")
-    return names
-
-
-def _integrator_names(text: str | None) -> list[str]:
-    """The integrators of ``--integrators`` (default: every built-in): registry names, installed
-    plug-ins or ``module:Class`` specs, each resolved now so that a bad one is a ConfigError
-    before any work."""
-    from ..integrators import INTEGRATORS, integrator_class
-
-    if text is None:
-        return list(INTEGRATORS)
-    names = [n.strip() for n in text.split(",") if n.strip()]
-    if not names:
-        raise ConfigError("--integrators needs at least one name")
-    for name in names:
-        integrator_class(name)
-    return names
-
-
-def _meta(name: str, args, config: dict) -> dict:
-    return {"benchmark": name, "command": common.command_line(), "quick": bool(args.quick),
-            "machine": common.machine_info(), "config": config,
-            "note": "timings come from a machine that may be shared with other work: compare them "
-                    "within one run, not across runs"}
 
 
 def bench_main(args) -> int:
     """Dispatch ``taichi-sim bench NAME``; every name checks its options before any work."""
     which = list(BENCH_NAMES) if args.bench_command == "all" else [args.bench_command]
-    plans = [(name, PLANNERS[name](args)) for name in which]  # validate every option first
+    plans = [(name, _planners()[name](args)) for name in which]  # validate every option first
     out = common.prepare_out_dir(args.out)
     code = 0
     for name, run in plans:
         code = max(code, run(out) or 0)
     return code
-
-
-def _plan_work_precision(args):
-    from .workprec import EXACT_SCENES, PROBLEMS, QUICK_PROBLEMS
-
-    problems = QUICK_PROBLEMS if args.quick else PROBLEMS
-    scenes = _names(getattr(args, "scenes", None), list(problems), "scenes") or list(problems)
-    integrators = _integrator_names(getattr(args, "integrators", None))
-    repeats = getattr(args, "repeats", None) or (1 if args.quick else 5)
-    unsolvable = [] if common.have_scipy() else [s for s in scenes if s not in EXACT_SCENES]
-    if unsolvable:
-        why = (f"their truth is scipy's reference solution and scipy is not installed "
-               f"({common.INSTALL_HINT})")
-        scenes = [s for s in scenes if s not in unsolvable]
-        if not scenes:
-            raise ConfigError(f"work-precision cannot measure {', '.join(unsolvable)}: {why}")
-        print(f"taichi-sim: work-precision skips {', '.join(unsolvable)}: {why}", file=sys.stderr)
-    budget = getattr(args, "budget", None) or (20.0 if args.quick else 120.0)
-
-    def run(out):
-        from .. import runtime
-        from . import plots
-        from .workprec import run_work_precision, task_count
-
-        runtime.init(arch="cpu", precision="f64")
-        chosen = {s: problems[s] for s in scenes}
-        with common.progress_bar(task_count(chosen, integrators), "work-precision", args.quiet) as bar:
-            rows, details = run_work_precision(chosen, integrators, repeats=repeats, budget_s=budget, progress=bar)
-        payload = {**_meta("work-precision", args, {"scenes": scenes, "integrators": integrators,
-                                                     "repeats": repeats, "budget_s": budget,
-                                                     "precision": "f64", "backend": runtime.backend()}),
-                   **details}
-        paths = common.write_outputs(out, "work-precision", rows, payload, lambda f: plots.work_precision(rows, details, f))
-        if not args.quiet:
-            print_orders(details, scenes, integrators)
-        common.report_written(paths, args.quiet)
-
-    return run
-
-
-def print_orders(details: dict, scenes: list[str], integrators: list[str]) -> None:
-    fits = {(o["scene"], o["integrator"]): o for o in details["orders"]}
-    header = ["integrator", "declared"] + scenes
-    table = []
-    for name in integrators:
-        row = [name, next((o["declared"] for o in details["orders"] if o["integrator"] == name), "")]
-        for scene in scenes:
-            o = fits.get((scene, name), {})
-            value = o.get("observed")
-            row.append(f"{value:.3f}" + (" (cost)" if o.get("basis") == "cost" else "")
-                       if isinstance(value, float) and math.isfinite(value) else "-")
-        table.append(row)
-    print("Observed orders (slope of the state error against h; adaptive: against cost):")
-    print(common.format_table(header, table))
-    fixed = [o for o in details["orders"] if o.get("basis") == "h" and isinstance(o.get("observed"), float)
-             and math.isfinite(o["observed"])]
-    within = [o for o in fixed if abs(o["observed"] - o["declared"]) <= 0.1]
-    print(f"fixed-step fits within +-0.1 of the declared order: {len(within)} of {len(fixed)}"
-          + "".join(f"; {o['integrator']} on {o['scene']}: {o['observed']:.3f}" for o in fixed if o not in within))
-
-
-def _plan_stability(args):
-    from .stability import QUICK_SYSTEMS, SYSTEMS
-
-    systems = QUICK_SYSTEMS if args.quick else SYSTEMS
-    names = _names(getattr(args, "systems", None), list(systems), "systems") or list(systems)
-    integrators = _integrator_names(getattr(args, "integrators", None))
-    periods = getattr(args, "periods", None) or (100.0 if args.quick else 1000.0)
-    rel_tol = getattr(args, "rel_tol", None) or (1e-2 if args.quick else 1e-3)
-    max_steps = getattr(args, "max_steps", None) or 20000
-
-    def run(out):
-        from .. import runtime
-        from . import plots
-        from .stability import run_stability, task_count
-
-        runtime.init(arch="cpu", precision="f64")
-        chosen = {s: systems[s] for s in names}
-        with common.progress_bar(task_count(chosen, integrators), "stability", args.quiet) as bar:
-            rows, details = run_stability(chosen, integrators, periods=periods, rel_tol=rel_tol,
-                                          max_steps=max_steps, progress=bar)
-        payload = {**_meta("stability", args, {"systems": names, "integrators": integrators, "periods": periods,
-                                                "rel_tol": rel_tol, "max_steps": max_steps, "precision": "f64"}),
-                   **details}
-        paths = common.write_outputs(out, "stability", rows, payload, lambda f: plots.stability(rows, details, f))
-        if not args.quiet:
-            print_stability(rows)
-        common.report_written(paths, args.quiet)
-
-    return run
-
-
-def print_stability(rows: list[dict]) -> None:
-    table = []
-    for r in rows:
-        if r["kind"] == "n/a":
-            continue
-        bracket = (f"{r['ratio']:.4f} - {r['ratio_above']:.4f}" if isinstance(r.get("ratio"), float)
-                   and isinstance(r.get("ratio_above"), float) else r.get("ratio"))
-        table.append([r["system"], f"{r['stiffness']:g}", r.get("omega_max"), r["integrator"], r.get("predicted"),
-                      r.get("measured"), bracket,
-                      r["kind"] if r["kind"] != "error" else f"error: {r.get('note', '')[:80]}"])
-    print("Largest stable step (measured by bisection) against C / omega_max:")
-    print(common.format_table(["system", "k (N/m)", "omega_max", "integrator", "C/omega_max (s)",
-                               "largest stable (s)", "limit / prediction in", "kind"], table))
-    for name in ("symplectic_euler", "rk4"):
-        mine = [r for r in rows if r["integrator"] == name and r.get("kind") == "limit"
-                and isinstance(r.get("ratio"), float)]
-        if mine:
-            lo = min(r["ratio"] for r in mine)
-            hi = max(r.get("ratio_above") or r["ratio"] for r in mine)
-            print(f"{name}: limit / prediction between {lo:.4f} and {hi:.4f} over {len(mine)} systems "
-                  f"({'all' if lo >= 0.95 and hi <= 1.05 else 'NOT all'} within 5 %)")
 
 
 def _int_list(text: str, what: str) -> list[int]:
@@ -282,145 +134,11 @@ def print_throughput(rows: list[dict], details: dict) -> None:
                 print(f"peer unavailable ({key}, {s['precision']}, n = {s['n']}): {s[f'{key}_unavailable']}")
 
 
-def _float_list(text: str | None, what: str, default) -> list[float]:
-    if text is None:
-        return list(default)
-    try:
-        values = [_fraction(v) for v in text.split(",") if v.strip()]
-    except (ValueError, ZeroDivisionError):
-        raise ConfigError(f"--{what} expects comma-separated numbers, got {text!r}") from None
-    if not values or not all(math.isfinite(v) and v > 0 for v in values):
-        raise ConfigError(f"--{what} expects finite numbers > 0, got {text!r}")
-    return values
+def _planners() -> dict:
+    from .studies import plan_extremes, plan_precision, plan_stability, plan_stiff_cloth, plan_work_precision
 
-
-def _fraction(text: str) -> float:
-    """``"1/60"`` or ``"0.5"`` as a float (ValueError otherwise)."""
-    top, sep, bottom = text.strip().partition("/")
-    return float(top) / float(bottom) if sep else float(top)
-
-
-def _plan_extremes(args):
-    from .extremes import QUICK_SCENES, SCENES, STEP_SIZES, STEPS, STIFFNESSES
-
-    scenes_all = dict(QUICK_SCENES if args.quick else SCENES)
-    asked = getattr(args, "scenes", None)
-    for name in (asked or "").split(","):  # clothN: an N x N cloth
-        name = name.strip()
-        if name.startswith("cloth") and name[5:].isdigit():
-            if not 2 <= int(name[5:]) <= 256:
-                raise ConfigError(f"--scenes: {name} needs a side from 2 to 256")
-            scenes_all[name] = ("cloth", {"nx": int(name[5:]), "ny": int(name[5:])})
-    try:
-        scenes = _names(asked, list(scenes_all), "scenes") or list(scenes_all)
-    except ConfigError as exc:
-        raise ConfigError(f"{str(exc)[:-1]}, or clothN for an N x N cloth)") from None
-    integrators = _integrator_names(getattr(args, "integrators", None))
-    stiffnesses = _float_list(getattr(args, "stiffnesses", None), "stiffnesses", STIFFNESSES)
-    step_sizes = _float_list(getattr(args, "step_sizes", None), "step-sizes", STEP_SIZES)
-    steps = getattr(args, "steps", None) or (10 if args.quick else STEPS)
-
-    def run(out):
-        from .. import runtime
-        from . import plots
-        from .extremes import outcome_table, run_extremes, task_count
-
-        runtime.init(arch="cpu", precision="f64")
-        chosen = {s: scenes_all[s] for s in scenes}
-        with common.progress_bar(task_count(chosen, integrators, stiffnesses, step_sizes), "extremes",
-                                 args.quiet) as bar:
-            rows = run_extremes(chosen, integrators, stiffnesses, step_sizes, steps=steps, progress=bar)
-        table = outcome_table(rows)
-        payload = {**_meta("extremes", args, {"scenes": {s: list(scenes_all[s]) for s in scenes},
-                                               "integrators": integrators, "stiffnesses": stiffnesses,
-                                               "step_sizes": step_sizes, "steps": steps, "precision": "f64"}),
-                   "outcomes": table}
-        paths = common.write_outputs(out, "extremes", rows, payload, lambda f: plots.extremes(rows, f))
-        if not args.quiet:
-            print_extremes(rows, table)
-        common.report_written(paths, args.quiet)
-        silent = sum(c["silent"] + c["error"] for c in table.values())
-        if silent:
-            print(f"taichi-sim: {silent} runs blew up silently or crashed (see extremes.csv)", file=sys.stderr)
-        return 1 if silent else 0
-
-    return run
-
-
-def _plan_stiff_cloth(args):
-    from .stiffcloth import METHODS, STEPS
-
-    size = getattr(args, "size", None) or (8 if args.quick else 64)
-    if not 2 <= size <= 256:
-        raise ConfigError(f"--size must be from 2 to 256, got {size}")
-    stiffnesses = _float_list(getattr(args, "stiffnesses", None), "stiffnesses",
-                              (1e4,) if args.quick else (1e2, 1e4, 1e8))
-    if any(k <= 0 for k in stiffnesses):
-        raise ConfigError("--stiffnesses must all be > 0")
-    steps = _float_list(getattr(args, "step_sizes", None), "step-sizes", STEPS[:2] if args.quick else STEPS)
-    t_end = getattr(args, "t_end", None) or (0.1 if args.quick else 0.5)
-    budget = getattr(args, "budget", None) or (10.0 if args.quick else 60.0)
-    studied = list(dict.fromkeys(name for name, _ in METHODS))
-    chosen = _integrator_names(getattr(args, "integrators", None)) if getattr(args, "integrators", None) else studied
-    # a method outside the study (another built-in, a plug-in) runs with its default options
-    methods = tuple(m for m in METHODS if m[0] in chosen) + tuple((n, {}) for n in chosen if n not in studied)
-
-    def run(out):
-        from .. import runtime
-        from . import plots
-        from .stiffcloth import run_stiff_cloth, task_count
-
-        runtime.init(arch="cpu", precision="f64")
-        with common.progress_bar(task_count(stiffnesses, steps, methods), "stiff-cloth", args.quiet) as bar:
-            rows, details = run_stiff_cloth(size, stiffnesses, steps, methods, t_end=t_end, budget_s=budget,
-                                            progress=bar)
-        payload = {**_meta("stiff-cloth", args, {"size": size, "stiffnesses": stiffnesses, "step_sizes": steps,
-                                                  "t_end": t_end, "budget_s": budget, "precision": "f64"}),
-                   **details}
-        paths = common.write_outputs(out, "stiff-cloth", rows, payload, lambda f: plots.stiff_cloth(rows, details, f))
-        if not args.quiet:
-            print_stiff_cloth(rows, details)
-        common.report_written(paths, args.quiet)
-
-    return run
-
-
-def _said_so(row: dict) -> str:
-    """Whether a run reported that it had not converged ("-" for a method that solves nothing)."""
-    residual = row.get("residual")
-    if residual is None or residual != residual:  # NaN: not measured
-        return "-"
-    return "yes" if row.get("warned") else "no"
-
-
-def print_stiff_cloth(rows: list[dict], details: dict) -> None:
-    print(f"{details['size']}x{details['size']} cloth, rms position error at T = {details['t_end']:g} s against "
-          f"symplectic Euler at a quarter of its stable step (f64):")
-    print(common.format_table(
-        ["k (N/m)", "method", "h (s)", "status", "ms/step", "rms error (m)", "solver residual", "said so"],
-        [[f"{r['k']:g}", r["method"], f"{r['h']:.3g}", r["status"], _fmt(r.get("ms_per_step")),
-          _fmt(r.get("error_rms")), _fmt(r.get("residual")), _said_so(r)] for r in rows]))
-    print("Artificial damping (no dashpots, no drag; h = 1/60 s, 1 s):")
-    print(common.format_table(
-        ["k (N/m)", "method", "status", "energy lost per s", "highest rise above start (J)"],
-        [[f"{d['k']:g}", d["method"], d["status"], f"{100 * d['fraction_lost_per_s']:.1f} %",
-          _fmt(max(d["energy_rise"], 0.0))] for d in details["damping"]]))
-
-
-def print_extremes(rows: list[dict], table: dict) -> None:
-    print("Runs at the extremes: ok (bounded, status ok), reported (status not ok, with a message), "
-          "silent (status ok, but the audit finds a blow-up), error (a crash):")
-    print(common.format_table(["integrator", "ok", "reported", "silent", "error"],
-                              [[name, c["ok"], c["reported"], c["silent"], c["error"]]
-                               for name, c in table.items()]))
-    for row in rows:
-        if row["outcome"] in ("silent", "error"):
-            print(f"  {row['outcome']}: {row['scene']} {row['integrator']} k={row['stiffness']:g} "
-                  f"dt={row['dt']:g}: {row['reason']}")
-
-
-PLANNERS = {"stiff-cloth": _plan_stiff_cloth, "work-precision": _plan_work_precision, "stability": _plan_stability, "throughput": _plan_throughput,
-            "extremes": _plan_extremes}
+    return {"stiff-cloth": plan_stiff_cloth, "work-precision": plan_work_precision, "stability": plan_stability,
+            "throughput": _plan_throughput, "extremes": plan_extremes, "precision": plan_precision}
 
 
 def advise_main(args) -> int:
@@ -475,13 +193,3 @@ def advise_main(args) -> int:
           + ("; no candidate solves its step at its size, so check this one against a finer run"
              if best.get("converged") is False else ""))
     return 0
-
-
-def _fmt(value) -> str:
-    if value is None:
-        return "-"
-    if isinstance(value, float):
-        if math.isinf(value):
-            return "unbounded"
-        return f"{value:.6g}"
-    return str(value)

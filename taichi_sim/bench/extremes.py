@@ -19,9 +19,10 @@ and the spring strains against bounds ten times looser than the guard's:
 
 Outcomes: ``ok`` (status ok and the audit passes), ``reported`` (status not ok, with a message,
 and a finite returned state), ``silent`` (status ok but the audit fails: a blow-up that said
-``ok``), ``error`` (an exception). The CI suite (tests/test_extremes.py) runs a small matrix and
-requires no ``silent`` and no ``error``; ``taichi-sim bench extremes`` runs the full one and
-writes the table of outcomes.
+``ok``), ``error`` (an exception, or a worker process that died), ``timeout`` (the bench's case
+ran past its time limit and was stopped: one row for the case's scene and integrator). The CI
+suite (tests/test_extremes.py) runs a small matrix and requires no ``silent`` and no ``error``;
+``taichi-sim bench extremes`` runs the full one and writes the table of outcomes.
 """
 from __future__ import annotations
 
@@ -192,14 +193,43 @@ def run_extremes(scenes: dict, integrators: list[str], stiffnesses, step_sizes, 
     return rows
 
 
-def task_count(scenes: dict, integrators: list[str], stiffnesses, step_sizes) -> int:
-    return len(scenes) * len(integrators) * len(stiffnesses) * len(step_sizes)
+STUDY_VERSION = 1  # bump when a row's meaning changes: an older table is then refused
+
+
+def study():
+    from .sweep import Study
+
+    return Study("extremes", STUDY_VERSION, failure_row=lambda case, status, note: {
+        "status": status, "outcome": status, "reason": note})
+
+
+def plan_cases(scenes: dict, integrators: list[str], stiffnesses, step_sizes, steps: int):
+    """One case per (scene, integrator): its stiffness x step runs share one scene and one
+    integrator (nothing recompiles between them) in one fresh process."""
+    from .sweep import Case
+
+    return [Case("taichi_sim.bench.extremes:run_case",
+                 {"scene": label, "scene_name": scene_name, "scene_params": dict(params), "integrator": name,
+                  "stiffnesses": [float(k) for k in stiffnesses], "step_sizes": [float(h) for h in step_sizes],
+                  "steps": steps},
+                 columns={"scene": label, "integrator": name})
+            for label, (scene_name, params) in scenes.items() for name in integrators]
+
+
+def run_case(scene: str, scene_name: str, scene_params: dict, integrator: str, stiffnesses, step_sizes,
+             steps: int) -> list[dict]:
+    """One case of :func:`plan_cases`, in a fresh f64 CPU runtime."""
+    from .. import runtime
+
+    runtime.init(arch="cpu", precision="f64")
+    return run_extremes({scene: (scene_name, scene_params)}, [integrator], stiffnesses, step_sizes, steps=steps)
 
 
 def outcome_table(rows: list[dict]) -> dict[str, dict[str, int]]:
     """integrator -> outcome -> count."""
     table: dict[str, dict[str, int]] = {}
     for row in rows:
-        counts = table.setdefault(row["integrator"], {"ok": 0, "reported": 0, "silent": 0, "error": 0})
+        counts = table.setdefault(row["integrator"], {"ok": 0, "reported": 0, "silent": 0, "error": 0,
+                                                      "timeout": 0})
         counts[row["outcome"]] += 1
     return table

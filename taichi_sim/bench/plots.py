@@ -7,7 +7,8 @@ COLORS = {"euler": "#d62728", "trapezoid": "#ff7f0e", "midpoint": "#bcbd22", "rk
           "symplectic_euler": "#2ca02c", "rk45": "#9467bd", "rkf45": "#8c564b",
           "implicit_euler": "#e377c2", "implicit_euler_linearised": "#f7b6d2",
           "implicit_midpoint": "#17becf", "projective_dynamics": "#7f7f7f", "xpbd": "#000000"}
-OUTCOME_COLORS = {"ok": "#2ca02c", "reported": "#ffbf00", "silent": "#d62728", "error": "#000000"}
+OUTCOME_COLORS = {"ok": "#2ca02c", "reported": "#ffbf00", "silent": "#d62728", "error": "#000000",
+                  "timeout": "#7f7f7f"}
 DPI = 72
 
 
@@ -150,16 +151,25 @@ def extremes(rows: list[dict], out) -> None:
     from matplotlib.patches import Patch
 
     names = list(dict.fromkeys(r["integrator"] for r in rows))
-    columns = list(dict.fromkeys((r["scene"], r["stiffness"], r["dt"]) for r in rows))
+    runs = [r for r in rows if r.get("stiffness") is not None]
+    stopped = [r for r in rows if r.get("stiffness") is None]  # a case that timed out or crashed: no runs
+    columns = list(dict.fromkeys((r["scene"], r["stiffness"], r["dt"]) for r in runs))
+    columns += [(scene, None, None) for scene in dict.fromkeys(r["scene"] for r in stopped)
+                if not any(c[0] == scene for c in columns)]
     codes = {name: i for i, name in enumerate(OUTCOME_COLORS)}
     grid = [[math.nan] * len(columns) for _ in names]
-    for r in rows:
+    for r in runs:
         grid[names.index(r["integrator"])][columns.index((r["scene"], r["stiffness"], r["dt"]))] = codes[r["outcome"]]
+    for r in stopped:  # every run of the case is shown as its outcome
+        for j, column in enumerate(columns):
+            if column[0] == r["scene"]:
+                grid[names.index(r["integrator"])][j] = codes[r["outcome"]]
     fig, ax = plt.subplots(figsize=(max(6.0, 0.32 * len(columns) + 3), 0.32 * len(names) + 2.4))
     ax.imshow(grid, cmap=ListedColormap(list(OUTCOME_COLORS.values())), vmin=-0.5, vmax=len(codes) - 0.5,
               aspect="auto", interpolation="nearest")
     ax.set_yticks(range(len(names)), names, fontsize=7)
-    ax.set_xticks(range(len(columns)), [f"{s} k={k:g} h={h:.3g}" for s, k, h in columns], fontsize=6,
+    ax.set_xticks(range(len(columns)), [f"{s} k={k:g} h={h:.3g}" if k is not None else f"{s} (stopped)"
+                                           for s, k, h in columns], fontsize=6,
                   rotation=90)
     ax.legend(handles=[Patch(color=c, label=o) for o, c in OUTCOME_COLORS.items()], fontsize=7, ncol=4,
               loc="lower center", bbox_to_anchor=(0.5, 1.0), frameon=False)
@@ -256,6 +266,37 @@ def stiff_cloth(rows: list[dict], details: dict, out) -> None:
         ax.set_ylabel("rms position error at T (m)")
         ax.grid(True, which="major", alpha=0.3)
     axes[0][0].legend(fontsize=7, loc="best")
+    fig.tight_layout()
+    fig.savefig(out, format="png", dpi=DPI)
+    plt.close(fig)
+
+
+def precision(rows: list[dict], disagree: float, out) -> None:
+    """Per scene: how far each method's f32 run ends from its f64 run (over the cloth's size),
+    with the line above which an ``ok`` f32 run is a finding (hatched)."""
+    import matplotlib.pyplot as plt
+
+    scenes = list(dict.fromkeys(r["scene"] for r in rows))
+    fig, axes = plt.subplots(1, len(scenes), figsize=(5.6 * len(scenes), 4.4), squeeze=False)
+    for ax, scene in zip(axes[0], scenes):
+        mine = [r for r in rows if r["scene"] == scene and r.get("precision") == "f32"]
+        names = [r["integrator"] for r in mine]
+        values = [r.get("f32_vs_f64_rel") if _finite(r.get("f32_vs_f64_rel")) else math.nan for r in mine]
+        bars = ax.bar(range(len(names)), [max(v, 1e-18) if math.isfinite(v) else 0.0 for v in values],
+                      color=[_color(r["integrator"]) for r in mine])
+        for bar, r in zip(bars, mine):
+            if r.get("finding"):  # disagrees and says ok
+                bar.set_hatch("///")
+                bar.set_edgecolor("black")
+        for i, (r, v) in enumerate(zip(mine, values)):
+            if not math.isfinite(v):
+                ax.text(i, 1e-17, str(r.get("status")), rotation=90, fontsize=6, ha="center", va="bottom")
+        ax.axhline(disagree, color="k", linestyle="--", linewidth=0.8, label=f"finding above {disagree:g}")
+        ax.set_yscale("log")
+        ax.set_xticks(range(len(names)), names, rotation=60, ha="right", fontsize=7)
+        ax.set_ylabel("|x_f32 - x_f64| max / cloth size")
+        ax.set_title(f"{scene} cloth")
+        ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(out, format="png", dpi=DPI)
     plt.close(fig)

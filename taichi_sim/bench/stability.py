@@ -230,10 +230,7 @@ def run_stability(systems: dict[str, StabilitySystem], integrators: list[str], *
             continue
         rest_x0 = scene.x0.copy()
         perturbed_start(scene, system.noise)
-        details["systems"][system.name] = {"scene": system.scene, "params": system.params,
-                                           "stiffnesses": list(system.stiffnesses),
-                                           "kind_factors": list(system.kind_factors), "noise": system.noise,
-                                           "description": system.description}
+        details["systems"][system.name] = system_info(system)
         made: dict[str, object] = {}
         for k in system.stiffnesses:
             set_stiffness(scene, system, k)
@@ -330,5 +327,41 @@ def run_stability(systems: dict[str, StabilitySystem], integrators: list[str], *
     return rows, details
 
 
-def task_count(systems: dict[str, StabilitySystem], integrators: list[str]) -> int:
-    return sum(len(s.stiffnesses) for s in systems.values()) * len(integrators)
+def system_info(system: StabilitySystem) -> dict:
+    """What the JSON says about a system."""
+    return {"scene": system.scene, "params": system.params, "stiffnesses": list(system.stiffnesses),
+            "kind_factors": list(system.kind_factors), "noise": system.noise, "description": system.description}
+
+
+STUDY_VERSION = 1  # bump when a row's meaning changes: an older table is then refused
+
+
+def study():
+    from .sweep import Study
+
+    return Study("stability", STUDY_VERSION, failure_row=lambda case, status, note: {"kind": status, "note": note})
+
+
+def plan_cases(systems: dict[str, StabilitySystem], integrators: list[str], *, periods: float, rel_tol: float,
+               max_steps: int):
+    """One case per (system, integrator): its stiffnesses share one scene and one integrator."""
+    from dataclasses import asdict
+
+    from .sweep import Case
+
+    return [Case("taichi_sim.bench.stability:run_case",
+                 {"system": {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(system).items()},
+                  "integrator": name, "periods": periods, "rel_tol": rel_tol, "max_steps": max_steps},
+                 {"system": system.name, "integrator": name})
+            for system in systems.values() for name in integrators]
+
+
+def run_case(system: dict, integrator: str, periods: float, rel_tol: float, max_steps: int) -> list[dict]:
+    """One case of :func:`plan_cases`, in a fresh f64 CPU runtime."""
+    from .. import runtime
+
+    runtime.init(arch="cpu", precision="f64")
+    chosen = StabilitySystem(**{k: tuple(v) if isinstance(v, list) else v for k, v in system.items()})
+    rows, _ = run_stability({chosen.name: chosen}, [integrator], periods=periods, rel_tol=rel_tol,
+                            max_steps=max_steps)
+    return rows

@@ -105,61 +105,110 @@ def timed_run(size: int, k: float, name: str, options: dict, h: float, t_end: fl
             "warned": bool(result.warnings) or result.status.value == "not_converged"}
 
 
-def run_stiff_cloth(size: int, stiffnesses, steps=STEPS, methods=METHODS, t_end: float = 0.5,
-                    budget_s: float = 60.0, progress=None) -> tuple[list[dict], dict]:
-    """The error-vs-time rows (one per stiffness, method and step) and the damping rows.
+STUDY_VERSION = 2  # bump when a row's meaning changes: an older table is then refused
+DAMPING_STEP, DAMPING_T = 1 / 60, 1.0
 
-    A method whose run at one step took more than ``budget_s`` s is not run at finer steps (a
-    row with status ``skipped`` says so). Symplectic Euler runs once per stiffness, at 0.9 of
-    its stable step bound. Errors: rms and largest distance (m) of the particles from the
-    reference at ``t_end``. Each row also has the run's worst relative solver residual
-    (``residual``, :mod:`taichi_sim.convergence`; NaN for methods that solve nothing per step),
-    the bound it was held to, and ``warned``: whether the run said it had not converged (a
-    warning of a fixed-work method, or status ``not_converged``), so the table shows whether a
-    method that is far from the answer knew it.
-    """
-    rows, references = [], {}
+
+def study():
+    from .sweep import Study
+
+    return Study("stiff-cloth", STUDY_VERSION)
+
+
+def plan_cases(size: int, stiffnesses, steps=STEPS, methods=METHODS, t_end: float = 0.5,
+               budget_s: float = 60.0) -> tuple[list, list]:
+    """(the reference cases, the cases that need them): per stiffness, the reference; per
+    stiffness and method, its runs through ``steps`` (coarse to fine, in one case, since a run
+    over ``budget_s`` s skips the finer ones), symplectic Euler at 0.9 of its stable step, and
+    the damping run. The second list's ``inputs`` are filled by :func:`with_reference`."""
+    from .sweep import Case
+
+    references, studied = [], []
     for k in stiffnesses:
-        x_ref, h_ref, omega = reference_solution(size, k, t_end)
-        references[k] = h_ref
-        bound = 0.9 * 2.0 / omega
-        plan = [(name, options, steps) for name, options in methods] + [("symplectic_euler", {}, (bound,))]
-        for name, options, hs in plan:
-            over_budget = False
-            for h in hs:
-                if progress is not None:
-                    progress.update(1)
-                if over_budget:
-                    rows.append({"k": k, "h": h, "method": label(name, options), "integrator": name,
-                                 "status": "skipped", "note": f"the coarser step took over {budget_s:g} s"})
-                    continue
-                h_run = t_end / max(1, round(t_end / h))
-                result = timed_run(size, k, name, options, h_run, t_end)
-                row = {key: result[key] for key in ("k", "h", "method", "integrator", "status", "steps",
-                                                  "wall_s", "ms_per_step", "residual", "residual_bound",
-                                                  "warned")}
-                if row["status"] == "ok":
-                    distance = np.linalg.norm(result["x"] - x_ref, axis=1)
-                    row.update(error_rms=float(np.sqrt(np.mean(distance ** 2))), error_max=float(distance.max()))
-                else:
-                    row.update(error_rms=math.nan, error_max=math.nan)
-                rows.append(row)
-                over_budget = row["wall_s"] > budget_s
-    damping = []
-    for k in stiffnesses:
+        k = float(k)
+        references.append(Case("taichi_sim.bench.stiffcloth:reference_case",
+                               {"size": size, "k": k, "t_end": t_end}, {"kind": "reference", "k": k}))
+        plan = [(name, options, [float(h) for h in steps], None) for name, options in methods]
+        plan.append(("symplectic_euler", {}, [], 0.9))
+        for name, options, hs, fraction in plan:
+            studied.append(Case("taichi_sim.bench.stiffcloth:accuracy_case",
+                                {"size": size, "k": k, "name": name, "options": options, "steps": hs,
+                                 "bound_fraction": fraction, "t_end": t_end, "budget_s": budget_s},
+                                {"kind": "accuracy", "k": k, "method": label(name, options)}))
         for name, options in methods:
-            row = timed_run(size, k, name, options, 1 / 60, 1.0, conservative=True)
-            damping.append({"k": k, "method": row["method"], "status": row["status"],
-                            "energy0": row["energy0"], "energy_end": row["energy_end"],
-                            "energy_lost_per_s": (row["energy0"] - row["energy_end"]) / 1.0,
-                            "fraction_lost_per_s": (row["energy0"] - row["energy_end"]) / abs(row["energy0"]),
-                            "energy_rise": row["energy_rise"]})
-            if progress is not None:
-                progress.update(1)
-    return rows, {"references": {str(k): {"method": "symplectic_euler", "h": h} for k, h in references.items()},
-                  "damping": damping, "size": size, "t_end": t_end, "budget_s": budget_s,
-                  "reference_note": __doc__.split("Reference: ", 1)[1].strip()}
+            studied.append(Case("taichi_sim.bench.stiffcloth:damping_case",
+                                {"size": size, "k": k, "name": name, "options": options},
+                                {"kind": "damping", "k": k, "method": label(name, options)}))
+    return references, studied
 
 
-def task_count(stiffnesses, steps=STEPS, methods=METHODS) -> int:
-    return len(stiffnesses) * (len(methods) * len(steps) + 1 + len(methods))
+def with_reference(case, x_ref: np.ndarray):
+    """``case`` with the reference positions of its stiffness as input."""
+    from dataclasses import replace
+
+    if case.columns["kind"] != "accuracy":
+        return case
+    return replace(case, inputs={"x_ref": np.asarray(x_ref, float).tolist()})
+
+
+def reference_case(size: int, k: float, t_end: float):
+    """The reference row and its positions at ``t_end`` (array ``x``, shape (n, 3), m)."""
+    x_ref, h, omega = reference_solution(size, k, t_end)
+    return [{"method": "symplectic_euler", "h": h, "status": "ok", "omega_max": omega}], {"x": x_ref}
+
+
+def accuracy_case(size: int, k: float, name: str, options: dict, steps: list[float], bound_fraction, t_end: float,
+                  budget_s: float, x_ref: list) -> list[dict]:
+    """One method's runs at ``steps`` (or at ``bound_fraction`` of its stable step 2 / omega_max),
+    coarse to fine; after a run over ``budget_s`` s the finer ones are ``skipped``. Errors: rms
+    and largest distance (m) of the particles from the reference at ``t_end``. Each row also has
+    the run's worst relative solver residual (``residual``, :mod:`taichi_sim.convergence`; NaN for
+    methods that solve nothing per step), the bound it was held to, and ``warned``: whether the
+    run said it had not converged (a fixed-work method's warning, or status ``not_converged``),
+    so the table shows whether a method far from the answer knew it."""
+    import taichi_sim as ts
+
+    from ..theory import omega_max_bound
+
+    x_ref = np.asarray(x_ref, float)
+    if bound_fraction is not None:
+        fresh_runtime()
+        steps = [bound_fraction * 2.0 / omega_max_bound(ts.build_scene("cloth", cloth_params(size, k)).arrays)]
+    rows, over_budget = [], False
+    for h in steps:
+        if over_budget:
+            rows.append({"h": h, "integrator": name, "status": "skipped",
+                         "note": f"the coarser step took over {budget_s:g} s"})
+            continue
+        h_run = t_end / max(1, round(t_end / h))
+        result = timed_run(size, k, name, options, h_run, t_end)
+        row = {key: result[key] for key in ("h", "integrator", "status", "steps", "wall_s", "ms_per_step",
+                                            "residual", "residual_bound", "warned")}
+        if row["status"] == "ok":
+            distance = np.linalg.norm(result["x"] - x_ref, axis=1)
+            row.update(error_rms=float(np.sqrt(np.mean(distance ** 2))), error_max=float(distance.max()))
+        else:
+            row.update(error_rms=math.nan, error_max=math.nan)
+        rows.append(row)
+        over_budget = row["wall_s"] > budget_s
+    return rows
+
+
+def damping_case(size: int, k: float, name: str, options: dict) -> list[dict]:
+    """The energy a method loses on the conservative cloth (no dashpots, no drag) in
+    ``DAMPING_T`` s at ``DAMPING_STEP``: its artificial damping."""
+    row = timed_run(size, k, name, options, DAMPING_STEP, DAMPING_T, conservative=True)
+    return [{"integrator": name, "status": row["status"], "energy0": row["energy0"], "energy_end": row["energy_end"],
+             "energy_lost_per_s": (row["energy0"] - row["energy_end"]) / DAMPING_T,
+             "fraction_lost_per_s": (row["energy0"] - row["energy_end"]) / abs(row["energy0"]) / DAMPING_T,
+             "energy_rise": row["energy_rise"], "wall_s": row["wall_s"]}]
+
+
+def split_rows(rows: list[dict], size: int, t_end: float, budget_s: float) -> tuple[list[dict], dict]:
+    """The table's rows as the accuracy rows and the details (references, damping) the plot
+    and the JSON show."""
+    references = {str(float(r["k"])): {"method": r.get("method"), "h": r.get("h"), "status": r.get("status")}
+                  for r in rows if r.get("kind") == "reference"}
+    return ([r for r in rows if r.get("kind") == "accuracy"],
+            {"references": references, "damping": [r for r in rows if r.get("kind") == "damping"], "size": size,
+             "t_end": t_end, "budget_s": budget_s, "reference_note": __doc__.split("Reference: ", 1)[1].strip()})

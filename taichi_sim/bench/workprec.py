@@ -319,12 +319,94 @@ def run_work_precision(problems: dict[str, Problem], integrators: list[str], *, 
     return rows, details
 
 
-def task_count(problems: dict[str, Problem], integrators: list[str]) -> int:
+STUDY_VERSION = 1  # bump when a row's meaning changes: an older table is then refused
+TRUTH_FIELDS = ("energy", "energy_scale", "floor", "size", "omega")  # and ``kind``, the row's ``truth``
+
+
+def study():
+    from .sweep import Study
+
+    return Study("work-precision", STUDY_VERSION)
+
+
+def _problem_data(problem: Problem) -> dict:
+    from dataclasses import asdict
+
+    return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(problem).items()}
+
+
+def _problem(data: dict) -> Problem:
+    return Problem(**{k: tuple(v) if isinstance(v, list) else v for k, v in data.items()})
+
+
+def plan_cases(problems: dict[str, Problem], integrators: list[str], *, repeats: int, budget_s: float):
+    """(the truth cases, one per scene; the sweep cases, one per scene and integrator, whose
+    ``inputs`` :func:`with_truth` fills from their scene's truth)."""
+    from .sweep import Case
+
+    truths = [Case("taichi_sim.bench.workprec:truth_case", {"problem": _problem_data(p)},
+                   {"kind": "truth", "scene": p.scene}) for p in problems.values()]
+    sweeps = [Case("taichi_sim.bench.workprec:method_case",
+                   {"problem": _problem_data(p), "name": name, "repeats": repeats, "budget_s": budget_s},
+                   {"kind": "run", "scene": p.scene, "integrator": name})
+              for p in problems.values() for name in integrators]
+    return truths, sweeps
+
+
+def truth_case(problem: dict):
+    """The truth of one scene: a row with its scalars and details, its positions and
+    velocities as arrays ``x``, ``v`` (n, 3)."""
+    from .. import runtime
+    from ..scene import build_scene
+    from ..theory import scene_omega_max
+
+    runtime.init(arch="cpu", precision="f64")
+    chosen = _problem(problem)
+    scene = build_scene(chosen.scene, chosen.params, seed=chosen.seed)
+    truth = exact_or_reference(scene, chosen.t_end)
+    row = {"truth": truth.kind, **{k: getattr(truth, k) for k in TRUTH_FIELDS}, "status": "ok", "params": chosen.params,
+           "t_end": chosen.t_end, "particles": scene.particle_count, "springs": scene.features.get("springs", 0),
+           "truth_info": truth.info, "omega_max_bound": scene_omega_max(scene, "bound")}
+    return [row], {"x": truth.x, **({"v": truth.v} if truth.v is not None else {})}
+
+
+def truth_of(row: dict, arrays: dict) -> Truth:
+    """The :class:`Truth` a truth case's row and arrays describe."""
+    return Truth(kind=row["truth"], **{k: row[k] for k in TRUTH_FIELDS}, x=np.asarray(arrays["x"], float),
+                 v=np.asarray(arrays["v"], float) if "v" in arrays else None, info=row.get("truth_info") or {})
+
+
+def with_truth(case, truth: Truth):
+    from dataclasses import replace
+
+    return replace(case, inputs={"truth": {"kind": truth.kind, **{k: getattr(truth, k) for k in TRUTH_FIELDS},
+                                           "x": truth.x.tolist(), "v": None if truth.v is None else truth.v.tolist()}})
+
+
+def method_case(problem: dict, name: str, repeats: int, budget_s: float, truth: dict) -> list[dict]:
+    """One (scene, integrator) sweep (:func:`sweep_method`) in a fresh f64 runtime."""
+    from .. import runtime
+    from ..scene import build_scene
+
+    runtime.init(arch="cpu", precision="f64")
+    chosen = _problem(problem)
+    scene = build_scene(chosen.scene, chosen.params, seed=chosen.seed)
+    known = Truth(kind=truth["kind"], **{k: truth[k] for k in TRUTH_FIELDS}, x=np.asarray(truth["x"], float),
+                  v=None if truth["v"] is None else np.asarray(truth["v"], float))
+    return sweep_method(scene, chosen, name, known, repeats=repeats, budget_s=budget_s)
+
+
+def orders(rows: list[dict], truths: dict[str, Truth]) -> list[dict]:
+    """The observed order of each (scene, integrator) of the table's run rows."""
     from ..integrators import integrator_class
 
-    total = 0
-    for problem in problems.values():
-        for name in integrators:
+    fits = []
+    for scene, truth in truths.items():
+        names = dict.fromkeys(r["integrator"] for r in rows if r["scene"] == scene)
+        for name in names:
             cls = integrator_class(name)
-            total += len(problem.rtols) if cls.adaptive else problem.levels
-    return total
+            mine = [r for r in rows if r["scene"] == scene and r["integrator"] == name
+                    and isinstance(r.get("state_error"), float)]
+            fits.append({"scene": scene, "integrator": name, "declared": cls.order,
+                         **observed_order(mine, truth, cls.adaptive)})
+    return fits
