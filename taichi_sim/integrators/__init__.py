@@ -9,12 +9,13 @@ from .base import Integrator, Status, StepReport
 from .explicit_rk import RK4, Euler, ExplicitRK, Midpoint, Trapezoid
 from .implicit import ImplicitEuler, ImplicitEulerLinearised, ImplicitMidpoint, LinearSolverStats
 from .positional import XPBD, ProjectiveDynamics
+from .positional.vbd import VBD
 from .symplectic import SymplecticEuler
 from .tableau import ButcherTableau
 
 INTEGRATORS: dict[str, type[Integrator]] = {
     cls.name: cls for cls in (Euler, Trapezoid, Midpoint, RK4, SymplecticEuler, DormandPrince45, Fehlberg45,
-                              ImplicitEuler, ImplicitEulerLinearised, ImplicitMidpoint, ProjectiveDynamics, XPBD)
+                              ImplicitEuler, ImplicitEulerLinearised, ImplicitMidpoint, ProjectiveDynamics, XPBD, VBD)
 }
 
 
