@@ -1,6 +1,8 @@
 """Vertex block descent: backward Euler by Gauss-Seidel over the vertices, one 3x3 Newton step
 each."""
 
+import math
+
 import numpy as np
 import taichi as ti
 
@@ -48,6 +50,13 @@ def colour_vertices(particle_count: int, ends: np.ndarray) -> tuple[np.ndarray, 
     return order, starts
 
 
+def _positive(name: str, value, allow_zero: bool = False) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
+            or value < 0 or (value == 0 and not allow_zero):
+        raise ConfigError(f"{name} must be a finite number {'>=' if allow_zero else '>'} 0, got {value!r}")
+    return float(value)
+
+
 def _fraction(name: str, value, low_open: bool = False) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
             (0 < value < 1) if low_open else (0 <= value < 1)):
@@ -90,7 +99,7 @@ class VBD(Integrator):
     the residual the run measures (:mod:`taichi_sim.convergence`) says how far a step is.
 
     Args:
-        system: a particle system (second order) whose force terms all provide Jacobians.
+        system: a particle system (second order).
         iterations: Gauss-Seidel sweeps per substep (>= 1, default 20).
         substeps: substeps per step (>= 1, default 1).
         warm_start: start from the adaptive initialisation (default) or from x0 + dt v0.
@@ -107,7 +116,8 @@ class VBD(Integrator):
     tracks_solved_start = True
 
     def __init__(self, system: System, *, iterations: int = 20, substeps: int = 1, warm_start: bool = True,
-                 chebyshev_rho: float = 0.0):
+                 chebyshev_rho: float = 0.0, augmented: bool = False, penalty: float = 1e3,
+                 penalty_growth: float = 1e5):
         super().__init__(system)
         self.iterations = positive_int("iterations", iterations)
         self.substeps = positive_int("substeps", substeps)
@@ -115,10 +125,11 @@ class VBD(Integrator):
             raise ConfigError(f"warm_start must be True or False, got {warm_start!r}")
         self.warm_start = bool(warm_start)
         self.chebyshev_rho = _fraction("chebyshev_rho", chebyshev_rho)
-        missing = [term.name for term in system.terms if not term.has_jacobian]
-        if missing:
-            raise ConfigError(f"integrator 'vbd' needs each force's Jacobian; the scene's {missing[0]!r} "
-                              f"force has none (pick xpbd or an explicit method)")
+        if not isinstance(augmented, (bool, np.bool_)):
+            raise ConfigError(f"augmented must be True or False, got {augmented!r}")
+        self.augmented = bool(augmented)
+        self.penalty = _positive("penalty", penalty)
+        self.penalty_growth = _positive("penalty_growth", penalty_growth, allow_zero=True)
         real, n = runtime.real(), system.particle_count
         self.springs = system.term("springs")
         self.has_springs = self.springs is not None
@@ -134,6 +145,12 @@ class VBD(Integrator):
         if self.chebyshev:
             self.earlier = ti.Vector.field(3, real, shape=n)  # delta two sweeps back
             self.last = ti.Vector.field(3, real, shape=n)  # delta one sweep back
+        self.has_multipliers = self.augmented and self.has_springs
+        if self.has_multipliers:
+            # Augmented Lagrangian of each spring (see _springs_at): its penalty rho (N/m) and
+            # multiplier lambda (N), the tension carried from sweep to sweep and step to step.
+            self.spring_penalty = ti.field(real, shape=self.springs.spring_count)
+            self.multiplier = ti.field(real, shape=self.springs.spring_count)
         ends = self.springs.ends_np if self.has_springs else np.zeros((0, 2), np.int32)
         order, self.starts = colour_vertices(n, ends)
         self.order = ti.field(ti.i32, shape=max(1, n))
@@ -152,6 +169,8 @@ class VBD(Integrator):
 
     def reset(self) -> None:
         self._resume_time = None
+        if self.has_multipliers:
+            self.multiplier.fill(0)
 
     def step(self, state, t: float, h: float) -> StepReport:
         dt = h / self.substeps
@@ -166,7 +185,7 @@ class VBD(Integrator):
             t_end = t + (k + 1) * dt  # backward Euler evaluates the forces at the substep's end
             previous_dt = self._last_dt if k == 0 else dt
             if self.serial:
-                bad = kernels["substep"](dt, t_end, use_acceleration, previous_dt)
+                bad = kernels["substep"](dt, t_end, use_acceleration, previous_dt, self.iterations)
             else:
                 kernels["begin"](dt, use_acceleration, previous_dt)
                 omega = 1.0
@@ -206,16 +225,19 @@ class VBD(Integrator):
         vbd = self
 
         @ti.kernel
-        def substep(dt: float, t: float, use_acceleration: ti.i32, previous_dt: float) -> ti.i32:
+        def substep(dt: float, t: float, use_acceleration: ti.i32, previous_dt: float, iterations: ti.i32) -> ti.i32:
             vbd._begin(y, dt, use_acceleration, previous_dt)
             ti.loop_config(serialize=True)
             for _ in range(1):  # one serial task: every sweep, colour after colour
                 omega = 1.0
                 rho2 = vbd.chebyshev_rho ** 2
-                for sweep in range(vbd.iterations):
+                for sweep in range(iterations):
                     for c in ti.static(range(vbd.colour_count)):
                         for q in range(vbd.starts[c], vbd.starts[c + 1]):
                             vbd._solve_vertex(vbd.order[q], dt, t)
+                    if ti.static(vbd.has_multipliers):
+                        for s in range(vbd.springs.spring_count):
+                            vbd._update_multiplier(s)
                     if ti.static(vbd.chebyshev):
                         if sweep == 1:
                             omega = 2.0 / (2.0 - rho2)
@@ -234,6 +256,9 @@ class VBD(Integrator):
             for c in ti.static(range(vbd.colour_count)):
                 for q in range(vbd.starts[c], vbd.starts[c + 1]):
                     vbd._solve_vertex(vbd.order[q], dt, t)
+            if ti.static(vbd.has_multipliers):
+                for s in range(vbd.springs.spring_count):
+                    vbd._update_multiplier(s)
             if ti.static(vbd.chebyshev):
                 for i in range(vbd.system.particle_count):
                     vbd._accelerate(i, dt, omega, index)
@@ -273,6 +298,9 @@ class VBD(Integrator):
             if ti.static(self.chebyshev):
                 self.earlier[i] = delta
                 self.last[i] = delta
+        if ti.static(self.has_multipliers):
+            for s in range(self.springs.spring_count):
+                self.spring_penalty[s] = ti.min(self.penalty, self.springs.stiffness[s])
 
     @ti.func
     def _solve_vertex(self, i, dt, t):
@@ -315,9 +343,11 @@ class VBD(Integrator):
                     u = d / length
                     k = springs.stiffness[s]
                     tension = k * (length - springs.rest[s])
+                    along = k
+                    if ti.static(self.has_multipliers):
+                        tension, along = self._augmented_tension(s, length)
                     f -= tension * u
                     transverse = ti.max(tension / length, 0.0)
-                    along = k
                     if ti.static(springs.damped):
                         c = springs.damping[s]
                         f -= c * (self.point.v[i] - self.point.v[j]).dot(u) * u
@@ -325,6 +355,37 @@ class VBD(Integrator):
                     H += transverse * ti.Matrix.identity(self.delta.dtype, 3) \
                         + (along - transverse) * u.outer_product(u)
         return f, H
+
+    @ti.func
+    def _augmented_tension(self, s, length):
+        """(tension (N), its derivative in the length (N/m)) of spring s in the augmented
+        formulation: T = (rho C + lambda) / (1 + rho / k), C = |d| - r. Its fixed point in
+        lambda (lambda = T) is T = k C, the spring's own tension, whatever rho: converged, the
+        sweeps solve the same step; on the way the vertices see the stiffness rho k / (k + rho)
+        <= rho instead of k, and lambda carries the tension the stiff springs hold."""
+        k = self.springs.stiffness[s]
+        tension = ti.cast(0.0, self.delta.dtype)
+        along = ti.cast(0.0, self.delta.dtype)
+        if k > 0.0:
+            rho = self.spring_penalty[s]
+            scale = 1.0 / (1.0 + rho / k)
+            tension = (rho * (length - self.springs.rest[s]) + self.multiplier[s]) * scale
+            along = rho * scale
+        return tension, along
+
+    @ti.func
+    def _update_multiplier(self, s):
+        """After a sweep: lambda = T at the iterate, and rho grows by penalty_growth |C| up to k
+        (the AVBD ramp)."""
+        springs = self.springs
+        if springs.is_alive(s):
+            e = springs.ends[s]
+            length = (self.point.x[e[0]] - self.point.x[e[1]]).norm()
+            tension, _ = self._augmented_tension(s, length)
+            self.multiplier[s] = tension
+            stretch = ti.abs(length - springs.rest[s])
+            self.spring_penalty[s] = ti.min(self.spring_penalty[s] + self.penalty_growth * stretch,
+                                             springs.stiffness[s])
 
     @ti.func
     def _accelerate(self, i, dt, omega, sweep):
