@@ -89,6 +89,9 @@ class VBD(Integrator):
     Where a sweep starts: with ``warm_start`` the paper's adaptive initialisation, x0 + dt v0 +
     dt^2 a, a the last substep's acceleration projected on gravity and clamped between 0 and g
     (a cloth at rest starts where it is, a falling one where it keeps falling); else x0 + dt v0.
+    The sweeps start from that guess or from x0 (V = 0), whichever has the lower G (one pass
+    over the particles each): a guess that stretches stiff springs by more energy than the
+    motion carries is not one a few sweeps undo.
     ``chebyshev_rho`` > 0 over-relaxes each sweep with Chebyshev weights (Wang 2015; the paper's
     acceleration) for that estimated spectral radius.
 
@@ -157,6 +160,7 @@ class VBD(Integrator):
         self.order.from_numpy(order)
         self.serial = runtime.serial_loops(n + (self.springs.spring_count if self.has_springs else 0),
                                            SERIAL_WORK)
+        self.rest_starts = ti.field(ti.i32, shape=())  # substeps whose sweeps started at V = 0
         self._kernels: dict = {}
         self._resume_time: float | None = None  # when the last step ended (warm start continues it)
         self._last_dt = 0.0
@@ -295,12 +299,42 @@ class VBD(Integrator):
             self.delta[i] = delta
             self.point.x[i] = y.x[i] + delta
             self.point.v[i] = v
+        # The guess against staying put (V = 0): on a stiff cloth the guess may stretch the
+        # springs by more energy than the whole motion carries, which a few sweeps do not undo
+        # (the energy rose step after step); the sweeps start from the lower merit.
+        guess_merit = self._merit(dt)
+        for i in range(self.system.particle_count):
+            self.point.x[i] = self.start_x[i]
+            self.point.v[i] = ti.Vector.zero(y.x.dtype, 3)
+        at_rest = self._merit(dt) < guess_merit
+        if at_rest:
+            self.rest_starts[None] += 1
+        for i in range(self.system.particle_count):
+            delta = self.delta[i]
+            if at_rest:
+                delta = ti.Vector.zero(y.x.dtype, 3)
+            self.delta[i] = delta
+            if self.system.free[i]:
+                self.point.x[i] = self.start_x[i] + delta
+                self.point.v[i] = delta / dt
             if ti.static(self.chebyshev):
                 self.earlier[i] = delta
                 self.last[i] = delta
         if ti.static(self.has_multipliers):
             for s in range(self.springs.spring_count):
                 self.spring_penalty[s] = ti.min(self.penalty, self.springs.stiffness[s])
+
+    @ti.func
+    def _merit(self, dt):
+        """Backward Euler's incremental potential at the iterate, up to a constant (J):
+        1/2 |v - v0|_M^2 + U(x) + dt R(x, v); a top-level loop."""
+        total = ti.cast(0.0, self.delta.dtype)
+        for i in range(self.system.particle_count):
+            u, r = self.system.potential_and_dissipation_at(i, self.point)
+            total += u + dt * r
+            if self.system.free[i]:
+                total += 0.5 * self.system.mass[i] * (self.point.v[i] - self.start_v[i]).norm_sqr()
+        return total
 
     @ti.func
     def _solve_vertex(self, i, dt, t):
