@@ -112,7 +112,6 @@ class VBD(Integrator):
     name = "vbd"
     order = 1
     requires_second_order = True
-    implicit = True
     description = "vertex block descent: backward Euler by per-vertex Newton steps, Gauss-Seidel over a colouring"
     equation = Equation("backward_euler", FIXED_WORK,
                         advice="raise --iterations or --substeps, or lower --dt")
