@@ -25,8 +25,9 @@ import numpy as np
 import taichi_sim as ts
 
 DT = 1 / 60
-METHODS = ("vbd(iterations=10)", "vbd", "vbd(iterations=40)", "vbd(iterations=20, chebyshev_rho=0.9)",
-           "xpbd", "xpbd(substeps=10, iterations=4)", "projective_dynamics", "projective_dynamics(iterations=20)")
+METHODS = ("vbd(iterations=10)", "vbd", "vbd(iterations=40)", "vbd(chebyshev_rho=0.9)",
+           "vbd(substeps=5, iterations=4)", "vbd(substeps=20, iterations=1)", "vbd(augmented=True)",
+           "xpbd", "projective_dynamics")
 
 
 def parse_method(text: str) -> tuple[str, dict]:
