@@ -57,11 +57,9 @@ def _positive(name: str, value, allow_zero: bool = False) -> float:
     return float(value)
 
 
-def _fraction(name: str, value, low_open: bool = False) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
-            (0 < value < 1) if low_open else (0 <= value < 1)):
-        interval = "(0, 1)" if low_open else "[0, 1)"
-        raise ConfigError(f"{name} must be a number in {interval}, got {value!r}")
+def _fraction(name: str, value) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value < 1:
+        raise ConfigError(f"{name} must be a number in [0, 1), got {value!r}")
     return float(value)
 
 
@@ -97,8 +95,8 @@ class VBD(Integrator):
 
     What it converges to: with enough sweeps, the exact backward Euler step of dt (the fixed
     point of the sweeps is r = 0 for every vertex: the same equation the Newton methods solve,
-    dashpots included). With few sweeps, a stiff cloth is left partly unsolved: it stretches more
-    than the exact step. The work per step is fixed (``iterations`` sweeps, no tolerance), and
+    dashpots included). With few sweeps a stiff cloth is left unsolved: a vertex step cannot
+    carry the motion of the cloth as a whole, which lags behind the exact step's (docs/vbd.md). The work per step is fixed (``iterations`` sweeps, no tolerance), and
     the residual the run measures (:mod:`taichi_sim.convergence`) says how far a step is.
 
     Args:
@@ -107,6 +105,10 @@ class VBD(Integrator):
         substeps: substeps per step (>= 1, default 1).
         warm_start: start from the adaptive initialisation (default) or from x0 + dt v0.
         chebyshev_rho: 0 (off, default) or Chebyshev's spectral radius estimate in (0, 1).
+        augmented: springs in the augmented form of :meth:`_augmented_tension` (after Giles,
+            Diaz & Yuksel 2025, "Augmented Vertex Block Descent"); off by default.
+        penalty: the augmented form's penalty rho at the start of each substep (N/m, > 0).
+        penalty_growth: its ramp: rho grows by this times |C| after each sweep (N/m^2, >= 0).
     """
 
     name = "vbd"
