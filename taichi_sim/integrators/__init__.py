@@ -10,13 +10,14 @@ from .explicit_rk import RK4, Euler, ExplicitRK, Midpoint, Trapezoid
 from .implicit import ImplicitEuler, ImplicitEulerLinearised, ImplicitMidpoint, LinearSolverStats
 from .plugins import ENTRY_POINT_GROUP, installed_plugins, is_spec, load_entry_point, load_spec, loaded_plugin
 from .positional import XPBD, ProjectiveDynamics
+from .positional.vbd import VBD
 from .symplectic import SymplecticEuler
 from .tableau import ButcherTableau
 
 # Adding a method: its class (with its facts, see Integrator) and one entry here.
 INTEGRATORS: dict[str, type[Integrator]] = {
     cls.name: cls for cls in (Euler, Trapezoid, Midpoint, RK4, SymplecticEuler, DormandPrince45, Fehlberg45,
-                              ImplicitEuler, ImplicitEulerLinearised, ImplicitMidpoint, ProjectiveDynamics, XPBD)
+                              ImplicitEuler, ImplicitEulerLinearised, ImplicitMidpoint, ProjectiveDynamics, XPBD, VBD)
 }
 
 

@@ -1,0 +1,125 @@
+"""Benchmark: vertex block descent against XPBD and projective dynamics on the stiff cloth.
+
+A size x size cloth (default 64, structural k, shear k/2, flex k/5, the scene's dashpots and
+drag) falls from rest for ``--t-end`` s (default 0.5) at dt = 1/60 s in f32. For each method:
+steps per second (median over the timed steps, after a warm-up run of two steps that compiles
+everything; the state is reset before the timed run), the rms and largest distance of the
+final positions from backward Euler solved tightly (implicit_euler, newton_tolerance 1e-6,
+f64, the same step), and the worst relative solver residual of a second, untimed run
+(taichi_sim/convergence.py; the bound is 1e-2 or three times f32's rounding floor).
+
+    python benchmarks/bench_vbd.py                          # 64 x 64, k = 1e6 and 1e8
+    python benchmarks/bench_vbd.py --size 32 --stiffnesses 1e6 --methods "vbd,vbd(iterations=40)"
+
+The 1-minute load average is printed first: other processes on the machine slow every figure.
+"""
+import argparse
+import ast
+import math
+import os
+import statistics
+import time
+
+import numpy as np
+
+import taichi_sim as ts
+
+DT = 1 / 60
+METHODS = ("vbd(iterations=10)", "vbd", "vbd(iterations=40)", "vbd(chebyshev_rho=0.9)",
+           "vbd(substeps=5, iterations=4)", "vbd(substeps=20, iterations=1)", "vbd(augmented=True)",
+           "xpbd", "projective_dynamics")
+
+
+def parse_method(text: str) -> tuple[str, dict]:
+    """``name(a=1, b=2.0)`` -> ("name", {"a": 1, "b": 2.0})."""
+    text = text.strip()
+    if "(" not in text:
+        return text, {}
+    name, rest = text.split("(", 1)
+    call = ast.parse(f"f({rest}", mode="eval").body
+    return name.strip(), {kw.arg: ast.literal_eval(kw.value) for kw in call.keywords}
+
+
+def split_methods(text: str) -> list[str]:
+    """Split a comma-separated list of methods at the commas outside parentheses."""
+    out, depth, current = [], 0, ""
+    for ch in text:
+        depth += ch == "("
+        depth -= ch == ")"
+        if ch == "," and depth == 0:
+            out.append(current)
+            current = ""
+        else:
+            current += ch
+    return [m for m in out + [current] if m.strip()]
+
+
+def cloth(size: int, k: float) -> dict:
+    return {"nx": size, "ny": size, "stiffness": k, "shear_stiffness": k / 2, "flex_stiffness": k / 5}
+
+
+def reference(size: int, k: float, steps: int) -> np.ndarray:
+    ts.init(arch="cpu", precision="f64")
+    scene = ts.build_scene("cloth", cloth(size, k))
+    integrator = ts.create_integrator("implicit_euler", scene.system, newton_tolerance=1e-6)
+    result = ts.run(scene, integrator, dt=DT, steps=steps, energy_every=0)
+    if result.status.value != "ok":
+        raise RuntimeError(f"reference: {result.status.value} {result.message}")
+    return scene.state.to_numpy()[0].astype(float)
+
+
+def measure(size: int, k: float, method: str, steps: int, exact: np.ndarray) -> dict:
+    name, options = parse_method(method)
+    ts.init(arch="cpu", precision="f32")
+    scene = ts.build_scene("cloth", cloth(size, k))
+    integrator = ts.create_integrator(name, scene.system, **options)
+    t = 0.0
+    for _ in range(2):  # compile
+        integrator.step(scene.state, t, DT)
+        t += DT
+    scene.reset()
+    integrator.reset()
+    times, t, status = [], 0.0, "ok"
+    for _ in range(steps):
+        start = time.perf_counter()
+        report = integrator.step(scene.state, t, DT)
+        times.append(time.perf_counter() - start)
+        t += DT
+        if report.status.value != "ok":
+            status = report.status.value
+            break
+    x = scene.state.to_numpy()[0].astype(float)
+    distance = np.linalg.norm(x - exact, axis=1)
+    scene.reset()
+    integrator.reset()
+    checked = ts.run(scene, integrator, dt=DT, steps=steps, energy_every=0)
+    median = statistics.median(times)
+    return {"method": method, "status": status, "steps_per_s": 1.0 / median, "ms": 1e3 * median,
+            "rms": math.sqrt(float(np.mean(distance ** 2))), "max": float(distance.max()),
+            "residual": checked.worst_residual, "warned": bool(checked.warnings)}
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--size", type=int, default=64)
+    parser.add_argument("--stiffnesses", default="1e6,1e8")
+    parser.add_argument("--t-end", type=float, default=0.5)
+    parser.add_argument("--methods", default=",".join(METHODS))
+    args = parser.parse_args()
+    steps = max(1, round(args.t_end / DT))
+    print(f"load average (1 min): {os.getloadavg()[0]:.2f} on {os.cpu_count()} cpus")
+    print(f"{args.size}x{args.size} cloth, {steps} steps of 1/60 s, f32; error against implicit_euler "
+          f"(newton_tolerance 1e-6, f64)")
+    print(f"{'k (N/m)':>8} {'method':<40} {'status':<8} {'steps/s':>8} {'ms/step':>8} {'rms (m)':>8} "
+          f"{'max (m)':>8} {'residual':>9} {'warned':>6}")
+    for k in (float(v) for v in args.stiffnesses.split(",")):
+        exact = reference(args.size, k, steps)
+        for method in split_methods(args.methods):
+            row = measure(args.size, k, method.strip(), steps, exact)
+            print(f"{k:8.0e} {row['method']:<40} {row['status']:<8} {row['steps_per_s']:8.1f} {row['ms']:8.2f} "
+                  f"{row['rms']:8.4f} {row['max']:8.4f} {row['residual']:9.2g} {'yes' if row['warned'] else 'no':>6}",
+                  flush=True)
+
+
+if __name__ == "__main__":
+    main()

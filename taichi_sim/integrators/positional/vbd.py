@@ -1,0 +1,449 @@
+"""Vertex block descent: backward Euler by Gauss-Seidel over the vertices, one 3x3 Newton step
+each."""
+
+import math
+
+import numpy as np
+import taichi as ti
+
+from ... import runtime
+from ...errors import ConfigError
+from ...state import finite
+from ...systems.base import System
+from ..base import Integrator, Status, StepReport
+from ..equation import FIXED_WORK, Equation
+from ..implicit.common import positive_int
+
+# Below this many particles plus springs (times spare threads) the colour loops run on one
+# thread and a whole substep is one kernel launch: a colour of a 64 x 64 cloth is ~450
+# vertices, too few to pay a parallel loop's hand-off (see XPBD's SERIAL_SPRINGS, measured the
+# same way); never on a GPU.
+SERIAL_WORK = 2_000_000
+
+
+def colour_vertices(particle_count: int, ends: np.ndarray) -> tuple[np.ndarray, list[int]]:
+    """Greedy vertex colouring of the graph whose edges are the springs ``ends`` ((S, 2)).
+
+    Returns ``(order, starts)``: ``order`` ((n,) int32) lists the particles colour by colour,
+    colour c holding ``order[starts[c]:starts[c + 1]]``; no two particles of one colour share a
+    spring, so a colour's vertices can be solved in parallel. At most D + 1 colours (D the
+    largest number of springs at a particle); 9 to 10 on the 12-neighbour cloth grid.
+    """
+    ends = np.asarray(ends, dtype=np.int64).reshape(-1, 2)
+    if len(ends) and np.any(ends[:, 0] == ends[:, 1]):
+        raise ValueError("ends: a spring joins a particle to itself")
+    both = np.concatenate([ends, ends[:, ::-1]]) if len(ends) else np.zeros((0, 2), np.int64)
+    both = both[np.argsort(both[:, 0], kind="stable")]
+    offsets = np.searchsorted(both[:, 0], np.arange(particle_count + 1))
+    neighbours = both[:, 1].tolist()
+    colours = [-1] * particle_count
+    for i in range(particle_count):  # once, when the integrator is bound
+        taken = 0
+        for j in neighbours[offsets[i]:offsets[i + 1]]:
+            if colours[j] >= 0:
+                taken |= 1 << colours[j]
+        colours[i] = (~taken & (taken + 1)).bit_length() - 1  # lowest free colour
+    colour = np.asarray(colours, dtype=np.int64)
+    order = np.argsort(colour, kind="stable").astype(np.int32)
+    count = int(colour.max()) + 1 if particle_count else 0
+    starts = np.searchsorted(colour[order], np.arange(count + 1)).tolist()
+    return order, starts
+
+
+def _positive(name: str, value, allow_zero: bool = False) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
+            or value < 0 or (value == 0 and not allow_zero):
+        raise ConfigError(f"{name} must be a finite number {'>=' if allow_zero else '>'} 0, got {value!r}")
+    return float(value)
+
+
+def _fraction(name: str, value) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value < 1:
+        raise ConfigError(f"{name} must be a number in [0, 1), got {value!r}")
+    return float(value)
+
+
+@ti.data_oriented
+class VBD(Integrator):
+    """Vertex block descent (Chen, Liu, Yang & Yuksel 2024, "Vertex Block Descent").
+
+    A step of h seconds (``substeps`` pieces of dt = h / substeps) minimises backward Euler's
+    incremental potential over the new positions x,
+
+        G(x) = |x - x0 - dt v0|_M^2 / (2 dt^2) + U(x) + dt R(x, (x - x0) / dt),
+
+    one vertex at a time: vertex i takes one Newton step on its own block of G's gradient,
+
+        r_i = m_i (x_i - x0_i - dt v0_i) / dt^2 - f_i(x, v),   v = (x - x0) / dt,
+        H_i = m_i / dt^2 I - df_i/dx_i - df_i/dv_i / dt,       x_i -= H_i^-1 r_i,
+
+    with every force term of the scene (gravity, drag, springs with their dashpots, the grab)
+    evaluated at the iterate, exactly as :class:`~taichi_sim.integrators.ImplicitEuler` does,
+    and each spring's 3x3 block kept positive semi-definite (a compressed spring's transverse
+    stiffness clamped at 0, as in the implicit methods). The vertices are coloured once so that
+    no two of a colour share a spring (:func:`colour_vertices`); a sweep solves one colour after
+    the other, each colour one parallel loop (Gauss-Seidel). ``iterations`` sweeps per substep.
+
+    Where a sweep starts: with ``warm_start`` the paper's adaptive initialisation, x0 + dt v0 +
+    dt^2 a, a the last substep's acceleration projected on gravity and clamped between 0 and g
+    (a cloth at rest starts where it is, a falling one where it keeps falling); else x0 + dt v0.
+    The sweeps start from that guess or from x0 (V = 0), whichever has the lower G (one pass
+    over the particles each): a guess that stretches stiff springs by more energy than the
+    motion carries is not one a few sweeps undo.
+    ``chebyshev_rho`` > 0 over-relaxes each sweep with Chebyshev weights (Wang 2015; the paper's
+    acceleration) for that estimated spectral radius.
+
+    What it converges to: with enough sweeps, the exact backward Euler step of dt (the fixed
+    point of the sweeps is r = 0 for every vertex: the same equation the Newton methods solve,
+    dashpots included). With few sweeps a stiff cloth is left unsolved: a vertex step cannot
+    carry the motion of the cloth as a whole, which lags behind the exact step's (docs/vbd.md). The work per step is fixed (``iterations`` sweeps, no tolerance), and
+    the residual the run measures (:mod:`taichi_sim.convergence`) says how far a step is.
+
+    Args:
+        system: a particle system (second order).
+        iterations: Gauss-Seidel sweeps per substep (>= 1, default 20).
+        substeps: substeps per step (>= 1, default 1).
+        warm_start: start from the adaptive initialisation (default) or from x0 + dt v0.
+        chebyshev_rho: 0 (off, default) or Chebyshev's spectral radius estimate in (0, 1).
+        augmented: springs in the augmented form of :meth:`_augmented_tension` (after Giles,
+            Diaz & Yuksel 2025, "Augmented Vertex Block Descent"); off by default.
+        penalty: the augmented form's penalty rho at the start of each substep (N/m, > 0).
+        penalty_growth: its ramp: rho grows by this times |C| after each sweep (N/m^2, >= 0).
+    """
+
+    name = "vbd"
+    order = 1
+    requires_second_order = True
+    description = "vertex block descent: backward Euler by per-vertex Newton steps, Gauss-Seidel over a colouring"
+    equation = Equation("backward_euler", FIXED_WORK,
+                        advice="raise --iterations or --substeps, or lower --dt")
+    tracks_solved_start = True
+
+    def __init__(self, system: System, *, iterations: int = 20, substeps: int = 1, warm_start: bool = True,
+                 chebyshev_rho: float = 0.0, augmented: bool = False, penalty: float = 1e3,
+                 penalty_growth: float = 1e5):
+        super().__init__(system)
+        self.iterations = positive_int("iterations", iterations)
+        self.substeps = positive_int("substeps", substeps)
+        if not isinstance(warm_start, (bool, np.bool_)):
+            raise ConfigError(f"warm_start must be True or False, got {warm_start!r}")
+        self.warm_start = bool(warm_start)
+        self.chebyshev_rho = _fraction("chebyshev_rho", chebyshev_rho)
+        if not isinstance(augmented, (bool, np.bool_)):
+            raise ConfigError(f"augmented must be True or False, got {augmented!r}")
+        self.augmented = bool(augmented)
+        self.penalty = _positive("penalty", penalty)
+        self.penalty_growth = _positive("penalty_growth", penalty_growth, allow_zero=True)
+        real, n = runtime.real(), system.particle_count
+        self.springs = system.term("springs")
+        self.has_springs = self.springs is not None
+        self.gravity = system.term("gravity")
+        self.has_gravity = self.gravity is not None
+        self.others = [term for term in system.terms if term.name != "springs"]
+        self.point = system.make_state()  # the iterate (x, v = (x - x0) / dt)
+        self.start_x = ti.Vector.field(3, real, shape=n)  # x0 (m)
+        self.start_v = ti.Vector.field(3, real, shape=n)  # v0 (m/s)
+        # x - x0 (m), kept apart from x so that v = delta / dt carries no cancellation in f32.
+        self.delta = ti.Vector.field(3, real, shape=n)
+        self.chebyshev = self.chebyshev_rho > 0.0
+        if self.chebyshev:
+            self.earlier = ti.Vector.field(3, real, shape=n)  # delta two sweeps back
+            self.last = ti.Vector.field(3, real, shape=n)  # delta one sweep back
+        self.has_multipliers = self.augmented and self.has_springs
+        if self.has_multipliers:
+            # Augmented Lagrangian of each spring (see _springs_at): its penalty rho (N/m) and
+            # multiplier lambda (N), the tension carried from sweep to sweep and step to step.
+            self.spring_penalty = ti.field(real, shape=self.springs.spring_count)
+            self.multiplier = ti.field(real, shape=self.springs.spring_count)
+        ends = self.springs.ends_np if self.has_springs else np.zeros((0, 2), np.int32)
+        order, self.starts = colour_vertices(n, ends)
+        self.order = ti.field(ti.i32, shape=max(1, n))
+        self.order.from_numpy(order)
+        self.serial = runtime.serial_loops(n + (self.springs.spring_count if self.has_springs else 0),
+                                           SERIAL_WORK)
+        self.rest_starts = ti.field(ti.i32, shape=())  # substeps whose sweeps started at V = 0
+        self._kernels: dict = {}
+        self._resume_time: float | None = None  # when the last step ended (warm start continues it)
+        self._last_dt = 0.0
+        self.sweeps = 0  # sweeps run since construction (all substeps)
+
+    @property
+    def colour_count(self) -> int:
+        """Colours of the vertex graph (parallel phases of one sweep)."""
+        return len(self.starts) - 1
+
+    def reset(self) -> None:
+        self._resume_time = None
+        if self.has_multipliers:
+            self.multiplier.fill(0)
+
+    def step(self, state, t: float, h: float) -> StepReport:
+        dt = h / self.substeps
+        continued = self._resume_time is not None and abs(t - self._resume_time) <= 1e-9 * max(abs(t), h)
+        use_acceleration = int(self.warm_start and continued)
+        kernels = self._bound(state)
+        bad = 0
+        for k in range(self.substeps):
+            if self.solved_start is not None and k == self.substeps - 1:
+                self.solved_start.copy_from(state)  # what the convergence monitor measures
+                self.solved_h = dt
+            t_end = t + (k + 1) * dt  # backward Euler evaluates the forces at the substep's end
+            previous_dt = self._last_dt if k == 0 else dt
+            if self.serial:
+                bad = kernels["substep"](dt, t_end, use_acceleration, previous_dt, self.iterations)
+            else:
+                kernels["begin"](dt, use_acceleration, previous_dt)
+                omega = 1.0
+                for sweep in range(self.iterations):
+                    omega = self._omega(sweep, omega)
+                    kernels["sweep"](dt, t_end, omega, sweep)
+                bad = kernels["end"](dt)
+            use_acceleration = int(self.warm_start)
+            self._last_dt = dt
+            if bad:
+                self._resume_time = None
+                return StepReport(accepted=False, h=0.0, next_h=h, f_evals=(k + 1) * self.iterations,
+                                  status=Status.DIVERGED, message=f"vbd: {bad} particles non-finite")
+        self.sweeps += self.substeps * self.iterations
+        self._resume_time = t + h
+        work = self.substeps * self.iterations
+        return StepReport(accepted=True, h=h, next_h=h, f_evals=work, linear_iterations=work)
+
+    def _omega(self, sweep: int, omega: float) -> float:
+        """Chebyshev weight of sweep ``sweep`` (0-based) given the last one's (1 when off)."""
+        if not self.chebyshev or sweep == 0:
+            return 1.0
+        rho2 = self.chebyshev_rho ** 2
+        return 2.0 / (2.0 - rho2) if sweep == 1 else 4.0 / (4.0 - rho2 * omega)
+
+    # -- kernels --------------------------------------------------------------------------------
+    # Closures over the state they step (a method kernel with a template argument costs about
+    # twice the Python per launch: see ParticleSystem._launcher), made once per state.
+
+    def _bound(self, y) -> dict:
+        kernels = self._kernels.get(id(y))
+        if kernels is None:
+            kernels = self._kernels[id(y)] = self._bind(y)
+        return kernels
+
+    def _bind(self, y) -> dict:
+        vbd = self
+
+        @ti.kernel
+        def substep(dt: float, t: float, use_acceleration: ti.i32, previous_dt: float, iterations: ti.i32) -> ti.i32:
+            vbd._begin(y, dt, use_acceleration, previous_dt)
+            ti.loop_config(serialize=True)
+            for _ in range(1):  # one serial task: every sweep, colour after colour
+                omega = 1.0
+                rho2 = vbd.chebyshev_rho ** 2
+                for sweep in range(iterations):
+                    for c in ti.static(range(vbd.colour_count)):
+                        for q in range(vbd.starts[c], vbd.starts[c + 1]):
+                            vbd._solve_vertex(vbd.order[q], dt, t)
+                    if ti.static(vbd.has_multipliers):
+                        for s in range(vbd.springs.spring_count):
+                            vbd._update_multiplier(s)
+                    if ti.static(vbd.chebyshev):
+                        if sweep == 1:
+                            omega = 2.0 / (2.0 - rho2)
+                        elif sweep > 1:
+                            omega = 4.0 / (4.0 - rho2 * omega)
+                        for i in range(vbd.system.particle_count):
+                            vbd._accelerate(i, dt, omega, sweep)
+            return vbd._end(y, dt)
+
+        @ti.kernel
+        def begin(dt: float, use_acceleration: ti.i32, previous_dt: float):
+            vbd._begin(y, dt, use_acceleration, previous_dt)
+
+        @ti.kernel
+        def sweep(dt: float, t: float, omega: float, index: ti.i32):
+            for c in ti.static(range(vbd.colour_count)):
+                for q in range(vbd.starts[c], vbd.starts[c + 1]):
+                    vbd._solve_vertex(vbd.order[q], dt, t)
+            if ti.static(vbd.has_multipliers):
+                for s in range(vbd.springs.spring_count):
+                    vbd._update_multiplier(s)
+            if ti.static(vbd.chebyshev):
+                for i in range(vbd.system.particle_count):
+                    vbd._accelerate(i, dt, omega, index)
+
+        @ti.kernel
+        def end(dt: float) -> ti.i32:
+            return vbd._end(y, dt)
+
+        return {"substep": substep, "begin": begin, "sweep": sweep, "end": end}
+
+    @ti.func
+    def _begin(self, y, dt, use_acceleration, previous_dt):
+        """Keep (x0, v0) and put the iterate at the start guess (see the class docstring)."""
+        direction = ti.Vector.zero(y.x.dtype, 3)
+        g = ti.cast(0.0, y.x.dtype)
+        if ti.static(self.has_gravity):
+            g = self.gravity.g[None].norm()
+            if g > 0.0:
+                direction = self.gravity.g[None] / g
+        for i in range(self.system.particle_count):
+            delta = ti.Vector.zero(y.x.dtype, 3)
+            v = ti.Vector.zero(y.x.dtype, 3)
+            if self.system.free[i]:
+                if use_acceleration and previous_dt > 0.0:
+                    # The last substep's acceleration along gravity, clamped to [0, g] (Chen et
+                    # al. 2024, adaptive initialisation); start_v still holds that substep's v0.
+                    along = (y.v[i] - self.start_v[i]).dot(direction) / previous_dt
+                    delta = dt * y.v[i] + dt * dt * ti.min(ti.max(along, 0.0), g) * direction
+                else:
+                    delta = dt * y.v[i]
+                v = delta / dt
+            self.start_x[i] = y.x[i]
+            self.start_v[i] = y.v[i]
+            self.delta[i] = delta
+            self.point.x[i] = y.x[i] + delta
+            self.point.v[i] = v
+        # The guess against staying put (V = 0): on a stiff cloth the guess may stretch the
+        # springs by more energy than the whole motion carries, which a few sweeps do not undo
+        # (the energy rose step after step); the sweeps start from the lower merit.
+        guess_merit = self._merit(dt)
+        for i in range(self.system.particle_count):
+            self.point.x[i] = self.start_x[i]
+            self.point.v[i] = ti.Vector.zero(y.x.dtype, 3)
+        at_rest = self._merit(dt) < guess_merit
+        if at_rest:
+            self.rest_starts[None] += 1
+        for i in range(self.system.particle_count):
+            delta = self.delta[i]
+            if at_rest:
+                delta = ti.Vector.zero(y.x.dtype, 3)
+            self.delta[i] = delta
+            if self.system.free[i]:
+                self.point.x[i] = self.start_x[i] + delta
+                self.point.v[i] = delta / dt
+            if ti.static(self.chebyshev):
+                self.earlier[i] = delta
+                self.last[i] = delta
+        if ti.static(self.has_multipliers):
+            for s in range(self.springs.spring_count):
+                self.spring_penalty[s] = ti.min(self.penalty, self.springs.stiffness[s])
+
+    @ti.func
+    def _merit(self, dt):
+        """Backward Euler's incremental potential at the iterate, up to a constant (J):
+        1/2 |v - v0|_M^2 + U(x) + dt R(x, v); a top-level loop."""
+        total = ti.cast(0.0, self.delta.dtype)
+        for i in range(self.system.particle_count):
+            u, r = self.system.potential_and_dissipation_at(i, self.point)
+            total += u + dt * r
+            if self.system.free[i]:
+                total += 0.5 * self.system.mass[i] * (self.point.v[i] - self.start_v[i]).norm_sqr()
+        return total
+
+    @ti.func
+    def _solve_vertex(self, i, dt, t):
+        """One Newton step of vertex i on its block of G (the class docstring), neighbours fixed."""
+        if self.system.free[i]:
+            m = self.system.mass[i]
+            inertia = m / (dt * dt)
+            delta = self.delta[i]
+            r = inertia * (delta - dt * self.start_v[i])
+            H = inertia * ti.Matrix.identity(self.delta.dtype, 3)
+            if ti.static(self.has_springs):
+                f, block = self._springs_at(i, dt)
+                r -= f
+                H += block
+            for term in ti.static(self.others):
+                r -= term.force(i, self.point, m, t)
+                H -= term.jacobian_diagonal_block(i, self.point, 1.0 / dt, 1.0, t)
+            # H is symmetric positive definite (mass plus PSD blocks): its determinant is > 0
+            # unless something is not finite, and then the vertex stays put.
+            if H.determinant() > 0.0:
+                delta -= H.inverse() @ r
+                self.delta[i] = delta
+                self.point.x[i] = self.start_x[i] + delta
+                self.point.v[i] = delta / dt
+
+    @ti.func
+    def _springs_at(self, i, dt):
+        """The springs' force on i at the iterate (N) and their block of H (N/m, 3x3): for each
+        spring k u u^T + max(0, k (|d| - r) / |d|) (I - u u^T) + (c / dt) u u^T."""
+        springs = self.springs
+        f = ti.Vector.zero(self.delta.dtype, 3)
+        H = ti.Matrix.zero(self.delta.dtype, 3, 3)
+        for e in range(springs.offsets[i], springs.offsets[i + 1]):
+            s = springs.incident[e]
+            if springs.is_alive(s):
+                j = springs.other[e]
+                d = self.point.x[i] - self.point.x[j]
+                length = d.norm()
+                if length > 0.0:
+                    u = d / length
+                    k = springs.stiffness[s]
+                    tension = k * (length - springs.rest[s])
+                    along = k
+                    if ti.static(self.has_multipliers):
+                        tension, along = self._augmented_tension(s, length)
+                    f -= tension * u
+                    transverse = ti.max(tension / length, 0.0)
+                    if ti.static(springs.damped):
+                        c = springs.damping[s]
+                        f -= c * (self.point.v[i] - self.point.v[j]).dot(u) * u
+                        along += c / dt
+                    H += transverse * ti.Matrix.identity(self.delta.dtype, 3) \
+                        + (along - transverse) * u.outer_product(u)
+        return f, H
+
+    @ti.func
+    def _augmented_tension(self, s, length):
+        """(tension (N), its derivative in the length (N/m)) of spring s in the augmented
+        formulation: T = (rho C + lambda) / (1 + rho / k), C = |d| - r. Its fixed point in
+        lambda (lambda = T) is T = k C, the spring's own tension, whatever rho: converged, the
+        sweeps solve the same step; on the way the vertices see the stiffness rho k / (k + rho)
+        <= rho instead of k, and lambda carries the tension the stiff springs hold."""
+        k = self.springs.stiffness[s]
+        tension = ti.cast(0.0, self.delta.dtype)
+        along = ti.cast(0.0, self.delta.dtype)
+        if k > 0.0:
+            rho = self.spring_penalty[s]
+            scale = 1.0 / (1.0 + rho / k)
+            tension = (rho * (length - self.springs.rest[s]) + self.multiplier[s]) * scale
+            along = rho * scale
+        return tension, along
+
+    @ti.func
+    def _update_multiplier(self, s):
+        """After a sweep: lambda = T at the iterate, and rho grows by penalty_growth |C| up to k
+        (the AVBD ramp)."""
+        springs = self.springs
+        if springs.is_alive(s):
+            e = springs.ends[s]
+            length = (self.point.x[e[0]] - self.point.x[e[1]]).norm()
+            tension, _ = self._augmented_tension(s, length)
+            self.multiplier[s] = tension
+            stretch = ti.abs(length - springs.rest[s])
+            self.spring_penalty[s] = ti.min(self.spring_penalty[s] + self.penalty_growth * stretch,
+                                             springs.stiffness[s])
+
+    @ti.func
+    def _accelerate(self, i, dt, omega, sweep):
+        """Chebyshev over-relaxation of vertex i after sweep ``sweep`` (0-based):
+        delta = omega (delta - delta two sweeps back) + delta two sweeps back."""
+        if self.system.free[i]:
+            delta = self.delta[i]
+            if sweep >= 1:
+                delta = omega * (delta - self.earlier[i]) + self.earlier[i]
+                self.delta[i] = delta
+                self.point.x[i] = self.start_x[i] + delta
+                self.point.v[i] = delta / dt
+            self.earlier[i] = self.last[i]
+            self.last[i] = delta
+
+    @ti.func
+    def _end(self, y, dt):
+        bad = 0
+        for i in range(self.system.particle_count):
+            if self.system.free[i]:
+                y.x[i] = self.start_x[i] + self.delta[i]
+                y.v[i] = self.delta[i] / dt
+            if not (finite(y.x[i]) and finite(y.v[i])):
+                bad += 1
+        return bad
+
