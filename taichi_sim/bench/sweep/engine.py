@@ -10,6 +10,7 @@ import sys
 import threading
 from pathlib import Path
 
+from ...atomic import write_atomically
 from ...errors import ConfigError
 from .. import common
 from .cases import Case, Study
@@ -122,10 +123,7 @@ class Sweep:
             import numpy as np
 
             self.arrays_dir.mkdir(exist_ok=True)
-            target = self._arrays_file(case)
-            tmp = target.with_suffix(".tmp.npz")
-            np.savez(tmp, **outcome["arrays"])
-            os.replace(tmp, target)
+            write_atomically(self._arrays_file(case), lambda f: np.savez(f, **outcome["arrays"]))
         head = {STUDY: self.study.name, VERSION: self.study.version, CASE: case.key, **case.columns}
         tail = {CASE_WALL: outcome["wall_s"], CONCURRENCY: overlap}
         # As the table will read back: a fresh run and a resumed one hand on the same values.

@@ -7,6 +7,7 @@ import csv
 import json
 from pathlib import Path
 
+from ...atomic import write_atomically
 from ...errors import ConfigError
 from .. import common
 from .cases import Case, Study
@@ -41,7 +42,7 @@ def write_table(path: Path, rows: list[dict]) -> None:
         for row in rows:
             writer.writerow({k: common._csv_value(row.get(k)) for k in columns})
 
-    common._atomic_write(path, write)
+    write_atomically(path, write, binary=False, newline="")
 
 
 def parse_value(text: str):

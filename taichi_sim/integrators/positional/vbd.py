@@ -118,6 +118,15 @@ class VBD(Integrator):
     equation = Equation("backward_euler", FIXED_WORK,
                         advice="raise --iterations or --substeps, or lower --dt")
     tracks_solved_start = True
+    stability_constant = math.inf  # each sweep lowers the incremental potential, at any step
+    advice_note = ("no blow-up at any step; on stiff springs (k >= 1e6) its per-vertex sweeps leave the cloth "
+                   "lagging behind the exact step (docs/vbd.md): it is not yet accurate there")
+
+    @classmethod
+    def scratch_bytes(cls, particles: int, springs: int, real_bytes: int, linear_solver: str = "cg") -> int:
+        """Start positions and velocities, the displacement, two earlier ones (Chebyshev), the
+        colour order per particle; a penalty and a multiplier per spring (the augmented option)."""
+        return particles * (15 * real_bytes + 4) + springs * 2 * real_bytes
 
     def __init__(self, system: System, *, iterations: int = 20, substeps: int = 1, warm_start: bool = True,
                  chebyshev_rho: float = 0.0, augmented: bool = False, penalty: float = 1e3,
