@@ -97,3 +97,16 @@ class OffscreenWindows:
             self._skip_without_vulkan()
 
         return runtime, window, own_windows
+
+
+def cloth(n: int, k: float, **extra) -> dict:
+    """Parameters of an n x n cloth with structural stiffness k (N/m; shear k/2, flex k/5)."""
+    return {"nx": n, "ny": n, "stiffness": k, "shear_stiffness": k / 2, "flex_stiffness": k / 5, **extra}
+
+
+def swinging(scene) -> None:
+    """Give the scene's free particles a non-trivial velocity (m/s)."""
+    v = np.zeros_like(scene.x0)
+    v[:, 1] = 0.5 * np.sin(np.arange(len(v)))
+    v[scene.static_arrays["pinned"]] = 0.0
+    scene.state.from_numpy(scene.x0, v)

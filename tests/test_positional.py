@@ -3,6 +3,7 @@ cloth feature (collisions, tearing, grab) works with them."""
 
 import numpy as np
 import pytest
+from helpers import cloth, swinging
 
 import taichi_sim as ts
 from taichi_sim.cli import main
@@ -14,18 +15,6 @@ from taichi_sim.integrators.positional.global_matrix import GlobalMatrix
 
 POSITIONAL = ["xpbd", "projective_dynamics"]
 UNDAMPED = {"damping": 0.0, "drag": 0.0}
-
-
-def cloth(n: int, k: float, **extra) -> dict:
-    return {"nx": n, "ny": n, "stiffness": k, "shear_stiffness": k / 2, "flex_stiffness": k / 5, **extra}
-
-
-def swinging(scene) -> None:
-    """Give the scene's free particles a non-trivial velocity (m/s)."""
-    v = np.zeros_like(scene.x0)
-    v[:, 1] = 0.5 * np.sin(np.arange(len(v)))
-    v[scene.static_arrays["pinned"]] = 0.0
-    scene.state.from_numpy(scene.x0, v)
 
 
 def one_step(name: str, params: dict, h: float, **options) -> np.ndarray:

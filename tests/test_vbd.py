@@ -3,23 +3,12 @@ and the residual a run measures. Small cloths, few integrators: kernel compilati
 
 import numpy as np
 import pytest
+from helpers import cloth, swinging
 
 import taichi_sim as ts
 from taichi_sim.errors import ConfigError
 from taichi_sim.integrators import check_options, create_integrator
 from taichi_sim.integrators.positional.vbd import colour_vertices
-
-
-def cloth(n: int, k: float, **extra) -> dict:
-    return {"nx": n, "ny": n, "stiffness": k, "shear_stiffness": k / 2, "flex_stiffness": k / 5, **extra}
-
-
-def swinging(scene) -> None:
-    """Give the scene's free particles a non-trivial velocity (m/s)."""
-    v = np.zeros_like(scene.x0)
-    v[:, 1] = 0.5 * np.sin(np.arange(len(v)))
-    v[scene.static_arrays["pinned"]] = 0.0
-    scene.state.from_numpy(scene.x0, v)
 
 
 def test_vertex_colouring_separates_the_ends_of_every_spring():
