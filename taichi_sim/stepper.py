@@ -264,7 +264,7 @@ class Stepper:
             self.t = self._base_t + (self.steps - self._base_steps) * h  # no drift over many steps
         due = self._spend(report.f_evals + report.linear_iterations) or check
         # The residual is the method's: measured before the post-step events move the state.
-        if due and monitor.active and not self._converged(report.h):
+        if due and monitor.active and (check or monitor.within_budget()) and not self._converged(report.h):
             return report
         if self._events(self.t, report.h):
             self.integrator.reset()  # an event changed the system (e.g. tore springs)

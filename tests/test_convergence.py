@@ -164,3 +164,16 @@ def test_simulate_refuses_a_bad_max_residual_before_writing(tmp_path, capsys, va
     assert code == 2 and not out.exists()
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "max-residual" in err[0].replace("_", "-")
+
+
+def test_samples_keep_to_their_share_of_the_run_but_the_last_step_is_always_measured(f64, monkeypatch):
+    from taichi_sim import convergence
+
+    scene = cloth(stiffness=1e2)
+    monkeypatch.setattr(convergence, "BUDGET", 0.0)  # after the first sample, none is within budget
+    result = ts.run(scene, ts.create_integrator("xpbd", scene.system, substeps=2), dt=1 / 60, steps=20)
+    assert len(result.residual_t) == 2 and result.residual_t[-1] == pytest.approx(20 / 60)
+    monkeypatch.setattr(convergence, "BUDGET", 1.0)
+    scene.reset()
+    result = ts.run(scene, ts.create_integrator("xpbd", scene.system, substeps=2), dt=1 / 60, steps=20)
+    assert len(result.residual_t) > 2  # every check the guard makes
