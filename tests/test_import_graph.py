@@ -10,7 +10,7 @@ PACKAGE = Path(__file__).resolve().parent.parent / "taichi_sim"
 
 #: The layers, top to bottom (docs/design.md): a module may import its own layer and those below.
 LAYERS = (
-    ("entry points", {"cli", "__main__", "app", "bench"}),
+    ("entry points", {"cli", "cli_parser", "__main__", "app", "bench"}),
     ("running a scene", {"run", "stepper", "guard", "convergence", "io", "theory", "reference"}),
     ("parameters over time, drawing", {"curves", "render"}),
     ("stepping a state", {"integrators"}),
