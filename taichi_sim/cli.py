@@ -165,9 +165,9 @@ def cmd_simulate(args) -> int:
         print(f"taichi-sim: {result.message}", file=sys.stderr)
     for warning in result.warnings:
         print(f"taichi-sim: warning: {warning}", file=sys.stderr)
-    for event in scene.post_step:
-        if getattr(event, "warning", None) and event.warning():
-            print(f"taichi-sim: warning: {event.warning()}", file=sys.stderr)
+    for part in scene.parts:
+        if part.warning():
+            print(f"taichi-sim: warning: {part.warning()}", file=sys.stderr)
     if not args.quiet:
         rejected = f" ({result.rejected_steps} rejected)" if result.rejected_steps else ""
         print(f"{scene.name}: {result.steps} steps{rejected} of {integrator_name} to t = {result.t:.6g} s, "
@@ -180,9 +180,9 @@ def cmd_simulate(args) -> int:
                   f"{len(result.solver_residual)} sampled steps, bound {result.max_residual:.3g}: {verdict}")
         elif result.residual_note and integrator.equation is not None:
             print(f"{scene.name}: solver residual not measured: {result.residual_note}")
-        for event in scene.post_step:
-            if hasattr(event, "summary"):
-                print(f"{scene.name}: {event.summary()}")
+        for part in scene.parts:
+            if part.summary():
+                print(f"{scene.name}: {part.summary()}")
         if result.constraint_violation is not None and len(result.constraint_violation):
             print(f"{scene.name}: largest |C| over the constraints {float(result.constraint_violation.max()):.3g} m "
                   f"over the run, {result.constraint_violation[-1]:.3g} m at the end")

@@ -38,6 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import ConfigError
+from .part import LaunchSource, MovingSource
 
 ENERGY_GROWTH = 10.0
 REACH = 10.0
@@ -132,13 +133,16 @@ def injectable_energy(scene, facts: SceneFacts, elapsed: float) -> dict[str, tup
       (a wind cannot drive cloth faster than itself);
     * turbulence: 1/2 M w^2 with w = amplitude x time, the most speed its bounded acceleration
       gives a particle within ``elapsed``, or within a lifetime in a scene with an emitter;
-    * an emitter: a full ring buffer of particles, each at its launch energy
-      1/2 m speed^2 + m |g| max(nozzle height, 0) (nothing it launches gains energy later);
-    * a moving sphere (kinematic: it pushes whatever is in its way): what it gives the cloth
-      moving at twice its speed, 1/2 M (2V)^2, plus the stretch of every spring by its travel V t,
-      1/2 sum(k) (V t)^2 (a loose bound; scenes with tearing break their springs first);
-    * kinematic pins (scripted, e.g. a twist): the same bound with their fastest speed V, the
-      travel capped by the farthest they ever get from their start.
+    and what the scene's parts declare (:meth:`~taichi_sim.part.ScenePart.energy_sources`):
+
+    * a part that launches particles (:class:`~taichi_sim.part.LaunchSource`, an emitter): a
+      full ring buffer of particles, each at its launch energy 1/2 m speed^2 + m |g|
+      max(nozzle height, 0) (nothing it launches gains energy later);
+    * a scripted part that pushes (:class:`~taichi_sim.part.MovingSource`: a moving collider,
+      kinematic pins), at its fastest speed V > 0: what it gives the cloth moving at twice its
+      speed, 1/2 M (2V)^2, plus the stretch of every spring by its travel V t, 1/2 sum(k) (V t)^2,
+      the travel capped by the farthest it ever gets from its start (a loose bound; scenes with
+      tearing break their springs first).
 
     A grab target moved by the user is not a source here: the launcher re-bases its guard
     whenever the target moves, and a target that stays put is a conservative spring whose
@@ -150,29 +154,23 @@ def injectable_energy(scene, facts: SceneFacts, elapsed: float) -> dict[str, tup
     if wind is not None and wind.is_enabled:
         w = wind.fastest_speed()
         out["wind"] = (0.5 * mass * w * w, w)
+    sources = [source for part in getattr(scene, "parts", ()) for source in part.energy_sources()]
     turbulence = scene.system.term("turbulence") if hasattr(scene.system, "term") else None
     if turbulence is not None:
-        duration = elapsed if scene.emitter is None else min(elapsed, scene.emitter.spec.lifetime)
+        # what it launched lives only a lifetime: no particle of it is pushed for longer
+        duration = min([elapsed] + [s.lifetime for s in sources if isinstance(s, LaunchSource)])
         w = turbulence.get() * duration
         out["turbulence"] = (0.5 * mass * w * w, w)
-    if scene.emitter is not None:
-        spec = scene.emitter.spec
-        m = float(np.asarray(scene.static_arrays["mass"])[scene.emitter.first])
-        height = max(float(spec.position[1]), 0.0)
-        out["emitter"] = (spec.capacity * m * (0.5 * spec.speed**2 + gravity_magnitude(scene) * height),
-                          spec.speed)
-    for label, colliders in (("moving sphere", scene.spheres), ("moving capsule", getattr(scene, "capsules", None)),
-                             ("moving box", getattr(scene, "boxes", None))):
-        speed = 0.0 if colliders is None else colliders.fastest_speed()
-        if speed > 0:
-            travel = speed * elapsed
-            out[label] = (0.5 * mass * (2 * speed) ** 2 + 0.5 * facts.spring_stiffness_sum * travel**2, 2 * speed)
-    kinematic = getattr(scene, "kinematic", None)
-    if kinematic is not None:
-        speed = kinematic.fastest_speed()
-        travel = min(speed * elapsed, kinematic.farthest_travel())
-        out["kinematic pins"] = (0.5 * mass * (2 * speed) ** 2
-                                 + 0.5 * facts.spring_stiffness_sum * travel**2, 2 * speed)
+    for source in sources:
+        if isinstance(source, LaunchSource):
+            out[source.label] = (source.count * source.mass * (0.5 * source.speed**2
+                                                               + gravity_magnitude(scene) * max(source.height, 0.0)),
+                                 source.speed)
+        elif isinstance(source, MovingSource) and source.speed > 0:
+            speed = source.speed
+            travel = min(speed * elapsed, source.farthest)
+            out[source.label] = (0.5 * mass * (2 * speed) ** 2 + 0.5 * facts.spring_stiffness_sum * travel**2,
+                                 2 * speed)
     return out
 
 

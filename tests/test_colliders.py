@@ -68,7 +68,7 @@ def test_a_fast_capsule_and_box_do_not_tunnel(f64):
         else:
             b.add_box(path, (0.1, 0.1, 0.1))
         scene = b.finalize(name="t", params={}, default_dt=1e-2, default_integrator="symplectic_euler")
-        colliders = scene.capsules if kind == "capsule" else scene.boxes
+        colliders = scene.part("capsules" if kind == "capsule" else "boxes")
 
         def carried_and_outside(scene):
             q = scene.state.to_numpy()[0] - colliders.centers()[0]
@@ -182,16 +182,17 @@ def test_cli_refuses_degenerate_colliders_with_exit_2(tmp_path, capsys, setting,
 # --- drawing --------------------------------------------------------------------------------
 
 def test_capsules_and_boxes_are_drawn_as_closed_outward_meshes(f64):
-    from taichi_sim.render.drawer import _box, _capsule
+    from taichi_sim.geometry.primitives import box, capsule
     from taichi_sim.scene.visual import describe
 
     scene = ts.build_scene("cloth", {"nx": 4, "ny": 4, "capsule": True, "box": True, "box_x": 0.5})
     solids = describe(scene).solids
-    assert solids.kinds == ("capsule", "box")
-    assert np.allclose(solids.centers(), [[0.0, 0.4, 0.0], [0.5, 0.2, 0.0]])
-    assert ts.build_scene("cloth", {"nx": 4, "ny": 4}).capsules is None  # absent: nothing built
-    for (verts, normals, tris), half_axis in ((_capsule(np.array([0.3, 0.0, 0.0]), 0.1), 0.3),
-                                              (_box(np.array([0.2, 0.1, 0.3])), 0.0)):
+    assert [p.name for p in scene.parts] == ["capsules", "boxes"] and len(solids) == 2
+    assert np.allclose([s.place() for s in solids], [[0.0, 0.4, 0.0], [0.5, 0.2, 0.0]])
+    assert np.allclose(solids[0].reach, [0.3 + 0.1, 0.1, 0.1])  # capsule_length 0.6, radius 0.1
+    assert ts.build_scene("cloth", {"nx": 4, "ny": 4}).part("capsules") is None  # absent: nothing built
+    for (verts, normals, tris), half_axis in ((capsule(np.array([0.3, 0.0, 0.0]), 0.1), 0.3),
+                                              (box(np.array([0.2, 0.1, 0.3])), 0.0)):
         a, b, c = verts[tris[:, 0]], verts[tris[:, 1]], verts[tris[:, 2]]
         face = np.cross(b - a, c - a)
         big = np.linalg.norm(face, axis=1) > 1e-12  # a sphere's poles have degenerate slivers

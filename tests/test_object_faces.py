@@ -105,10 +105,10 @@ def test_a_rod_thinner_than_the_spacing_does_not_pass_through_a_cloth(f64, faces
         assert gap >= WRAPPED_CLEAR * radius
 
     if faces:
-        x = run_checked(scene, 30, lambda: scene.capsules.centers()[0], stays_out)
+        x = run_checked(scene, 30, lambda: scene.part("capsules").centers()[0], stays_out)
         assert x[:, 1].min() < -0.85
     else:
-        x = run_checked(scene, 30, lambda: scene.capsules.centers()[0], lambda x, c: None)
+        x = run_checked(scene, 30, lambda: scene.part("capsules").centers()[0], lambda x, c: None)
         assert np.abs(x[:, 1]).max() == 0.0
 
 
@@ -166,8 +166,8 @@ def test_a_small_box_is_stopped_by_the_face_it_hits(f64, faces):
     def stays_out(x, c):
         assert not box_meets_cloth(x, tris, c, shrunk)
 
-    x = run_checked(scene, 4, lambda: scene.boxes.centers()[0], stays_out)
-    bottom = scene.boxes.centers()[0][1] - half[1]
+    x = run_checked(scene, 4, lambda: scene.part("boxes").centers()[0], stays_out)
+    bottom = scene.part("boxes").centers()[0][1] - half[1]
     if faces:
         assert x[:, 1].min() <= bottom + 1e-9  # carried on its leading face
     else:  # vertices only: it passes between them in one step, touching nothing

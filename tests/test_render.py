@@ -153,7 +153,7 @@ def test_non_finite_positions_never_reach_the_staging_fields(window):
 def test_torn_springs_drop_their_triangles_and_lines(window):
     scene = ts.build_scene("cloth-tear", {"nx": 6, "ny": 6})
     visual = describe(scene)
-    assert visual.tearing and visual.spheres is not None and visual.plane is not None
+    assert visual.tearing and len(visual.solids) == 1 and visual.plane is not None
     drawer = SceneDrawer(visual)
     options = DrawOptions(mesh=True, springs=True)
     drawer.sync(scene.state.x)
@@ -422,7 +422,7 @@ def test_a_flag_hangs_on_a_drawn_pole(window):
 def test_the_sphere_shows_under_the_draped_cloth(window, monkeypatch):
     from taichi_sim.render import drawer
 
-    monkeypatch.setattr(drawer, "SPHERE", (1.0, 0.0, 1.0))  # magenta: no other thing drawn is
+    monkeypatch.setattr(drawer, "SOLID", (1.0, 0.0, 1.0))  # magenta: no other thing drawn is
     scene = ts.build_scene("cloth-sphere", {"nx": 12, "ny": 12})
     visual = describe(scene)
     assert visual.view[1] < 20  # seen from low: from above the draped cloth hides the sphere

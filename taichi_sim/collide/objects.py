@@ -1,5 +1,5 @@
-"""The self-contact stage and the scene's objects (spheres, capsules, boxes): its pushes must
-not move the cloth into them.
+"""The self-contact stage and the scene's objects (its collider parts): its pushes must not
+move the cloth into them.
 
 A mixin of :class:`~.self_contact.SelfCollision`, which owns ``obstacles`` (the scene's object
 colliders, each an :class:`~taichi_sim.scene.colliders.obstacle.Obstacle`), ``time`` (the end

@@ -27,6 +27,7 @@ import numpy as np
 import taichi as ti
 
 from .. import runtime
+from ..part import ScenePart
 from .candidates import CandidatePairs, PairList
 from .ccd import (
     edge_edge_hit,
@@ -59,8 +60,9 @@ TouchList = ti.types.ndarray(dtype=ti.math.ivec4, ndim=1)
 
 
 @ti.data_oriented
-class SelfCollision(CandidatePairs, KeepsOutOfObjects):
-    """The post-step self-contact stage of a cloth (call it as ``stage(state, t, h)``).
+class SelfCollision(CandidatePairs, KeepsOutOfObjects, ScenePart):
+    """The post-step self-contact stage of a cloth (call it as ``stage(state, t, h)``; a scene
+    part: :class:`~taichi_sim.part.ScenePart`).
 
     Args:
         system: the scene's ParticleSystem (masses, which particles are free).
@@ -73,7 +75,7 @@ class SelfCollision(CandidatePairs, KeepsOutOfObjects):
             a vertex near it into it, a vertex the contact rounds left below it is lifted back
             onto it, and a zone that would end below it is moved up: the stage does not undo the
             plane's work.
-        obstacles: the scene's object colliders (spheres, capsules, boxes; see
+        obstacles: the scene's object colliders (its parts with ``is_obstacle``; see
             :mod:`.objects`): the same rules as the floor's keep the stage's pushes and zones
             from moving the cloth into them.
     Raises:
@@ -164,6 +166,12 @@ class SelfCollision(CandidatePairs, KeepsOutOfObjects):
         self.zone_rounds = 0  # its rounds (detect, merge, move rigidly), over all steps
         self.zone_fallbacks = 0  # steps in which it ran out of rounds and moved the whole cloth rigidly
         self.unresolved_total = 0  # touches the fail-safe left (0 unless it ran out of rounds)
+
+    name = "self_collision"
+    order = 30  # after every other position change, so that nothing moves the cloth after it
+
+    def features(self) -> dict:
+        return {"self_collision": True}
 
     def summary(self) -> str:
         """One line on the run so far: contacts and the fail-safe's use."""

@@ -12,6 +12,7 @@ import numpy as np
 import taichi as ti
 
 from ..forces.springs import incidence_of
+from ..geometry.primitives import rod
 from ..scene.visual import SceneVisual
 from .chart import STRAIN_STOPS
 from .effects import EffectDrawer
@@ -27,7 +28,7 @@ PINNED = (0.95, 0.22, 0.22)
 LINE = (0.68, 0.73, 0.80)
 TRAIL = (1.00, 0.80, 0.28)
 GUIDE = (0.36, 0.40, 0.48)
-SPHERE = (0.62, 0.66, 0.72)
+SOLID = (0.62, 0.66, 0.72)     # the scene's objects (colliders)
 POLE = (0.80, 0.76, 0.68)
 PALE = 0.35  # share of the fabric's colour in the pale squares of the gingham (the rest: light grey)
 FLOOR = ((0.30, 0.32, 0.36), (0.22, 0.24, 0.28))
@@ -98,84 +99,6 @@ def _gingham(colour, weave):
     full colour (1); plain cloth (no grid) has weave 1."""
     pale = PALE * colour + (1.0 - PALE) * 0.85
     return pale + (colour - pale) * weave
-
-
-def _unit_sphere(rings: int = 16, segments: int = 32) -> tuple[np.ndarray, np.ndarray]:
-    """A latitude-longitude unit sphere: vertices (m, 3) (also its normals) and triangles
-    (t, 3), wound counter-clockwise seen from outside."""
-    theta = np.linspace(0.0, np.pi, rings + 1)[:, None]
-    phi = np.linspace(0.0, 2.0 * np.pi, segments + 1)[None, :]
-    verts = np.stack(np.broadcast_arrays(np.sin(theta) * np.cos(phi), np.cos(theta),
-                                         -np.sin(theta) * np.sin(phi)), axis=-1).reshape(-1, 3)
-    idx = np.arange((rings + 1) * (segments + 1)).reshape(rings + 1, segments + 1)
-    a, b, c, d = idx[:-1, :-1], idx[1:, :-1], idx[:-1, 1:], idx[1:, 1:]
-    tris = np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3), np.stack([c, b, d], -1).reshape(-1, 3)])
-    return verts, tris
-
-
-def _capsule(half_axis: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """A capsule about the origin: a cylinder along +-``half_axis`` (m) and a sphere of
-    ``radius`` (m) at each end; vertices, normals, triangles as :func:`_rod`."""
-    segments = 16
-    cyl_v, cyl_n, cyl_t = _rod(-half_axis, half_axis, radius, segments)
-    # the side only: its end caps would lie inside the end spheres
-    cyl_v, cyl_n, cyl_t = cyl_v[:2 * segments], cyl_n[:2 * segments], cyl_t[:2 * segments]
-    unit, sphere_t = _unit_sphere(8, 16)
-    verts, normals, tris = [cyl_v], [cyl_n], [cyl_t]
-    count = len(cyl_v)
-    for end in (-half_axis, half_axis):
-        verts.append(end + radius * unit)
-        normals.append(unit)
-        tris.append(sphere_t + count)
-        count += len(unit)
-    return np.concatenate(verts), np.concatenate(normals), np.concatenate(tris)
-
-
-def _box(half: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """An axis-aligned box of half extents ``half`` (m) about the origin, four vertices per face
-    (flat normals); vertices, normals, triangles as :func:`_rod`."""
-    verts, normals, tris = [], [], []
-    for axis in range(3):
-        u, w = (axis + 1) % 3, (axis + 2) % 3
-        for sign in (1.0, -1.0):
-            n = np.zeros(3)
-            n[axis] = sign
-            corners = []
-            for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1)):
-                c = np.zeros(3)
-                c[axis], c[u], c[w] = sign * half[axis], a * half[u], b * half[w]
-                corners.append(c)
-            base = len(verts) * 4
-            order = [[0, 1, 2], [0, 2, 3]] if sign > 0 else [[0, 2, 1], [0, 3, 2]]
-            verts.append(np.asarray(corners))
-            normals.append(np.tile(n, (4, 1)))
-            tris.append(np.asarray(order) + base)
-    return np.concatenate(verts), np.concatenate(normals), np.concatenate(tris)
-
-
-def _rod(bottom: np.ndarray, top: np.ndarray, radius: float,
-         segments: int = 16) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """A closed cylinder from ``bottom`` to ``top`` (m) of ``radius`` (m): vertices (m, 3),
-    normals (m, 3) and triangles (t, 3), wound counter-clockwise seen from outside."""
-    axis = top - bottom
-    axis = axis / np.linalg.norm(axis)
-    helper = np.array([1.0, 0.0, 0.0]) if abs(axis[0]) < 0.9 else np.array([0.0, 0.0, 1.0])
-    u = np.cross(axis, helper)
-    u /= np.linalg.norm(u)
-    w = np.cross(axis, u)
-    phi = np.linspace(0.0, 2.0 * np.pi, segments, endpoint=False)
-    ring = np.cos(phi)[:, None] * u + np.sin(phi)[:, None] * w  # (segments, 3) outward normals
-    # side rings (normals outward), then each cap's ring and centre (normals along the axis)
-    verts = np.concatenate([bottom + radius * ring, top + radius * ring,
-                            top + radius * ring, top[None], bottom + radius * ring, bottom[None]])
-    normals = np.concatenate([ring, ring, np.tile(axis, (segments + 1, 1)), np.tile(-axis, (segments + 1, 1))])
-    k = np.arange(segments)
-    nxt = (k + 1) % segments
-    s = segments
-    side = np.concatenate([np.stack([k, nxt, s + k], -1), np.stack([nxt, s + nxt, s + k], -1)])
-    top_cap = np.stack([np.full(s, 3 * s), 2 * s + k, 2 * s + nxt], -1)
-    bottom_cap = np.stack([np.full(s, 4 * s + 1), 3 * s + 1 + nxt, 3 * s + 1 + k], -1)
-    return verts, normals, np.concatenate([side, top_cap, bottom_cap])
 
 
 @ti.data_oriented
@@ -276,39 +199,24 @@ class SceneDrawer:
             segs = np.concatenate(guides) + self.offset
             self.guide_vertices = ti.Vector.field(3, ti.f32, len(segs))
             self.guide_vertices.from_numpy(segs.astype(np.float32))
-        self.sphere_vertices = None
-        if v.spheres is not None:
-            # Triangle meshes, not GGUI particles: a particle is a flat impostor whose depth
-            # would cut through cloth draped over it. A touch smaller than the collider: cloth
-            # vertices rest on its surface, and the flat triangles between them would otherwise
-            # dip into the drawn sphere.
-            unit, tris = _unit_sphere()
-            k = len(v.spheres.radii)
-            self.sphere_shape = (0.98 * v.spheres.radii)[:, None, None] * unit[None]  # (K, m, 3)
-            m = len(unit)
-            self.sphere_vertices = ti.Vector.field(3, ti.f32, k * m)
-            self.sphere_normals = ti.Vector.field(3, ti.f32, k * m)
-            self.sphere_normals.from_numpy(np.tile(unit, (k, 1)).astype(np.float32))
-            self.sphere_indices = ti.field(ti.i32, k * tris.size)
-            self.sphere_indices.from_numpy((tris[None] + m * np.arange(k)[:, None, None]).ravel().astype(np.int32))
         self.solid_vertices = None
-        if v.solids is not None:
-            # one mesh for every capsule and box; each frame moves each solid's vertices by its centre
-            parts = [_capsule(size[:3], 0.98 * size[3]) if kind == "capsule" else _box(0.98 * size[:3])
-                     for kind, size in zip(v.solids.kinds, v.solids.sizes)]
-            counts = [len(p[0]) for p in parts]
+        if v.solids:
+            # Triangle meshes, not GGUI particles: a particle is a flat impostor whose depth
+            # would cut through cloth draped over it. One mesh for every part's solid; each
+            # frame moves each solid's vertices by where its part places it.
+            counts = [len(s.vertices) for s in v.solids]
             firsts = np.cumsum([0] + counts[:-1])
-            self.solid_shape = np.concatenate([p[0] for p in parts])
-            self.solid_owner = np.repeat(np.arange(len(parts)), counts)
+            self.solid_shape = np.concatenate([s.vertices for s in v.solids]).astype(np.float64)
+            self.solid_owner = np.repeat(np.arange(len(v.solids)), counts)
             self.solid_vertices = ti.Vector.field(3, ti.f32, len(self.solid_shape))
             self.solid_normals = ti.Vector.field(3, ti.f32, len(self.solid_shape))
-            self.solid_normals.from_numpy(np.concatenate([p[1] for p in parts]).astype(np.float32))
-            tris = np.concatenate([p[2] + f for p, f in zip(parts, firsts)])
+            self.solid_normals.from_numpy(np.concatenate([s.normals for s in v.solids]).astype(np.float32))
+            tris = np.concatenate([np.asarray(s.triangles) + f for s, f in zip(v.solids, firsts)])
             self.solid_indices = ti.field(ti.i32, tris.size)
             self.solid_indices.from_numpy(tris.ravel().astype(np.int32))
         self.pole = None
         if v.pole is not None:
-            verts, normals, tris = _rod(v.pole.bottom + self.offset, v.pole.top + self.offset, v.pole.radius)
+            verts, normals, tris = rod(v.pole.bottom + self.offset, v.pole.top + self.offset, v.pole.radius)
             # Drawn like the cloth (per-vertex colour, two-sided) and only with it: GGUI 1.7.4
             # reuses mesh slots from frame to frame, and after a frame whose only mesh was the
             # pole, later frames on the window lost meshes now and then.
@@ -406,11 +314,8 @@ class SceneDrawer:
             self._shade(ti.Vector([float(c) for c in eye], ti.f32), int(strain), float(options.strain_scale))
         if self.has_trail:
             self._push_trail()
-        if self.sphere_vertices is not None:
-            centers = np.asarray(self.visual.spheres.centers(), np.float64).reshape(-1, 1, 3) + self.offset
-            self.sphere_vertices.from_numpy((centers + self.sphere_shape).reshape(-1, 3).astype(np.float32))
         if self.solid_vertices is not None:
-            centers = np.asarray(self.visual.solids.centers(), np.float64).reshape(-1, 3) + self.offset
+            centers = np.stack([np.asarray(s.place(), np.float64).reshape(3) for s in self.visual.solids]) + self.offset
             self.solid_vertices.from_numpy((centers[self.solid_owner] + self.solid_shape).astype(np.float32))
         if self.effect is not None and options.particles:
             self.effect.update(eye)
@@ -423,12 +328,9 @@ class SceneDrawer:
             scene.mesh(verts, indices=tris, normals=nrm, per_vertex_color=col, two_sided=True)
         if self.guide_vertices is not None:
             scene.lines(self.guide_vertices, width=1.0, color=GUIDE)
-        if self.sphere_vertices is not None:
-            scene.mesh(self.sphere_vertices, indices=self.sphere_indices, normals=self.sphere_normals,
-                       color=SPHERE)
         if self.solid_vertices is not None:
             scene.mesh(self.solid_vertices, indices=self.solid_indices, normals=self.solid_normals,
-                       color=SPHERE)
+                       color=SOLID)
         if self.pole is not None and options.mesh:  # the flag's, shown with it (see _init_extras)
             scene.mesh(self.pole[0], indices=self.pole[3], normals=self.pole[1], per_vertex_color=self.pole[2],
                        two_sided=True)

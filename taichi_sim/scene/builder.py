@@ -10,9 +10,10 @@ import numpy as np
 from ..forces import Drag, GrabSpring, Gravity, Springs, Turbulence, Wind
 from ..forces.springs.grid import GridSprings, grid_layout
 from ..mesh import TriangleMesh
+from ..part import PartContext, PartSpec
 from ..systems.constraints import PLANE, POINT, ROD, Constraints, check_gains
 from ..systems.particles import ParticleSystem
-from .colliders import Box, BoxColliders, Capsule, CapsuleColliders, PlaneCollider, SphereColliders, SpherePath
+from .colliders import Box, Capsule, PlaneCollider, Sphere, SpherePath
 from .events import Emitter, EmitterSpec, Tearing
 from .grab import Grabber
 from .scene import Scene
@@ -49,11 +50,8 @@ class SceneBuilder:
         self._triangles: list[np.ndarray] = []
         self._wind: dict | None = None
         self._turbulence: dict | None = None
-        self._spheres: list[tuple] = []
+        self._part_specs: list[PartSpec] = []  # the objects of every collider kind, as asked for
         self._plane: tuple | None = None
-        self._capsules: list[Capsule] = []
-        self._boxes: list[Box] = []
-        self._continuous_spheres = True
         self._object_faces = True
         self._tear_strain = None
         self._self_collision = None
@@ -221,33 +219,34 @@ class SceneBuilder:
         if amplitude > 0:
             self._turbulence = {"amplitude": float(amplitude), "scale": float(scale), "frequency": float(frequency)}
 
+    def add_part(self, spec: PartSpec) -> None:
+        """Add an object of any collider kind: ``spec`` (a :class:`~taichi_sim.part.PartSpec`)
+        names its part class, which ``finalize`` builds once over every object of that kind."""
+        if not isinstance(spec, PartSpec):
+            raise TypeError(f"add_part takes a PartSpec, got {type(spec).__name__}")
+        self._part_specs.append(spec)
+
     def add_sphere(self, path: SpherePath, radius: float, friction: float = 0.0, *,
                    continuous: bool = True) -> None:
         """A sphere collider of ``radius`` (m) moving (and maybe spinning) along ``path``, with
         Coulomb ``friction``. ``continuous=False`` tests only step ends (every sphere of the
         scene; kept to compare: a sphere moving more than its radius per step then tunnels)."""
-        if not radius > 0:
-            raise ValueError("sphere_radius must be > 0")
-        if not friction >= 0:
-            raise ValueError("sphere_friction must be >= 0")
-        self._spheres.append((path, float(radius), float(friction)))
-        self._continuous_spheres = bool(continuous)
+        self.add_part(Sphere(path, float(radius), float(friction), bool(continuous)))
 
     def set_object_faces(self, on: bool) -> None:
-        """Whether spheres, capsules and boxes test the cloth's triangles as well as its
-        vertices (default on; needs triangles; see
-        :class:`~taichi_sim.scene.colliders.faces.FaceContact`). Off, an object smaller than
-        the cloth's spacing can pass between vertices, through a face."""
+        """Whether the object colliders test the cloth's triangles as well as its vertices
+        (default on; needs triangles; see :class:`~taichi_sim.scene.colliders.faces.FaceContact`).
+        Off, an object smaller than the cloth's spacing can pass between vertices, through a face."""
         self._object_faces = bool(on)
 
     def add_capsule(self, path: SpherePath, radius: float, half_axis, friction: float = 0.0) -> None:
         """A capsule collider: the points within ``radius`` (m) of the segment from centre -
         ``half_axis`` to centre + ``half_axis`` (m), the centre translating along ``path``."""
-        self._capsules.append(Capsule(path, float(radius), tuple(float(c) for c in half_axis), float(friction)))
+        self.add_part(Capsule(path, float(radius), tuple(float(c) for c in half_axis), float(friction)))
 
     def add_box(self, path: SpherePath, half_extents, friction: float = 0.0) -> None:
         """An axis-aligned box collider of ``half_extents`` (m, 3 values > 0) centred on ``path``."""
-        self._boxes.append(Box(path, tuple(float(c) for c in half_extents), float(friction)))
+        self.add_part(Box(path, tuple(float(c) for c in half_extents), float(friction)))
 
     def set_plane(self, point, normal, restitution: float, friction: float = 0.0) -> None:
         """A ground plane through ``point`` with upward ``normal`` (nonzero); restitution in [0, 1]."""
@@ -317,23 +316,19 @@ class SceneBuilder:
         system = ParticleSystem(mass, pinned, active=active)
         features: dict[str, Any] = {"particles": self._count, "pinned": int(pinned.sum()),
                                     "gravity": False, "drag": False, "springs": 0, "grid_stencil": False,
-                                    "dashpots": False, "wind": False, "turbulence": False, "spheres": 0,
-                                    "capsules": 0, "boxes": 0, "object_faces": False, "plane": False,
-                                    "tearing": False, "emitter": 0, "grab": False, "triangles": 0,
+                                    "dashpots": False, "wind": False, "turbulence": False, "object_faces": False,
+                                    "plane": False, "tearing": False, "emitter": 0, "grab": False, "triangles": 0,
                                     "self_collision": False, "constraints": 0, "kinematic": 0}
         arrays: dict[str, np.ndarray] = {
             "mass": mass, "pinned": pinned,
             "gravity": np.zeros(3) if self._gravity is None else self._gravity,
             "drag": np.float64(self._drag or 0.0),
         }
-        post_step: list = []
-        kinematic = None
-        if self._kinematic is not None:  # first: colliders and self-contact see the pins' motion
+        parts: list = []
+        if self._kinematic is not None:
             from .kinematic import KinematicPins
 
-            kinematic = KinematicPins(*self._kinematic)
-            post_step.append(kinematic)
-            features["kinematic"] = kinematic.count
+            parts.append(KinematicPins(*self._kinematic))
         if self._gravity is not None and np.any(self._gravity != 0):
             system.add_term(Gravity(self._gravity, system.mass, system.free))
             features["gravity"] = True
@@ -389,34 +384,15 @@ class SceneBuilder:
             constraints.scene = name
             system.set_constraints(constraints)
             features["constraints"] = constraints.row_count
-        spheres = plane = emitter = None
-        if self._spheres:
-            paths, radii, frictions = zip(*self._spheres)
-            spheres = SphereColliders(list(paths), list(radii), list(frictions), system.free,
-                                      continuous=self._continuous_spheres, mesh=faces, system=system)
-            post_step.append(spheres)
-            features["spheres"] = spheres.count
-            arrays["sphere_radius"] = np.asarray(radii, float)
-            if any(p.spin for p in paths):
-                arrays["sphere_omega"] = np.stack([p.angular_velocity() for p in paths])
-        capsules = boxes = None
-        if self._capsules:
-            capsules = CapsuleColliders(self._capsules, system.free, mesh=faces, system=system)
-            post_step.append(capsules)
-            features["capsules"] = capsules.count
-            arrays["capsule_radius"] = np.asarray([c.radius for c in self._capsules], float)
-            arrays["capsule_half_axis"] = np.asarray([c.half_axis for c in self._capsules], float)
-        if self._boxes:
-            boxes = BoxColliders(self._boxes, system.free, mesh=faces, system=system)
-            post_step.append(boxes)
-            features["boxes"] = boxes.count
-            arrays["box_half_extents"] = np.asarray([b.half_extents for b in self._boxes], float)
-        features["object_faces"] = any(c is not None and c.mesh is not None for c in (spheres, capsules, boxes))
+        context = PartContext(system=system, faces=faces, seed=seed)
+        kinds: dict[type, list] = {}
+        for spec in self._part_specs:
+            kinds.setdefault(spec.part_class, []).append(spec)
+        parts += [kind.from_specs(specs, context) for kind, specs in kinds.items()]
+        plane = None
         if self._plane is not None:
             plane = PlaneCollider(*self._plane, free=system.free)
-            post_step.append(plane)
-            features["plane"] = True
-            arrays["plane_point"], arrays["plane_normal"] = plane.point_np, plane.normal_np
+            parts.append(plane)
         # last of the position changes, so that nothing moves the cloth after its guarantee
         if self._self_collision is not None:
             if mesh is None:
@@ -430,24 +406,23 @@ class SceneBuilder:
             # the start is checked for coincident points and flat triangles all the same.
             check_contact_mesh(x0, mesh.triangles_np, thickness, rest=np.concatenate(self._rest_x))
             floor = None if plane is None else (plane.point_np, plane.normal_np)
-            obstacles = [c for c in (spheres, capsules, boxes) if c is not None]
-            post_step.append(SelfCollision(system, mesh, x0, thickness=thickness, friction=friction,
-                                           iterations=iterations, floor=floor, obstacles=obstacles))
-            features["self_collision"] = True
+            obstacles = sorted((p for p in parts if p.is_obstacle), key=lambda p: p.order)
+            parts.append(SelfCollision(system, mesh, x0, thickness=thickness, friction=friction,
+                                       iterations=iterations, floor=floor, obstacles=obstacles))
         if springs is not None and springs.tearable:
-            post_step.append(Tearing(springs))
+            parts.append(Tearing(springs))
         if self._emitter is not None:
             spec, first = self._emitter
-            emitter = Emitter(spec, first, system.free, seed)
-            post_step.append(emitter)
-            features["emitter"] = spec.capacity
+            parts.append(Emitter(spec, first, system.free, seed, particle_mass=float(mass[first])))
+        parts.sort(key=lambda p: p.order)  # (stable: objects of one order keep the order asked)
+        for part in parts:
+            features.update(part.features())
 
         state = system.make_state()
         scene = Scene(name=name, system=system, state=state, x0=x0, v0=v0, params=params,
                       features=features, static_arrays=arrays, default_dt=default_dt,
-                      default_integrator=default_integrator, seed=seed, post_step=post_step,
-                      springs=springs, mesh=mesh, spheres=spheres, capsules=capsules, boxes=boxes, plane=plane,
-                      emitter=emitter, constraints=constraints, kinematic=kinematic)
+                      default_integrator=default_integrator, seed=seed, parts=parts, post_step=list(parts),
+                      springs=springs, mesh=mesh, constraints=constraints)
         if self._grab is not None:
             grabber = Grabber(scene, grab_term)
             scene.grabber = grabber

@@ -13,10 +13,15 @@ import numpy as np
 import taichi as ti
 
 from .. import runtime
+from ..part import LaunchSource, ScenePart
+from .visual import Emitter as EmitterVisual
 
 
-class Tearing:
+class Tearing(ScenePart):
     """Breaks over-strained springs after each accepted step (see Springs.tear)."""
+
+    name = "tearing"
+    order = 40
 
     def __init__(self, springs):
         self.springs = springs
@@ -53,7 +58,7 @@ class EmitterSpec:
 
 
 @ti.data_oriented
-class Emitter:
+class Emitter(ScenePart):
     """A particle emitter over a fixed-capacity ring buffer of the system's particles.
 
     Live particles are exactly those with ``alive`` = 1 (and ``free`` = 1, so the integrator
@@ -64,8 +69,12 @@ class Emitter:
     comes from ``seed``, so the same seed and steps give identical particles.
     """
 
-    def __init__(self, spec: EmitterSpec, first: int, free, seed: int):
+    name = "emitter"
+    order = 50
+
+    def __init__(self, spec: EmitterSpec, first: int, free, seed: int, particle_mass: float = 0.0):
         real = runtime.real()
+        self.particle_mass = float(particle_mass)  # kg, each launched particle's
         self.spec = spec
         self.first = first
         self.capacity = spec.capacity
@@ -166,6 +175,19 @@ class Emitter:
         free = self.free.to_numpy()
         free[self.first:self.first + self.capacity] = self._slots_free0
         self.free.from_numpy(free)
+
+    def features(self) -> dict:
+        return {"emitter": self.capacity}
+
+    def visuals(self) -> list:
+        return [EmitterVisual(alive=self.alive, age=self.age, lifetime=float(self.spec.lifetime), first=int(self.first),
+                              capacity=int(self.capacity), lifetime_now=lambda: float(self.spec.lifetime),
+                              spec=self.spec)]
+
+    def energy_sources(self) -> list:
+        spec = self.spec
+        return [LaunchSource("emitter", spec.capacity, self.particle_mass, spec.speed, float(spec.position[1]),
+                             spec.lifetime)]
 
     def arrays(self) -> dict:
         return {"alive": self.alive.to_numpy().astype(bool), "age": self.age.to_numpy().astype(np.float64),

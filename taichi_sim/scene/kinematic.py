@@ -16,6 +16,7 @@ import numpy as np
 import taichi as ti
 
 from .. import runtime
+from ..part import MovingSource, ScenePart
 
 
 @dataclass(frozen=True)
@@ -89,10 +90,13 @@ class TwistPath:
 
 
 @ti.data_oriented
-class KinematicPins:
+class KinematicPins(ScenePart):
     """The post-step event that moves pinned particles ``ids`` along ``path`` (a
     :class:`TwistPath`, or anything with ``at(t) -> (x, v)``, ``fastest_speed()`` and
     ``farthest_travel()``). ``x0`` of the path must be where the particles start."""
+
+    name = "kinematic"
+    order = 0  # first: colliders and self-contact see the pins' motion
 
     def __init__(self, ids: np.ndarray, path):
         self.ids_np = np.asarray(ids, np.int32).reshape(-1)
@@ -111,6 +115,12 @@ class KinematicPins:
 
     def farthest_travel(self) -> float:
         return self.path.farthest_travel()
+
+    def features(self) -> dict:
+        return {"kinematic": self.count}
+
+    def energy_sources(self) -> list:
+        return [MovingSource("kinematic pins", self.fastest_speed(), self.farthest_travel())]
 
     @ti.kernel
     def _place(self, y: ti.template(), x: ti.types.ndarray(), v: ti.types.ndarray()):

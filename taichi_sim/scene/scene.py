@@ -25,10 +25,13 @@ class Scene:
             :attr:`arrays` for everything.
         default_dt, default_integrator: what ``simulate`` uses when not told.
         seed: the random seed the scene was built with.
-        post_step: events applied after every accepted step, in order (colliders, tearing,
-            emitter).
-        springs, mesh, spheres, capsules, boxes, plane, emitter, grabber, constraints, kinematic:
-            the optional parts, or None (``kinematic``: the scripted pins, also in ``post_step``).
+        parts: the optional scene parts (:class:`~taichi_sim.part.ScenePart`: colliders, the
+            ground, scripted pins, self-contact, tearing, an emitter), in the order their events
+            run; reset, restore, the npz, the guard, the renderer and the run's summary loop
+            over them. :meth:`part` finds one by name.
+        post_step: the events applied after every accepted step, in order: the parts (a
+            caller may wrap one here to watch it).
+        springs, mesh, grabber, constraints: what the forces and the integrators read, or None.
     """
 
     name: str
@@ -42,17 +45,22 @@ class Scene:
     default_dt: float
     default_integrator: str
     seed: int = 0
+    parts: list = field(default_factory=list)
     post_step: list = field(default_factory=list)
     springs: Any = None
     mesh: Any = None
-    spheres: Any = None
-    capsules: Any = None
-    boxes: Any = None
-    plane: Any = None
-    emitter: Any = None
     grabber: Any = None
     constraints: Any = None
-    kinematic: Any = None
+
+    def part(self, name: str):
+        """The part called ``name`` (e.g. ``"spheres"``, ``"plane"``), or None."""
+        return next((p for p in self.parts if p.name == name), None)
+
+    # the parts that live setters and curves change by name
+    spheres = property(lambda self: self.part("spheres"))
+    plane = property(lambda self: self.part("plane"))
+    emitter = property(lambda self: self.part("emitter"))
+    kinematic = property(lambda self: self.part("kinematic"))
 
     @property
     def particle_count(self) -> int:
@@ -71,17 +79,15 @@ class Scene:
         """Back to the initial state (the model's optional parts keep their changes: torn
         springs stay torn; rebuild the scene for a fresh one)."""
         self.state.from_numpy(self.x0, self.v0)
-        for colliders in (self.spheres, self.capsules, self.boxes):
-            if colliders is not None:
-                colliders.move_to(0.0)
+        for part in self.parts:
+            part.reset()
 
     def restore(self) -> None:
         """Back to the scene as built: the initial state, torn springs mended, no particle
         emitted and the emitter's random stream restarted (unlike :meth:`reset`), without
         allocating anything."""
-        for event in self.post_step:
-            if hasattr(event, "restore"):
-                event.restore()
+        for part in self.parts:
+            part.restore()
         self.reset()
 
     def energy(self) -> float | None:
@@ -101,20 +107,15 @@ class Scene:
     @property
     def arrays(self) -> dict[str, np.ndarray]:
         """The npz's model keys as they are now (numpy copies): the static arrays plus what
-        may change during a run (springs, live springs, sphere centres, emitter ages)."""
+        may change during a run (springs, live springs, constraints, each part's keys: collider
+        centres, emitter ages, ...)."""
         out = dict(self.static_arrays)
         if self.springs is not None:
             out.update(self.springs.arrays())
-        if self.spheres is not None:
-            out["sphere_center"] = self.spheres.centers()
-        if self.capsules is not None:
-            out["capsule_center"] = self.capsules.centers()
-        if self.boxes is not None:
-            out["box_center"] = self.boxes.centers()
-        if self.emitter is not None:
-            out.update(self.emitter.arrays())
         if self.constraints is not None:
             out.update(self.constraints.arrays())
+        for part in self.parts:
+            out.update(part.arrays())
         return out
 
     def constraint_violation(self) -> float | None:

@@ -18,13 +18,9 @@ drawn):
   counter-clockwise seen from the front, ``tearable``, and the kernel
   ``fill_index_buffer(out)`` that writes the 3T indices into a 1-D i32 field, a torn triangle
   as a degenerate one. Drawn as a shaded two-coloured surface.
-- ``scene.spheres``: sphere colliders with ``centers()`` ((K, 3) m, called every frame, so a
-  moving sphere is drawn where it is) and ``radius`` (a (K,) field, m).
-- ``scene.plane``: a ground plane with ``point_np`` and ``normal_np`` ((3,) arrays).
-- ``scene.emitter``: a particle emitter with ``alive`` (a (capacity,) int field, nonzero for a
-  live particle), ``age`` (a (capacity,) float field, s), ``first`` (the particle id of slot 0),
-  ``capacity`` and ``spec`` (its ``lifetime`` (s) colours particles by age; ``position``,
-  ``direction``, ``speed`` (m/s) and ``spread`` (degrees) frame the spray). Only live emitter
+- ``scene.parts``: each part's ``visuals()`` (:class:`~taichi_sim.part.ScenePart`): rigid
+  meshes (:class:`~taichi_sim.part.SolidMesh`: the colliders, drawn where their ``place()`` puts
+  them every frame), a ground :class:`Plane`, an :class:`Emitter`'s particles. Only live emitter
   particles are drawn, with the look ``scene.params["effect"]`` names (water without one).
 - ``scene.grabber``: the mouse-grab API (``pick(origin, direction)``, ``grab(particle)``,
   ``drag_to(target)``, ``release()``), passed through for the launcher.
@@ -42,33 +38,15 @@ which the fabric pattern uses.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Callable
 
 import numpy as np
 
+from ..part import SolidMesh
 from ..systems.constraints import PLANE, POINT, ROD
 from .cloth import STRUCTURAL
 from .scene import Scene
-
-
-@dataclass(frozen=True)
-class Spheres:
-    """Spheres to draw: ``centers()`` returns their (K, 3) centres now (m); ``radii`` (K,) m."""
-
-    centers: Callable[[], np.ndarray]
-    radii: np.ndarray
-
-
-@dataclass(frozen=True)
-class Solids:
-    """Capsules and boxes to draw: ``centers()`` returns each one's (K, 3) centre now (m);
-    ``kinds`` (K,) "capsule" or "box"; ``sizes`` (K, 4): a capsule's half axis (3 values, m) and
-    radius (m), a box's half extents (m) and 0."""
-
-    centers: Callable[[], np.ndarray]
-    kinds: tuple[str, ...]
-    sizes: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -94,6 +72,7 @@ class Emitter:
     capacity: int
     effect: str = "water"
     lifetime_now: Callable[[], float] | None = None
+    spec: Any = None  # the emitter's EmitterSpec (nozzle, direction, speed, spread), to frame the spray
 
 
 @dataclass(frozen=True)
@@ -126,8 +105,8 @@ class SceneVisual:
         spring_alive: (S,) int field, nonzero where intact, or None when springs never tear.
         line_springs: (L,) int64 ids of the springs drawn as lines and used for the strain
             colour map: a cloth's structural springs, every spring otherwise.
-        spheres, plane, emitter: the optional extras (see the module docstring).
-        solids: capsule and box colliders, or None.
+        plane, emitter: the optional extras (see the module docstring).
+        solids: the parts' rigid meshes (colliders), possibly none.
         pole: the rod a cloth pinned with ``pin=pole`` hangs on, or None.
         grabber: the scene's mouse-grab API, or None.
         trail: draw a fading trail behind each particle (the circle ODE).
@@ -149,7 +128,6 @@ class SceneVisual:
     rest_length: np.ndarray
     spring_alive: Any | None
     line_springs: np.ndarray
-    spheres: Spheres | None
     plane: Plane | None
     emitter: Emitter | None
     pole: Pole | None
@@ -159,7 +137,7 @@ class SceneVisual:
     particle_radius: float
     bounds: tuple[np.ndarray, np.ndarray]
     view: tuple[float, float]
-    solids: Solids | None = None
+    solids: tuple[SolidMesh, ...] = ()
 
     @property
     def center(self) -> np.ndarray:
@@ -198,23 +176,12 @@ def describe(scene: Scene) -> SceneVisual:
         else np.zeros((0, 3), np.int64)
     line_springs = np.flatnonzero(kind == STRUCTURAL) if len(triangles) else np.arange(len(springs))
 
-    spheres = None
-    if getattr(scene, "spheres", None) is not None:
-        spheres = Spheres(centers=scene.spheres.centers,
-                          radii=np.asarray(scene.spheres.radius.to_numpy(), np.float64).reshape(-1))
-    solids = _solids(scene)
-    plane = None
-    if getattr(scene, "plane", None) is not None:
-        normal = np.asarray(scene.plane.normal_np, np.float64).reshape(3)
-        plane = Plane(point=np.asarray(scene.plane.point_np, np.float64).reshape(3),
-                      normal=normal / np.linalg.norm(normal))
-    emitter = None
-    if getattr(scene, "emitter", None) is not None:
-        e = scene.emitter
-        emitter = Emitter(alive=e.alive, age=e.age, lifetime=float(e.spec.lifetime),
-                          first=int(e.first), capacity=int(e.capacity),
-                          effect=str(scene.params.get("effect", "water")),
-                          lifetime_now=lambda: float(e.spec.lifetime))
+    items = [item for part in getattr(scene, "parts", ()) for item in part.visuals()]
+    solids = tuple(item for item in items if isinstance(item, SolidMesh))
+    plane = next((item for item in items if isinstance(item, Plane)), None)
+    emitter = next((item for item in items if isinstance(item, Emitter)), None)
+    if emitter is not None:
+        emitter = replace(emitter, effect=str(scene.params.get("effect", "water")))
 
     guides: tuple[np.ndarray, ...] = ()
     if scene.name == "simple":  # the exact solution: the initial circle about the z axis
@@ -229,17 +196,17 @@ def describe(scene: Scene) -> SceneVisual:
     pole = _pole(x0[pinned], plane) if scene.params.get("pin") == "pole" and len(triangles) else None
     live = np.ones(n, bool)
     extra = list(guides) + ([np.stack([pole.bottom, pole.top])] if pole is not None else [])
-    if solids is not None:  # each solid's bounding box, to frame it
-        reach = np.abs(solids.sizes[:, :3]) + solids.sizes[:, 3:]
-        extra += [solids.centers() - reach, solids.centers() + reach]
+    for solid in solids:  # each solid's bounding box, to frame it
+        center = np.asarray(solid.place(), np.float64).reshape(1, 3)
+        extra += [center - solid.reach, center + solid.reach]
     if emitter is not None:  # dead slots all sit at the nozzle: frame the spray's paths instead
         live[emitter.first:emitter.first + emitter.capacity] = False
         live[emitter.first] = True
         drag = float(arrays.get("drag", 0.0))
         tau = float(np.asarray(arrays["mass"])[emitter.first]) / drag if drag > 0 else math.inf
-        extra.append(_spray(scene.emitter.spec, gravity, plane, tau))
+        extra.append(_spray(emitter.spec, gravity, plane, tau))
     lo, hi = _bounds(x0[live], pinned[live], hanging=bool(np.any(gravity != 0)),
-                     swinging=not len(triangles), extra=extra, spheres=spheres, plane=plane)
+                     swinging=not len(triangles), extra=extra, plane=plane)
     override = getattr(scene, "view_bounds", None)
     if override is not None:
         lo, hi = (np.asarray(b, np.float64).reshape(3) for b in override)
@@ -253,7 +220,7 @@ def describe(scene: Scene) -> SceneVisual:
         # low when it falls onto a resting sphere: from above, the draped cloth hides the sphere.
         if scene.params.get("orientation") == "vertical":
             view = (20.0, 8.0)
-        elif spheres is not None and scene.params.get("sphere_motion", "static") == "static":
+        elif any(s.hidden_from_above for s in solids) and scene.params.get("sphere_motion", "static") == "static":
             view = (30.0, 10.0)
         else:
             view = (30.0, 30.0)
@@ -267,24 +234,9 @@ def describe(scene: Scene) -> SceneVisual:
         name=scene.name, particle_count=n, first_order=first_order,
         pinned=pinned, grid=grid, triangles=triangles, mesh=mesh if len(triangles) else None,
         tearing=alive is not None, springs=springs, rest_length=rest, spring_alive=alive,
-        line_springs=line_springs.astype(np.int64), spheres=spheres, plane=plane, emitter=emitter, pole=pole,
+        line_springs=line_springs.astype(np.int64), plane=plane, emitter=emitter, pole=pole,
         grabber=getattr(scene, "grabber", None), trail=first_order, guides=guides,
         particle_radius=float(radius), bounds=(lo, hi), view=view, solids=solids)
-
-
-def _solids(scene) -> Solids | None:
-    """The scene's capsules and boxes as one :class:`Solids`, or None without any."""
-    parts = [(c, "capsule") for c in (getattr(scene, "capsules", None),) if c is not None]
-    parts += [(b, "box") for b in (getattr(scene, "boxes", None),) if b is not None]
-    if not parts:
-        return None
-    kinds, sizes = [], []
-    for colliders, kind in parts:
-        for shape in colliders.shapes:
-            kinds.append(kind)
-            sizes.append([*shape.half_axis, shape.radius] if kind == "capsule" else [*shape.half_extents, 0.0])
-    return Solids(centers=lambda: np.concatenate([c.centers() for c, _ in parts]), kinds=tuple(kinds),
-                  sizes=np.asarray(sizes, np.float64))
 
 
 def _pole(pins: np.ndarray, plane: Plane | None) -> Pole | None:
@@ -364,8 +316,8 @@ def _wires(constraints) -> tuple[np.ndarray, ...]:
 
 
 def _bounds(x0: np.ndarray, pinned: np.ndarray, *, hanging: bool, swinging: bool, extra,
-            spheres: Spheres | None, plane: Plane | None) -> tuple[np.ndarray, np.ndarray]:
-    """The box to frame (m): the initial positions, extra points and spheres; for a pinned scene
+            plane: Plane | None) -> tuple[np.ndarray, np.ndarray]:
+    """The box to frame (m): the initial positions and extra points; for a pinned scene
     under gravity also where it hangs (down from the pins' centroid by 1.2x the farthest
     particle's distance) and, when ``swinging`` (a chain, not a cloth, which crumples), where it
     swings through to (mirrored about the pins in x and z); never below a ground plane."""
@@ -379,10 +331,6 @@ def _bounds(x0: np.ndarray, pinned: np.ndarray, *, hanging: bool, swinging: bool
             mirrored[:, [0, 2]] = 2.0 * pin[[0, 2]] - x0[:, [0, 2]]
             points.append(mirrored)
     points += list(extra)
-    if spheres is not None:
-        c = np.asarray(spheres.centers(), np.float64).reshape(-1, 3)
-        r = spheres.radii[:, None]
-        points += [c - r, c + r]
     allp = np.concatenate(points)
     if plane is not None and abs(plane.normal[1]) > 0.9:  # nothing goes below the ground
         ground = plane.point[1]

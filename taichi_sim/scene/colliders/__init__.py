@@ -3,7 +3,7 @@ capsules, boxes and a plane, with Coulomb friction (see each module for what is 
 from .path import SpherePath
 from .plane import PlaneCollider
 from .shapes import Box, BoxColliders, Capsule, CapsuleColliders
-from .sphere import SphereColliders
+from .sphere import Sphere, SphereColliders
 
-__all__ = ["Box", "BoxColliders", "Capsule", "CapsuleColliders", "PlaneCollider", "SphereColliders",
+__all__ = ["Box", "BoxColliders", "Capsule", "CapsuleColliders", "PlaneCollider", "Sphere", "SphereColliders",
            "SpherePath"]

@@ -7,12 +7,14 @@ from ...collide.objects import FAR
 
 @ti.data_oriented
 class Obstacle:
-    """Mixin of the object colliders (spheres, capsules, boxes), read by
+    """Mixin of the object colliders (each scene part with ``is_obstacle``), read by
     :class:`~taichi_sim.collide.SelfCollision`, which must not push the cloth into an object.
 
     A collider using it has ``count`` objects on ``path`` (:class:`~.path.PathFields`) and the
     ``ti.func``s ``distance(k, q)`` (signed, m, negative inside) and ``normal(k, q)`` (outward
     unit) at q, a point in object k's frame, and ``surface_velocity(k, t, r)`` (m/s)."""
+
+    is_obstacle = True  # (the ScenePart flag the builder reads to hand it to self-contact)
 
     @ti.func
     def nearest_surface(self, x, t):

@@ -3,10 +3,12 @@ import numpy as np
 import taichi as ti
 
 from ... import runtime
+from ...part import ScenePart
+from ..visual import Plane
 
 
 @ti.data_oriented
-class PlaneCollider:
+class PlaneCollider(ScenePart):
     """A ground plane: a free particle below it is projected onto it, and its normal velocity
     is reflected and scaled by ``restitution`` (0: it stops, 1: elastic bounce); ``friction``
     mu scales the tangential velocity down by mu * (1 + e) |v_n| (Coulomb), never reversing it.
@@ -17,6 +19,9 @@ class PlaneCollider:
     Args:
         point: a point on the plane (m); normal: its upward normal (nonzero; normalised here).
     """
+
+    name = "plane"
+    order = 20
 
     def __init__(self, point, normal, restitution: float, friction: float, free):
         real = runtime.real()
@@ -37,6 +42,15 @@ class PlaneCollider:
 
     def __call__(self, state, t: float, h: float) -> None:
         self._project(state)
+
+    def features(self) -> dict:
+        return {"plane": True}
+
+    def arrays(self) -> dict:
+        return {"plane_point": self.point_np, "plane_normal": self.normal_np}
+
+    def visuals(self) -> list:
+        return [Plane(point=self.point_np.reshape(3).astype(np.float64), normal=self.normal_np.reshape(3))]
 
     @ti.kernel
     def _project(self, y: ti.template()):

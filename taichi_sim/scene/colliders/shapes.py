@@ -7,6 +7,8 @@ import taichi as ti
 
 from ... import runtime
 from ...collide.friction import inelastic_friction
+from ...geometry import primitives
+from ...part import MovingSource, PartSpec, ScenePart, SolidMesh
 from .faces import FaceContact, box_separation, segment_crosses_triangle, segment_to_triangle
 from .obstacle import Obstacle
 from .path import PathFields, SpherePath
@@ -22,7 +24,7 @@ TOUCH_FRACTION = 1e-4
 
 
 @dataclass(frozen=True)
-class Capsule:
+class Capsule(PartSpec):
     """A capsule: the points within ``radius`` (m) of the segment centre +- ``half_axis`` (m,
     a 3-vector, nonzero: a zero-length capsule is a sphere, use one)."""
 
@@ -42,7 +44,7 @@ class Capsule:
 
 
 @dataclass(frozen=True)
-class Box:
+class Box(PartSpec):
     """An axis-aligned box of ``half_extents`` (m, three values > 0) about the path's centre."""
 
     path: SpherePath
@@ -58,7 +60,7 @@ class Box:
 
 
 @ti.data_oriented
-class _TranslatingShapes(FaceContact, Obstacle):
+class _TranslatingShapes(FaceContact, Obstacle, ScenePart):
     """What capsules and boxes share: paths, step starts, the march and the response.
 
     In a shape's frame a free particle goes from a = p0 - c(t - h) to b = p1 - c(t). Starting
@@ -92,9 +94,34 @@ class _TranslatingShapes(FaceContact, Obstacle):
         self.start.restore()
         self.move_to(0.0)
 
+    @classmethod
+    def from_specs(cls, specs, context):
+        """One collider for every shape of this kind the scene asked for."""
+        return cls(list(specs), context.system.free, mesh=context.faces, system=context.system)
+
     def move_to(self, t: float) -> None:
         """Place every shape where its path puts it at time t (s)."""
         self.t = t
+
+    def reset(self) -> None:
+        self.move_to(0.0)
+
+    def features(self) -> dict:
+        return {self.name: self.count, **({"object_faces": True} if self.mesh is not None else {})}
+
+    def arrays(self) -> dict:
+        return {f"{self.key}_center": self.centers(), **self.size_arrays()}
+
+    def visuals(self) -> list:
+        out = []
+        for k, shape in enumerate(self.shapes):
+            vertices, normals, triangles = self.drawn_mesh(shape)
+            out.append(SolidMesh(vertices=vertices, normals=normals, triangles=triangles,
+                                 place=lambda k=k: self.centers()[k], reach=np.asarray(self.bounding_box(shape))))
+        return out
+
+    def energy_sources(self) -> list:
+        return [MovingSource(f"moving {self.key}", self.fastest_speed())]
 
     def centers(self) -> np.ndarray:
         """(K, 3) float64: the centres (m) now."""
@@ -160,6 +187,8 @@ class _TranslatingShapes(FaceContact, Obstacle):
 class CapsuleColliders(_TranslatingShapes):
     """Capsules (see :class:`Capsule` and :class:`_TranslatingShapes`)."""
 
+    name, key, order = "capsules", "capsule", 11
+
     def __init__(self, capsules: list[Capsule], free, mesh=None, system=None):
         real = runtime.real()
         self.radius = ti.field(real, shape=len(capsules))
@@ -171,6 +200,15 @@ class CapsuleColliders(_TranslatingShapes):
     @staticmethod
     def thinnest(capsule: Capsule) -> float:
         return capsule.radius
+
+    def size_arrays(self) -> dict:
+        return {"capsule_radius": np.asarray([c.radius for c in self.shapes], float),
+                "capsule_half_axis": np.asarray([c.half_axis for c in self.shapes], float)}
+
+    @staticmethod
+    def drawn_mesh(capsule: Capsule):
+        # a touch smaller than the collider, as the sphere's
+        return primitives.capsule(np.asarray(capsule.half_axis, float), 0.98 * capsule.radius)
 
     @staticmethod
     def bounding_box(capsule: Capsule) -> tuple:
@@ -227,6 +265,7 @@ class BoxColliders(_TranslatingShapes):
     """Axis-aligned boxes (see :class:`Box` and :class:`_TranslatingShapes`)."""
 
     KEEPS_START_OVERLAP = True
+    name, key, order = "boxes", "box", 12
 
     def __init__(self, boxes: list[Box], free, mesh=None, system=None):
         self.half = ti.Vector.field(3, runtime.real(), shape=len(boxes))
@@ -236,6 +275,13 @@ class BoxColliders(_TranslatingShapes):
     @staticmethod
     def thinnest(box: Box) -> float:
         return float(min(box.half_extents))
+
+    def size_arrays(self) -> dict:
+        return {"box_half_extents": np.asarray([b.half_extents for b in self.shapes], float)}
+
+    @staticmethod
+    def drawn_mesh(box: Box):
+        return primitives.box(0.98 * np.asarray(box.half_extents, float))
 
     @staticmethod
     def bounding_box(box: Box) -> tuple:
@@ -274,3 +320,7 @@ class BoxColliders(_TranslatingShapes):
                 axis = 2
             n[axis] = 1.0 if q[axis] >= 0.0 else -1.0
         return n
+
+
+Capsule.part_class = CapsuleColliders
+Box.part_class = BoxColliders

@@ -1,11 +1,13 @@
 """Moving, spinning spheres, tested continuously over the step's relative motion."""
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 import taichi as ti
 
 from ... import runtime
 from ...collide.friction import inelastic_friction
+from ...geometry.primitives import unit_sphere
+from ...part import MovingSource, PartSpec, ScenePart, SolidMesh
 from .faces import FaceContact, sphere_to_triangle
 from .obstacle import Obstacle
 from .path import PathFields, SpherePath
@@ -14,7 +16,7 @@ from .step_start import StepStart
 
 
 @ti.data_oriented
-class SphereColliders(FaceContact, Obstacle):
+class SphereColliders(FaceContact, Obstacle, ScenePart):
     """Spheres that particles cannot enter, however fast they move.
 
     After each accepted step, in each sphere's frame a free particle goes from p0 - c(t - h) to
@@ -40,6 +42,9 @@ class SphereColliders(FaceContact, Obstacle):
         system: the :class:`~taichi_sim.systems.particles.ParticleSystem` (its inverse masses
             share the faces' pushes), needed with a mesh.
     """
+
+    name = "spheres"
+    order = 10
 
     def __init__(self, paths: list[SpherePath], radii: list[float], frictions: list[float], free,
                  continuous: bool = True, mesh=None, system=None):
@@ -81,9 +86,39 @@ class SphereColliders(FaceContact, Obstacle):
         self.start.restore()
         self.move_to(0.0)
 
+    @classmethod
+    def from_specs(cls, specs: list["Sphere"], context) -> "SphereColliders":
+        """One collider for every :class:`Sphere` the scene asked for (the last one's
+        ``continuous`` holds for all)."""
+        return cls([s.path for s in specs], [s.radius for s in specs], [s.friction for s in specs],
+                   context.system.free, continuous=specs[-1].continuous, mesh=context.faces, system=context.system)
+
     def move_to(self, t: float) -> None:
         """Place every sphere where its path puts it at time t (s)."""
         self.t = t
+
+    def reset(self) -> None:
+        self.move_to(0.0)
+
+    def features(self) -> dict:
+        return {"spheres": self.count, **({"object_faces": True} if self.mesh is not None else {})}
+
+    def arrays(self) -> dict:
+        out = {"sphere_center": self.centers(), "sphere_radius": self.radius.to_numpy().astype(np.float64)}
+        if any(p.spin for p in self.paths):
+            out["sphere_omega"] = np.stack([p.angular_velocity() for p in self.paths])
+        return out
+
+    def visuals(self) -> list:
+        # a touch smaller than the collider: cloth vertices rest on its surface, and the flat
+        # triangles between them would otherwise dip into the drawn sphere
+        unit, tris = unit_sphere()
+        return [SolidMesh(vertices=0.98 * float(r) * unit, normals=unit, triangles=tris,
+                          place=lambda k=k: self.centers()[k], reach=np.full(3, float(r)), hidden_from_above=True)
+                for k, r in enumerate(self.radius.to_numpy())]
+
+    def energy_sources(self) -> list:
+        return [MovingSource("moving sphere", self.fastest_speed())]
 
     def centers(self) -> np.ndarray:
         """(K, 3) float64: the centres (m) now."""
@@ -158,3 +193,22 @@ class SphereColliders(FaceContact, Obstacle):
                         y.x[i] = c1 + r * n
                         v_surface = self.path.velocity(k, t) + self.path.omega[k].cross(r * n)
                         y.v[i] = inelastic_friction(y.v[i], v_surface, n, self.friction[k])
+
+
+@dataclass(frozen=True)
+class Sphere(PartSpec):
+    """A sphere collider of ``radius`` (m) moving along ``path`` with Coulomb ``friction``;
+    ``continuous``: see :class:`SphereColliders`."""
+
+    path: SpherePath
+    radius: float
+    friction: float = 0.0
+    continuous: bool = True
+
+    part_class = SphereColliders
+
+    def __post_init__(self):
+        if not self.radius > 0:
+            raise ValueError("sphere_radius must be > 0")
+        if not self.friction >= 0:
+            raise ValueError("sphere_friction must be >= 0")
