@@ -13,7 +13,7 @@ from ..mesh import TriangleMesh
 from ..part import PartContext, PartSpec
 from ..systems.constraints import PLANE, POINT, ROD, Constraints, check_gains
 from ..systems.particles import ParticleSystem
-from .colliders import Box, Capsule, PlaneCollider, Sphere, SpherePath
+from .colliders import Box, Capsule, MeshObstacle, PlaneCollider, Sphere, SpherePath
 from .events import Emitter, EmitterSpec, Tearing
 from .grab import Grabber
 from .scene import Scene
@@ -247,6 +247,15 @@ class SceneBuilder:
     def add_box(self, path: SpherePath, half_extents, friction: float = 0.0) -> None:
         """An axis-aligned box collider of ``half_extents`` (m, 3 values > 0) centred on ``path``."""
         self.add_part(Box(path, tuple(float(c) for c in half_extents), float(friction)))
+
+    def add_mesh_collider(self, vertices, triangles, path: SpherePath | None = None, friction: float = 0.0,
+                          skin: float = 0.005) -> None:
+        """A rigid triangle mesh collider (see :class:`~taichi_sim.scene.colliders.mesh_collider.MeshCollider`):
+        ``vertices`` (V, 3) (m) in its own frame, whose origin follows ``path`` (default: fixed
+        at the world's origin), ``triangles`` (T, 3) vertex ids, Coulomb ``friction`` and the
+        ``skin`` (m) particles keep from it."""
+        self.add_part(MeshObstacle(np.asarray(vertices, float), np.asarray(triangles, np.int64),
+                                   path or SpherePath((0.0, 0.0, 0.0)), float(friction), float(skin)))
 
     def set_plane(self, point, normal, restitution: float, friction: float = 0.0) -> None:
         """A ground plane through ``point`` with upward ``normal`` (nonzero); restitution in [0, 1]."""

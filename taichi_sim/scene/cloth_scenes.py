@@ -1,5 +1,5 @@
 """The cloth family: a grid of structural, shear and flex springs, and the extras a cloth scene
-may switch on (wind, a sphere, a capsule, a box, a ground plane, tearing, grab)."""
+may switch on (wind, a sphere, a capsule, a box, a mesh, a ground plane, tearing, grab)."""
 import math
 from typing import Any
 
@@ -9,7 +9,7 @@ from ..errors import ConfigError
 from ..memory import Size
 from . import cloth as topo
 from .builder import SceneBuilder
-from .colliders import SpherePath
+from .colliders import SpherePath, load_mesh_file
 from .kinematic import TwistPath
 from .params import Param
 from .preset import ScenePreset, common_params, with_defaults
@@ -79,6 +79,12 @@ CLOTH_PARAMS: tuple[Param, ...] = (
     Param("box_y", 0.2, "m", "box centre y"),
     Param("box_z", 0.0, "m", "box centre z"),
     Param("box_friction", 0.3, "", "Coulomb friction coefficient on the box", minimum=0.0),
+    # a triangle mesh (a table, a body) from a file
+    Param("collider_mesh", "", "path", "a mesh file (OBJ, STL, PLY, GLB, ...: whatever trimesh reads) the cloth "
+          "collides with, in its own coordinates (m); empty for none"),
+    Param("collider_mesh_friction", 0.3, "", "Coulomb friction coefficient on the collider mesh", minimum=0.0),
+    Param("collider_mesh_skin", 0.005, "m", "distance the cloth's vertices keep from the collider mesh",
+          minimum=0.0, exclusive=True),
     # ground plane
     Param("plane", False, "", "a ground plane the cloth collides with"),
     Param("plane_height", 0.0, "m", "height (y) of the ground plane"),
@@ -229,6 +235,9 @@ def build_cloth(preset: ScenePreset, p: dict[str, Any], seed: int) -> Scene:
     if p["box"]:
         b.add_box(SpherePath((p["box_x"], p["box_y"], p["box_z"])),
                   (p["box_half_x"], p["box_half_y"], p["box_half_z"]), p["box_friction"])
+    if p["collider_mesh"]:
+        vertices, triangles = load_mesh_file(p["collider_mesh"])
+        b.add_mesh_collider(vertices, triangles, friction=p["collider_mesh_friction"], skin=p["collider_mesh_skin"])
     if p["plane"]:
         b.set_plane((0.0, p["plane_height"], 0.0), (0.0, 1.0, 0.0), min(p["restitution"], 1.0),
                     p["plane_friction"])
