@@ -38,6 +38,8 @@ from .step_start import StepStart
 # Passes of "move out to skin from the nearest point" per particle and step: one settles a
 # face, two an edge between two faces, three a corner of three.
 MESH_PASSES = 4
+# A particle this close to the skin (relative) counts as on it: one put there is, up to rounding.
+SETTLED = 1.0 - 1e-6
 # The grid's most cells: its cells are the mesh's median edge, or larger to stay below this.
 MAX_CELLS = 32**3
 
@@ -154,8 +156,7 @@ class MeshCollider(ScenePart):
         self.cell_start.from_numpy(start.astype(np.int32))
         self.cell_triangles.from_numpy(np.asarray(listed if len(listed) else [0], np.int32))
         self.start = StepStart(free.shape[0])
-        self.contacts_total = 0
-        self.contacts = ti.field(ti.i32, shape=())
+        self.contacts = ti.field(ti.i64, shape=())
         self.t = 0.0
 
     @classmethod
@@ -169,9 +170,7 @@ class MeshCollider(ScenePart):
     def __call__(self, state, t: float, h: float) -> None:
         self.start.begin(state, t, h)
         self.t = t
-        self.contacts[None] = 0
         self._collide(state, self.start.x, t, h, self.spec.friction)
-        self.contacts_total += int(self.contacts[None])
         self.start.end(state, t)
 
     def reset(self) -> None:
@@ -179,7 +178,13 @@ class MeshCollider(ScenePart):
 
     def restore(self) -> None:
         self.start.restore()
-        self.contacts_total = 0
+        self.contacts[None] = 0
+
+    @property
+    def contacts_total(self) -> int:
+        """Particle contacts since the scene was built or restored (read back only when asked:
+        a read each step would wait for the kernel)."""
+        return int(self.contacts[None])
 
     def center(self) -> np.ndarray:
         """(3,) float64: where the mesh's origin is now (m)."""
@@ -252,12 +257,15 @@ class MeshCollider(ScenePart):
                     c = (ix * self.dims[1] + iy) * self.dims[2] + iz
                     for e in range(self.cell_start[c], self.cell_start[c + 1]):
                         f = self.cell_triangles[e]
-                        p0, p1, p2 = self.corner[f, 0], self.corner[f, 1], self.corner[f, 2]
-                        w = closest_barycentric(q, p0, p1, p2)
-                        p = w[0] * p0 + w[1] * p1 + w[2] * p2
-                        d = (q - p).norm()
-                        if d < best and d <= radius:
-                            best, point, face = d, p, f
+                        p0 = self.corner[f, 0]
+                        # the plane's distance first: most triangles of a cell are farther
+                        if ti.abs((q - p0).dot(self.face_normal[f])) < ti.min(best, radius):
+                            p1, p2 = self.corner[f, 1], self.corner[f, 2]
+                            w = closest_barycentric(q, p0, p1, p2)
+                            p = w[0] * p0 + w[1] * p1 + w[2] * p2
+                            d = (q - p).norm()
+                            if d < best and d <= radius:
+                                best, point, face = d, p, f
         return best, point, face
 
     @ti.func
@@ -310,7 +318,7 @@ class MeshCollider(ScenePart):
                         side = met + self.skin * crossed
                     for _ in range(MESH_PASSES):
                         d, p, face = self._nearest(q, self.skin)
-                        if face < 0 or d >= self.skin:
+                        if face < 0 or d >= SETTLED * self.skin:  # (one put there last pass or step)
                             break
                         out = self._away(q, p, face, side)
                         q = p + self.skin * out
