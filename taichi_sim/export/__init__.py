@@ -17,6 +17,7 @@ import numpy as np
 from ..atomic import PendingFile, check_can_create
 from ..errors import ConfigError, unknown_name
 from . import obj, ply, usd
+from .usd import time_codes
 
 
 @dataclass(frozen=True)
@@ -178,5 +179,5 @@ def _bar(total: int, progress: bool | None):
                 mininterval=0.5, desc="export")
 
 
-__all__ = ["FORMATS", "Format", "Frames", "check_export_path", "export", "export_format", "frame_name",
+__all__ = ["FORMATS", "Format", "Frames", "check_export_path", "export", "export_format", "frame_name", "time_codes",
            "frames_of", "load_frames"]
