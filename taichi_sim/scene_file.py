@@ -89,14 +89,15 @@ def _dotted(text: str) -> tuple[str, ...]:
 def key_line(text: str, table: tuple[str, ...], key: str | None = None) -> int:
     """The 1-based line of ``key`` in ``table`` (``()``: the top level) in TOML ``text``, whether
     written under a ``[table]`` header or as a dotted key (``run.dt = 0.01``); with ``key`` None,
-    the table's header (or its first key). 1 when not found (a table written inline)."""
+    the table's header (or its first key); a ``key`` that is itself a table: its header. 1 when
+    not found (a table written inline)."""
     current: tuple[str, ...] = ()
     first_in_table = None
     for number, line in enumerate(text.splitlines(), start=1):
         header = _HEADER.match(line)
         if header and not _KEY.match(line):
             current = _dotted(header.group(1))
-            if key is None and current == tuple(table):
+            if (key is None and current == tuple(table)) or (key is not None and current == (*table, key)):
                 return number
             continue
         found = _KEY.match(line)
@@ -143,7 +144,8 @@ def load_scene_file(path: str | Path) -> SceneFile:
 
     for key, value in data.items():
         if key not in ("scene", *TABLES):
-            fail(None, key, _unknown("unknown key", key, ("scene", *TABLES)))
+            fail(None, key, _unknown("unknown table" if isinstance(value, dict) else "unknown key", key,
+                                     ("scene", *TABLES)))
         if key in TABLES and not isinstance(value, dict):
             fail(None, key, f"{key} must be a table ([{key}]), got {_toml_type(value)}")
     if "scene" not in data:
