@@ -79,6 +79,9 @@ def test_time_codes_of_an_uneven_last_frame_and_an_adaptive_run():
     per_second, codes = time_codes(np.array([0.0, 1 / 60, 2 / 60]))
     assert per_second == 60 and codes.tolist() == [0, 1, 2]
     assert time_codes(np.array([0.0]))[1].tolist() == [0]
+    # times summed step by step carry rounding (0.30000000000000004): the codes are still whole
+    per_second, codes = time_codes(np.concatenate([[0.0], np.cumsum([0.1] * 7)]))
+    assert per_second == 10 and codes.tolist() == list(range(8))
 
 
 def test_a_run_without_a_surface_exports_points(tmp_path):
