@@ -194,7 +194,7 @@ def test_simulate_exports_the_frames_it_saved(tmp_path, capsys):
 
 @pytest.mark.parametrize("args, problem", [
     (["--export", "x.usda", "--export-format", "usd"], "give --save-every"),
-    (["--save-every", "2", "--export", "x.usda"], "go together"),
+    (["--save-every", "2", "--export", "frames"], "go together"),
     (["--save-every", "2", "--export", "x.usda", "--export-format", "abc"], "unknown export format 'abc'"),
     (["--save-every", "2", "--export", "nowhere/x.usda", "--export-format", "usd"], "does not exist"),
 ])

@@ -94,6 +94,7 @@ GOOD = 'scene = "cloth"\n\n[parameters]\nnx = 4\nny = 3\n\n[run]\nsteps = 2\n\n[
     (("steps = 2", 'precision = "f16"'), 8, "must be one of f32, f64"),
     (("steps = 2", 'curves = "nowhere.json"'), 8, "curves: no such file 'nowhere.json'"),
     (('npz = "run.npz"', 'npz = "run.npz"\nexport_format = "objj"'), 12, "did you mean 'obj'"),
+    (('npz = "run.npz"', 'npz = ""'), 11, "npz: an empty path"),
     (('scene = "cloth"', 'scene = "clth"'), 1, "did you mean 'cloth'"),
     (("nx = 4", "nx = 4\nnx = 5"), 5, "not valid TOML"),
     (("[run]", '[integrator]\nname = "pkg.mod:Stepper"\n[run]'), 8, "registered integrators only"),
@@ -201,6 +202,15 @@ def test_the_command_line_overrides_the_file(tmp_path):
     assert args.substeps == 4 and dict(args.integrator_options) == {"iterations": "1"}  # per option
     args = parsed(tmp_path, FULL, "--integrator", "symplectic_euler")
     assert args.integrator == "symplectic_euler" and args.integrator_options == []  # xpbd's options stay behind
+
+
+def test_a_usd_export_needs_no_format(tmp_path, capsys):
+    path = tmp_path / "scene.toml"
+    path.write_text(FULL.replace('export_format = "usd"\n', "").replace("nx = 4", "nx = 3\nny = 2"))
+    assert main(["simulate", str(path), "--steps", "2", "--integrator", "symplectic_euler", "--quiet"]) == 0
+    assert (tmp_path / "a.usda").is_file()
+    assert main(["simulate", str(path), "--steps", "2", "--export", str(tmp_path / "frames")]) == 2
+    assert "go together" in capsys.readouterr().err and not (tmp_path / "frames").exists()
 
 
 def test_a_scene_file_run_applies_the_overrides(tmp_path, capsys):
