@@ -9,11 +9,16 @@ def export_request(args):
     """The export format of ``simulate --export``, its path checked before any work (or None)."""
     if args.export is None and args.export_format is None:
         return None
+    from .export import FORMATS, check_export_path, export_format
+
+    if args.export is not None and args.export_format is None and any(
+            str(args.export).endswith(suffix) for suffix in FORMATS["usd"].suffixes):
+        args.export_format = "usd"  # the file's suffix says it
     if args.export is None or args.export_format is None:
-        raise ConfigError("--export PATH and --export-format obj|ply|usd go together; give both")
+        raise ConfigError("--export PATH and --export-format obj|ply|usd go together; give both "
+                          "(a PATH ending in .usda, .usdc or .usd needs no format)")
     if not args.save_every:
         raise ConfigError("--export writes the frames that --save-every K keeps; give --save-every")
-    from .export import check_export_path, export_format
 
     fmt = export_format(args.export_format)
     check_export_path(args.export, fmt)

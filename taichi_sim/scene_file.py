@@ -162,7 +162,8 @@ def load_scene_file(path: str | Path) -> SceneFile:
     for key, value in data.get("parameters", {}).items():
         if key not in by_name:
             fail("parameters", key, _unknown(f"scene {preset.name!r} has no parameter", key, by_name))
-        found.params[key] = _checked(by_name[key], value, folder, lambda problem, k=key: fail("parameters", k, problem))
+        found.params[key] = _checked(by_name[key], value, folder, lambda problem, k=key: fail("parameters", k, problem),
+                                     allow_empty=True)
 
     table = data.get("integrator", {})
     if table:
@@ -195,7 +196,7 @@ def load_scene_file(path: str | Path) -> SceneFile:
             if key not in keys:
                 fail(table_name, key, _unknown(f"unknown key in [{table_name}]:", key, keys))
             into[key] = _checked(keys[key], value, folder, lambda problem, t=table_name, k=key: fail(t, k, problem),
-                                 must_exist=table_name == "run")
+                                 must_exist=table_name == "run", allow_empty=False)
     if "steps" in found.run and "duration" in found.run:
         fail("run", "steps", "give [run] steps or duration, not both")
     if "export_format" in found.output:
@@ -211,15 +212,18 @@ def load_scene_file(path: str | Path) -> SceneFile:
     return found
 
 
-def _checked(param: Param, value: Any, folder: Path, fail, *, must_exist: bool = True) -> Any:
-    """``value`` checked as ``param`` would check it (a path made absolute against ``folder``
-    and, for an input, checked to exist)."""
+def _checked(param: Param, value: Any, folder: Path, fail, *, must_exist: bool = True, allow_empty: bool) -> Any:
+    """``value`` checked as ``param`` would check it: a path made absolute against ``folder``
+    and, with ``must_exist``, checked to exist; an empty path refused unless ``allow_empty`` (a
+    preset's parameter may leave its file out, [run] and [output] keys are then left out)."""
     if isinstance(value, (dict, list)):
         fail(f"{param.name} must be a {param.kind.__name__}, got {_toml_type(value)}")
     try:
         value = param.check(value)
     except ConfigError as exc:
         fail(str(exc))
+    if param.unit == PATH_UNIT and not value and not allow_empty:
+        fail(f"{param.name}: an empty path (leave the key out instead)")
     if param.unit == PATH_UNIT and value:
         resolved = (folder / Path(value).expanduser()).resolve()
         if must_exist and not resolved.exists():
