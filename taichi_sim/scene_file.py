@@ -326,10 +326,10 @@ def scene_file_text(preset) -> str:
         choices = f" (one of: {', '.join(p.choices)})" if p.choices else ""
         lines.append(f"{assignment:<{width}}  # {unit}{p.meaning}{choices}")
     lines += ["", "[integrator]", f"name = {_toml_value(preset.default_integrator)}"]
-    options = integrator_class(preset.default_integrator).options()
-    if options:
-        lines.append("# options, e.g.: " + ", ".join(f"{k} = {_toml_value(v)}" for k, v in options.items()
-                                                     if v is not None and not isinstance(v, (list, tuple, dict))))
+    shown = [f"{k} = {_toml_value(v)}" for k, v in integrator_class(preset.default_integrator).options().items()
+             if isinstance(v, (bool, int, float, str))]  # None: chosen automatically
+    if shown:
+        lines.append(f"# its options, at their defaults: {', '.join(shown)}")
     lines += ["", "[run]", f"dt = {_toml_value(preset.default_dt)}  # [s] step size",
               "duration = 1.0  # [s] simulated time (or: steps = N)", "seed = 0", 'precision = "f64"',
               'arch = "cpu"', "# save_every = 10  # keep every 10th step's positions (needed by an export)",
