@@ -201,3 +201,16 @@ def test_simulate_exports_the_frames_it_saved(tmp_path, capsys):
 def test_simulate_checks_its_export_before_running(tmp_path, capsys, monkeypatch, args, problem):
     monkeypatch.chdir(tmp_path)
     bad(tmp_path, capsys, ["simulate", "spring", "--steps", "3", "--out", "run.npz", *args], problem)
+
+
+@pytest.mark.parametrize("with_surface", [True, False])
+def test_usd_validators_find_nothing_wrong(tmp_path, with_surface):
+    """USD's own validators (default prim, metersPerUnit, upAxis, schema types, ...)."""
+    from pxr import UsdValidation
+
+    frames = grid_frames()
+    if not with_surface:
+        frames = Frames(frames.positions, frames.times, None, "sprinkler")
+    stage = Usd.Stage.Open(str(export(frames, FORMATS["usd"], tmp_path / "run.usdc", progress=False)))
+    context = UsdValidation.ValidationContext(UsdValidation.ValidationRegistry().GetOrLoadAllValidators())
+    assert [error.GetMessage() for error in context.Validate(stage)] == []
