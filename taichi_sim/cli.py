@@ -451,15 +451,17 @@ def _main(argv: list[str] | None) -> int:
     parser = build_parser()
     try:
         args = parser.parse_args(argv)
-        if args.command is None:
-            return cmd_default()
         if args.command in ("simulate", "demo", "record"):
             from .scene_file import apply_scene_file
 
             apply_scene_file(args, args.command)  # the file's values, then the defaults
+        if args.command == "export":
+            return cmd_export(args)
+        if args.command is None:
+            return cmd_default()
         return {"list": cmd_list, "simulate": cmd_simulate, "demo": cmd_demo,
                 "record": cmd_record, "bench": cmd_bench, "advise": cmd_advise,
-                "check": cmd_check, "export": cmd_export}[args.command](args)
+                "check": cmd_check}[args.command](args)
     except ConfigError as exc:
         print(f"taichi-sim: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
