@@ -73,7 +73,7 @@ class ScenePart:
         order: where its post-step event runs among the scene's parts (lower first): scripted
             pins 0, objects 10-19, the ground 20, self-contact 30, tearing 40, emission 50.
         is_obstacle: the part keeps cloth out of objects that the self-contact stage must not
-            push the cloth back into; it then has the ``ti.func`` ``nearest_surface(x, t)``
+            push the cloth back into; it then has the ``ti.func`` ``nearest_surface(x, t, reach)``
             (see :class:`~taichi_sim.scene.colliders.obstacle.Obstacle`).
     """
 

@@ -131,3 +131,11 @@ def test_the_cli_loads_a_collider_mesh_from_a_file_and_refuses_a_missing_one(tmp
 def test_degenerate_collider_meshes_are_refused(triangles):
     with pytest.raises(ValueError, match="collider_mesh"):
         SceneBuilder().add_mesh_collider(np.eye(3), triangles)
+
+
+def test_the_self_contact_stage_keeps_the_cloth_out_of_the_mesh_too(f64, tmp_path):
+    path = tmp_path / "table.stl"
+    trimesh.creation.box(extents=(0.6, 0.4, 0.6)).export(path)
+    scene = ts.build_scene("cloth", {"nx": 6, "ny": 6, "collider_mesh": str(path), "self_collision": True})
+    mesh, stage = scene.part("collider_mesh"), scene.part("self_collision")
+    assert stage.obstacles == (mesh,) and [p.name for p in scene.parts] == ["collider_mesh", "self_collision"]

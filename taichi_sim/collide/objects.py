@@ -28,14 +28,15 @@ class KeepsOutOfObjects:
     """Mixin of :class:`~.self_contact.SelfCollision`: the objects' rules (module doc)."""
 
     @ti.func
-    def _nearest_obstacle(self, x):
+    def _nearest_obstacle(self, x, reach):
         """(signed distance (m), outward unit normal, surface velocity (m/s)) of the object
-        surface nearest to ``x`` at the step's end; FAR when the scene has none."""
+        surface nearest to ``x`` at the step's end; FAR when the scene has none, or (for an
+        object that searches, a mesh) none within ``reach`` (m) of its surface."""
         best = FAR * 1.0  # a variable of the default float type
         normal = ti.Vector([0.0, 1.0, 0.0])
         velocity = ti.Vector([0.0, 0.0, 0.0])
         for obstacle in ti.static(self.obstacles):
-            d, n, v = obstacle.nearest_surface(x, self.time[None])
+            d, n, v = obstacle.nearest_surface(x, self.time[None], reach)
             if d < best:
                 best = d
                 normal = n
@@ -48,7 +49,7 @@ class KeepsOutOfObjects:
         ``push`` would move towards it."""
         held = False
         if ti.static(len(self.obstacles) > 0):
-            d, normal, _ = self._nearest_obstacle(x)
+            d, normal, _ = self._nearest_obstacle(x, self.thickness[None])
             held = d < self.thickness[None] and push.dot(normal) < 0.0
         return held
 
@@ -59,7 +60,7 @@ class KeepsOutOfObjects:
         lifted = 0
         for i in y.x:
             if self.system.free[i]:
-                d, normal, surface = self._nearest_obstacle(y.x[i])
+                d, normal, surface = self._nearest_obstacle(y.x[i], 0.0)
                 if d < 0.0:
                     y.x[i] -= d * normal
                     y.v[i] = inelastic_friction(y.v[i], surface, normal, 0.0)
@@ -71,7 +72,7 @@ class KeepsOutOfObjects:
                          normal: ti.types.ndarray(ndim=2)):
         for i in range(points.shape[0]):
             x = ti.Vector([points[i, 0], points[i, 1], points[i, 2]], dt=self.x_start.dtype)
-            d, n, _ = self._nearest_obstacle(x)
+            d, n, _ = self._nearest_obstacle(x, 0.0)
             depth[i] = d
             for a in ti.static(range(3)):
                 normal[i, a] = n[a]

@@ -223,26 +223,33 @@ class MeshCollider(ScenePart):
         return ti.max(first, 0), ti.min(last, dims - 1)
 
     @ti.func
+    def _cell_id(self, first, span, k):
+        """The grid index of the k-th cell of the block of ``span`` cells from ``first``."""
+        ix = first[0] + k // (span[1] * span[2])
+        iy = first[1] + (k // span[2]) % span[1]
+        iz = first[2] + k % span[2]
+        return (ix * self.dims[1] + iy) * self.dims[2] + iz
+
+    @ti.func
     def _crossing(self, a, b):
         """The earliest s in [0, 1] at which a + s (b - a) crosses a triangle (2 when none), and
         that triangle's unit normal on a's side."""
         best, normal = 2.0, 0.0 * a
         normal[1] = 1.0
         first, last = self._cells(ti.min(a, b), ti.max(a, b))
-        for ix in range(first[0], last[0] + 1):
-            for iy in range(first[1], last[1] + 1):
-                for iz in range(first[2], last[2] + 1):
-                    c = (ix * self.dims[1] + iy) * self.dims[2] + iz
-                    for e in range(self.cell_start[c], self.cell_start[c + 1]):
-                        f = self.cell_triangles[e]
-                        n = self.face_normal[f]
-                        p0 = self.corner[f, 0]
-                        ha, hb = (a - p0).dot(n), (b - p0).dot(n)
-                        if ha * hb < 0.0 or (hb == 0.0 and ha != 0.0):
-                            s = ha / (ha - hb)
-                            if s < best and inside(a + s * (b - a), p0, self.corner[f, 1], self.corner[f, 2]):
-                                best = s
-                                normal = n if ha > 0.0 else -n
+        span = ti.max(last - first + 1, 0)
+        for k in range(span[0] * span[1] * span[2]):  # one loop over the cells: less to compile
+            c = self._cell_id(first, span, k)
+            for e in range(self.cell_start[c], self.cell_start[c + 1]):
+                f = self.cell_triangles[e]
+                n = self.face_normal[f]
+                p0 = self.corner[f, 0]
+                ha, hb = (a - p0).dot(n), (b - p0).dot(n)
+                if ha * hb < 0.0 or (hb == 0.0 and ha != 0.0):
+                    s = ha / (ha - hb)
+                    if s < best and inside(a + s * (b - a), p0, self.corner[f, 1], self.corner[f, 2]):
+                        best = s
+                        normal = n if ha > 0.0 else -n
         return best, normal
 
     @ti.func
@@ -251,21 +258,20 @@ class MeshCollider(ScenePart):
         and -1 when none is."""
         best, point, face = FAR * 1.0, q, -1
         first, last = self._cells(q - radius, q + radius)
-        for ix in range(first[0], last[0] + 1):
-            for iy in range(first[1], last[1] + 1):
-                for iz in range(first[2], last[2] + 1):
-                    c = (ix * self.dims[1] + iy) * self.dims[2] + iz
-                    for e in range(self.cell_start[c], self.cell_start[c + 1]):
-                        f = self.cell_triangles[e]
-                        p0 = self.corner[f, 0]
-                        # the plane's distance first: most triangles of a cell are farther
-                        if ti.abs((q - p0).dot(self.face_normal[f])) < ti.min(best, radius):
-                            p1, p2 = self.corner[f, 1], self.corner[f, 2]
-                            w = closest_barycentric(q, p0, p1, p2)
-                            p = w[0] * p0 + w[1] * p1 + w[2] * p2
-                            d = (q - p).norm()
-                            if d < best and d <= radius:
-                                best, point, face = d, p, f
+        span = ti.max(last - first + 1, 0)
+        for k in range(span[0] * span[1] * span[2]):  # one loop over the cells: less to compile
+            c = self._cell_id(first, span, k)
+            for e in range(self.cell_start[c], self.cell_start[c + 1]):
+                f = self.cell_triangles[e]
+                p0 = self.corner[f, 0]
+                # the plane's distance first: most triangles of a cell are farther
+                if ti.abs((q - p0).dot(self.face_normal[f])) < ti.min(best, radius):
+                    p1, p2 = self.corner[f, 1], self.corner[f, 2]
+                    w = closest_barycentric(q, p0, p1, p2)
+                    p = w[0] * p0 + w[1] * p1 + w[2] * p2
+                    d = (q - p).norm()
+                    if d < best and d <= radius:
+                        best, point, face = d, p, f
         return best, point, face
 
     @ti.func
@@ -282,12 +288,12 @@ class MeshCollider(ScenePart):
         return out
 
     @ti.func
-    def nearest_surface(self, x, t):
+    def nearest_surface(self, x, t, reach):
         """The :class:`~.obstacle.Obstacle` question: (signed distance to the shell's outside
-        (m), outward unit normal, surface velocity (m/s)) at x (m) at time t (s); FAR beyond a
-        cell and the skin."""
+        (m), outward unit normal, surface velocity (m/s)) at x (m) at time t (s); FAR farther
+        than ``reach`` (m) outside the skin."""
         q = x - self.path.center(0, t)
-        d, p, face = self._nearest(q, self.skin + self.cell)
+        d, p, face = self._nearest(q, self.skin + reach)
         dist, normal = FAR * 1.0, ti.Vector([0.0, 1.0, 0.0])
         if face >= 0:
             dist = d - self.skin

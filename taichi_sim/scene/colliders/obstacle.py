@@ -17,10 +17,11 @@ class Obstacle:
     is_obstacle = True  # (the ScenePart flag the builder reads to hand it to self-contact)
 
     @ti.func
-    def nearest_surface(self, x, t):
+    def nearest_surface(self, x, t, reach):
         """(signed distance (m, negative inside), outward unit normal, surface velocity (m/s))
         of the nearest of this collider's objects to the point ``x`` (m) at time ``t`` (s);
-        (FAR, +y, 0) when it has none."""
+        (FAR, +y, 0) when it has none. ``reach`` (m): how far outside a surface the caller
+        cares (a collider that searches may answer FAR beyond it; these shapes are exact)."""
         best = FAR * 1.0  # a variable of the default float type
         normal = ti.Vector([0.0, 1.0, 0.0])
         velocity = ti.Vector([0.0, 0.0, 0.0])
