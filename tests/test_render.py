@@ -474,3 +474,24 @@ def test_gingham_contrast_reads_on_a_flat_cloth(window):
     cloth = image[~background_mask(image.astype(np.uint8))]
     spread = np.linalg.norm(cloth.max(axis=0) - cloth.min(axis=0))
     assert spread > 90, spread  # pale squares against full colour, not a 10 % shade
+
+
+def test_a_mesh_collider_is_drawn_through_its_part(window, monkeypatch, tmp_path):
+    import trimesh
+
+    from taichi_sim.render import drawer
+
+    monkeypatch.setattr(drawer, "SOLID", (1.0, 0.0, 1.0))  # magenta: no other thing drawn is
+    path = tmp_path / "table.obj"
+    trimesh.creation.box(extents=(0.6, 0.4, 0.6)).export(path)
+    scene = ts.build_scene("cloth", {"nx": 8, "ny": 8, "pin": "none", "height": 0.3, "collider_mesh": str(path)})
+    visual = describe(scene)
+    renderer = Renderer(window, [visual], SIZE)
+    # the centre of the table's front face (+z), below the cloth
+    (uv,), _ = renderer.camera.project(np.array([[0.0, 0.0, 0.3]]))
+
+    def magenta_there(image):
+        r, g, b = image[pixel(uv)][:3].astype(int)
+        return r - g > 60 and b - g > 60
+
+    assert magenta_there(drawn(renderer, [scene.state.x], DrawOptions.for_visual(visual), magenta_there))
