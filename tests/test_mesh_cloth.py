@@ -14,8 +14,9 @@ from taichi_sim.scene import cloth as topo
 from taichi_sim.scene.builder import SceneBuilder
 from taichi_sim.scene.cloth_scenes import cloth_pins
 from taichi_sim.scene.garment import skirt_mesh, skirt_panels
-from taichi_sim.scene.mesh_cloth import MESH, add_mesh_cloth, mesh_size, mesh_springs, select_pins, vertex_masses
+from taichi_sim.scene.mesh_cloth import add_mesh_cloth, mesh_size, mesh_springs, select_pins, vertex_masses
 from taichi_sim.scene.mesh_import import ClothMesh, clean_mesh, load_mesh
+from taichi_sim.scene.mesh_scenes import MESH
 from taichi_sim.scene.params import resolve
 
 SQUARE_X = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]]
@@ -88,7 +89,8 @@ def test_scale_and_z_up(tmp_path):
 
 @pytest.mark.parametrize("name, content, problem", [
     ("empty.obj", b"", "is empty"),
-    ("garbage.obj", bytes(range(256)) * 4, "garbage.obj"),
+    ("garbage.obj", bytes(range(256)) * 4, "is binary data, not a text OBJ file"),
+    ("words.obj", "this is not a mesh\n" * 20, "has no triangles"),
     ("garbage.ply", b"\x00\x01\xfe" * 100, "not a readable PLY mesh"),
     ("garbage.glb", b"glTF" + b"\xff" * 64, "not a readable GLB mesh"),
     ("points.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\n", "has no triangles"),
@@ -214,7 +216,7 @@ def test_the_mesh_scene_runs_from_the_command_line_and_saves_its_triangles(tmp_p
 
 
 @pytest.mark.parametrize("sets, problem", [
-    (["file=__garbage__"], "not a readable OBJ mesh"),
+    (["file=__garbage__"], "garbage.obj: is binary data"),
     (["file=__square__", "pin=bottom:-1"], "parameter pin: cannot read"),
     (["file=__square__", "pin=box:5,5,5,6,6,6"], "selects no vertex"),
     (["file=__square__", "pin=bottom:5"], "selects every vertex"),

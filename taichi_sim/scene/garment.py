@@ -138,7 +138,7 @@ def build_garment(preset: ScenePreset, p: dict[str, Any], seed: int) -> Scene:
 
 GARMENT = ScenePreset(
     "garment", "a skirt sewn from ten flat panels, pinned at the waist and draping over hips and "
-    "legs made of capsules", GARMENT_PARAMS, build_garment, default_dt=1e-3,
-    default_integrator="symplectic_euler", size=lambda p: mesh_size(garment_mesh(p), p["bending"]),
+    "legs made of capsules", GARMENT_PARAMS, build_garment, default_dt=1 / 60,
+    default_integrator="xpbd", size=lambda p: mesh_size(garment_mesh(p), p["bending"]),
     size_params=("gores", "gore_columns", "rows"))
 

@@ -78,6 +78,10 @@ def _load_cached(path: str, size: int, mtime: int, weld: float, scale: float, up
         raise ConfigError(f"mesh file {path}: unknown format {ext!r} (choose from {', '.join(FORMATS)})")
     if size == 0:
         raise ConfigError(f"mesh file {path}: is empty")
+    if ext in ("obj", "off", "gltf"):
+        with open(path, "rb") as f:
+            if b"\0" in f.read(1 << 16):  # what trimesh says of binary here misleads (a missing codec)
+                raise ConfigError(f"mesh file {path}: is binary data, not a text {ext.upper()} file")
     parts = _read_parts(path, ext)
     if not parts:
         raise ConfigError(f"mesh file {path}: has no triangles")

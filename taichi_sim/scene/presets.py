@@ -11,7 +11,7 @@ from .builder import SceneBuilder
 from .cloth_scenes import CLOTH_SCENES
 from .constraint_scenes import CONSTRAINT_SCENES
 from .garment import GARMENT
-from .mesh_cloth import MESH
+from .mesh_scenes import MESH
 from .params import Param, resolve
 from .preset import ScenePreset, common_params
 from .scene import Scene
