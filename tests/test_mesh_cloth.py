@@ -82,9 +82,9 @@ def test_non_manifold_edges_are_warned_of():
 
 
 def test_scale_and_z_up(tmp_path):
-    path = write(tmp_path, "zup.obj", "v 0 0 0\nv 100 0 0\nv 0 0 100\nf 1 2 3\n")
+    path = write(tmp_path, "zup.obj", "v 0 0 0\nv 100 0 0\nv 0 0 100\nv 0 100 0\nf 1 2 3\nf 1 4 2\n")
     mesh = load_mesh(path, scale=0.01, up="z")
-    assert np.allclose(mesh.x, [[0, 0, 0], [1, 0, 0], [0, 1, 0]])  # +z up becomes +y
+    assert np.allclose(mesh.x, [[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, -1]])  # +z up becomes +y, +y goes to -z
 
 
 @pytest.mark.parametrize("name, content, problem", [
@@ -124,6 +124,18 @@ def test_pin_specs_select_the_vertices_they_say(tmp_path):
     low = select_pins("group:low", mesh)
     assert set(map(tuple, mesh.x[low])) == {(1.0, 1.0, 0.0), (1.0, 0.0, 0.0), (0.0, 0.0, 1.0)}
     assert not select_pins("none", mesh).any()
+
+
+def test_gltf_nodes_are_groups_placed_by_their_transforms(tmp_path):
+    scene = trimesh.Scene()
+    triangle = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]
+    scene.add_geometry(trimesh.Trimesh(triangle, [[0, 1, 2]], process=False), node_name="sleeve")
+    scene.add_geometry(trimesh.Trimesh(triangle, [[0, 1, 2]], process=False), node_name="body",
+                       transform=trimesh.transformations.translation_matrix([0.0, 0.0, 2.0]))
+    with pytest.warns(InputWarning, match="2 separate pieces"):
+        mesh = load_mesh(write(tmp_path, "two.glb", scene.export(file_type="glb")))
+    assert np.allclose(mesh.x[select_pins("group:body", mesh)][:, 2], 2.0)
+    assert np.allclose(mesh.x[select_pins("group:sleeve", mesh)][:, 2], 0.0)
 
 
 @pytest.mark.parametrize("spec, problem", [
