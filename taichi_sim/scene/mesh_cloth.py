@@ -13,6 +13,7 @@ from .builder import SceneBuilder
 from .cloth_scenes import EXTRA_PARAM_NAMES, add_cloth_extras, cloth_params
 from .mesh_import import ClothMesh
 from .params import Param
+from .preset import with_defaults
 
 
 def vertex_masses(x, triangles, density: float) -> np.ndarray:
@@ -171,6 +172,10 @@ MESH_CLOTH_PARAMS: tuple[Param, ...] = (
     Param("bending", True, "", "a flex spring across each interior edge, between the two vertices "
           "opposite it"),
     Param("flex_stiffness", 20.0, "N/m", "stiffness of the bending springs", minimum=0.0),
-    *cloth_params("jitter", "gravity", "drag", "damping", "tear", "tear_strain", "tear_flex_factor"),
+    # drag and the dashpot act per particle and per spring: the grid's defaults (for 0.01 kg
+    # particles) would hold back vertices of a few grams per m^2 like honey, and make an
+    # explicit step unstable (c / m above 2 / h); these suit vertices of about 3e-5 kg
+    *with_defaults(cloth_params("jitter", "gravity", "drag", "damping", "tear", "tear_strain",
+                                "tear_flex_factor"), drag=2e-5, damping=1e-4),
     *cloth_params(*EXTRA_PARAM_NAMES),
 )
