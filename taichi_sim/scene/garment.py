@@ -112,7 +112,8 @@ GARMENT_PARAMS: tuple[Param, ...] = (
     Param("length", 0.55, "m", "height of the skirt, waist to hem", minimum=0.0, exclusive=True),
     Param("body", True, "", "the body the skirt drapes on: a torso, hips and two legs (capsules)"),
     Param("body_friction", 0.5, "", "Coulomb friction coefficient on the body", minimum=0.0),
-    *with_defaults(MESH_CLOTH_PARAMS, pin="group:waist", plane=True, restitution=0.0, thickness=0.004),
+    *with_defaults(MESH_CLOTH_PARAMS, pin="group:waist", plane=True, restitution=0.0, thickness=0.004,
+                   flex_stiffness=5.0),
 )
 
 #: The body: (centre (m), half axis (m), radius (m)) of each capsule; the waist is at 1 m.
