@@ -283,3 +283,15 @@ def test_the_garment_scene_counts_what_it_allocates(f32):
     assert (size.particles, size.springs, size.triangles) == (
         scene.particle_count, scene.springs.spring_count, scene.mesh.triangle_count)
     assert scene.features["capsules"] == 4 and scene.features["pinned"] == 12
+
+
+def test_a_mesh_too_large_for_the_memory_is_refused_before_building(tmp_path, capsys, monkeypatch):
+    import taichi_sim.memory
+
+    monkeypatch.setattr(taichi_sim.memory, "available_bytes", lambda: 100_000)
+    out = tmp_path / "run.npz"
+    code = main(["simulate", "mesh", "--set", f"file={grid_obj(tmp_path, 12, 12, 'big.obj')[0]}", "--steps", "3",
+                 "--out", str(out)])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and not out.exists() and "\n" not in err
+    assert f"parameters file = {tmp_path / 'big.obj'}: the scene needs about" in err and "144 particles" in err
