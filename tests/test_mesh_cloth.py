@@ -295,3 +295,14 @@ def test_a_mesh_too_large_for_the_memory_is_refused_before_building(tmp_path, ca
     err = capsys.readouterr().err.strip()
     assert code == 2 and not out.exists() and "\n" not in err
     assert f"parameters file = {tmp_path / 'big.obj'}: the scene needs about" in err and "144 particles" in err
+
+
+def test_a_live_change_of_stiffness_keeps_each_kind_its_own(f64, tmp_path):
+    from taichi_sim.scene.live import LIVE_SETTERS
+
+    path, _ = grid_obj(tmp_path, 4, 4)
+    scene = ts.build_scene("mesh", {"file": str(path), "pin": "ids:0"})
+    values = dict(scene.params, stiffness=300.0, flex_stiffness=3.0)
+    assert LIVE_SETTERS["flex_stiffness"](scene, values)
+    k, kind = scene.springs.stiffness.to_numpy(), scene.springs.kind_np
+    assert set(k[kind == topo.STRUCTURAL]) == {300.0} and set(k[kind == topo.FLEX]) == {3.0}
