@@ -84,8 +84,9 @@ class SolveContact:
                           axis=0)
         lengths = np.linalg.norm(rest[edges[:, 0]] - rest[edges[:, 1]], axis=1)
         # The reach of the bounds: a vertex with nothing nearer moves up to fraction x reach per
-        # refresh; the nearest non-adjacent primitives of a flat mesh are about an edge away.
-        self.reach = max(2.0 * radius, float(lengths.max()))
+        # refresh. The nearest non-adjacent primitives of a flat grid are s / sqrt(2) away (s its
+        # spacing), so a longer reach buys no motion there, and the pairs to test grow as its cube.
+        self.reach = max(2.0 * radius, 0.75 * float(np.median(lengths)))
         free = system.free.to_numpy().astype(bool)
         mass = system.mass.to_numpy()
         self.mean_mass = float(mass[free].mean()) if free.any() else 1.0
@@ -98,8 +99,8 @@ class SolveContact:
         self.edge_alive = ti.field(ti.i32, shape=max(1, len(edges)))
         self.edge_alive.fill(1)
         # a vertex is a point: the triangles' boxes grow by all of the reach, the edges' by half each
-        self.triangle_grid = PrimitiveHash(mesh.triangle_count, 3, self.reach, self.reach, entries_per_primitive=64)
-        self.edge_grid = PrimitiveHash(len(edges), 2, self.reach, 0.5 * self.reach, entries_per_primitive=64)
+        self.triangle_grid = PrimitiveHash(mesh.triangle_count, 3, self.reach, self.reach, entries_per_primitive=16)
+        self.edge_grid = PrimitiveHash(len(edges), 2, self.reach, 0.5 * self.reach, entries_per_primitive=16)
         self.ref_x = ti.Vector.field(3, real, shape=n)  # positions at the last refresh (m)
         self.nearest = ti.field(real, shape=n)  # distance to the nearest pair partner, capped at reach (m)
         self.shift = ti.Vector.field(3, real, shape=())  # the translation the bounds are measured from (m)
@@ -122,9 +123,11 @@ class SolveContact:
             return
         for grid, prims, alive in ((self.triangle_grid, self.mesh.triangles, self.triangle_alive),
                                    (self.edge_grid, self.edges, self.edge_alive)):
-            # no box may span more than MAX_CELLS_PER_AXIS cells, or the hash could miss a pair
+            # Cells as wide as the longest box: a box spans at most 2 per axis (never clipped, so
+            # no pair is missed), and with c the cell and b a box, a query meets about (b + c)^4 / c^2
+            # primitives on a sheet, least at c = b (1.8 times fewer than at c = b / 3).
             extent = grid.longest_box(x, x, prims, alive)
-            grid.cell[None] = max(extent / 3.0 * 1.001, 1e-9)
+            grid.cell[None] = max(extent * 1.001, 1e-9)
             grid.build(x, x, prims, alive)
         self._collect(x)
         self.refreshes += 1
