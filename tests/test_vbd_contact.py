@@ -163,3 +163,21 @@ def test_a_contact_radius_the_mesh_cannot_take_and_a_tangled_start_are_refused(f
     tangled = create_integrator("vbd", scene.system, self_contact=True, contact_radius=0.01)
     with pytest.raises(ConfigError, match="intersects itself at the start"):
         tangled.attach_scene(scene)
+
+
+@pytest.mark.parametrize("option, problem", [
+    ("contact_radius=0.2", "contact_radius"),  # above the 8 x 8 grid's 0.101 m between non-adjacent parts
+    ("contact_radius=0", "contact_radius"), ("bound_fraction=0.5", "bound_fraction"),
+    ("contact_refresh=-1", "contact_refresh"), ("contact_stiffness=-3", "contact_stiffness"),
+])
+def test_the_command_line_refuses_bad_contact_options_in_one_line_and_writes_nothing(tmp_path, capsys, option,
+                                                                                      problem):
+    from taichi_sim.cli import main
+
+    code = main(["simulate", "cloth-fold", "--set", "nx=8", "--set", "ny=8", "--set", "self_collision=0",
+                 "--integrator", "vbd", "--option", "self_contact=1", "--option", option, "--dt", "0.02",
+                 "--steps", "2", "--out", str(tmp_path / "run.npz"), "--quiet"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2
+    assert problem in err and len(err.splitlines()) == 1 and err.startswith("taichi-sim: error:")
+    assert list(tmp_path.iterdir()) == []
