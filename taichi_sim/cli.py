@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import sys
 
+from .cli_export import cmd_export, export_frames, export_request
 from .cli_parser import EXIT_USAGE, build_parser
 from .errors import ConfigError
 from .scene.params import scene_assignments
@@ -68,8 +69,13 @@ def _frame_bar(frames):
 
 def cmd_list(args) -> int:
     from .integrators import ENTRY_POINT_GROUP, INTEGRATORS, installed_plugins, integrator_class
-    from .scene import SCENES
+    from .scene import SCENES, scene_preset
 
+    if args.scene_file is not None:
+        from .scene_file import scene_file_text
+
+        print(scene_file_text(scene_preset(args.scene_file)), end="")
+        return 0
     print("Scenes (set parameters with --set NAME=VALUE):")
     for preset in SCENES.values():
         print(f"\n  {preset.name}: {preset.description}")
@@ -111,6 +117,11 @@ def cmd_simulate(args) -> int:
     from .theory import stability_warning
 
     preset = scene_preset(args.scene)
+    if args.steps is None and args.t_end is None:
+        raise ConfigError("simulate needs --steps N or --t-end T (or a scene file's [run] steps or duration)")
+    if args.out is None:
+        raise ConfigError("simulate needs --out FILE.npz (or a scene file's [output] npz)")
+    exporting = export_request(args)
     integrator_name = args.integrator or preset.default_integrator
     options = {name: getattr(args, name)
                for name in ("rtol", "atol", "linear_solver", "newton_iterations", "newton_tolerance",
@@ -161,6 +172,7 @@ def cmd_simulate(args) -> int:
 
         arrays["curves"] = np.asarray(curves_json(curves, scene.name))  # the curves it ran with
     path = io.save_npz(args.out, arrays)
+    exported = export_frames(exporting, arrays, args) if exporting else None
     if result.message:
         print(f"taichi-sim: {result.message}", file=sys.stderr)
     for warning in result.warnings:
@@ -173,6 +185,8 @@ def cmd_simulate(args) -> int:
         print(f"{scene.name}: {result.steps} steps{rejected} of {integrator_name} to t = {result.t:.6g} s, "
               f"{result.f_evals} f-evals, {result.wall_time:.3f} s on {runtime.backend()}, "
               f"status {result.status.value} -> {path}")
+        if exported:
+            print(exported)
         if len(result.solver_residual):
             worst = result.worst_residual
             verdict = "converged" if worst <= result.max_residual else "NOT converged"
@@ -437,6 +451,12 @@ def _main(argv: list[str] | None) -> int:
     parser = build_parser()
     try:
         args = parser.parse_args(argv)
+        if args.command in ("simulate", "demo", "record"):
+            from .scene_file import apply_scene_file
+
+            apply_scene_file(args, args.command)  # the file's values, then the defaults
+        if args.command == "export":
+            return cmd_export(args)
         if args.command is None:
             return cmd_default()
         return {"list": cmd_list, "simulate": cmd_simulate, "demo": cmd_demo,

@@ -87,11 +87,11 @@ def _add_view_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--dt", type=_positive_float, default=None, help="step size in s (default: the scene's)")
     p.add_argument("--set", dest="assignments", action="append", type=_assignment, default=[],
                    metavar="NAME=VALUE", help=_SET_HELP)
-    p.add_argument("--seed", type=int, default=0, help="random seed for scenes with randomness (default 0)")
+    p.add_argument("--seed", type=int, default=None, help="random seed for scenes with randomness (default 0)")
     p.add_argument("--curves", metavar="FILE", default=None,
                    help="JSON file of parameter curves over time (see docs/constraints-and-curves.md)")
-    p.add_argument("--precision", choices=("f32", "f64"), default="f64", help=_PRECISION_HELP)
-    p.add_argument("--arch", choices=("cpu", "gpu"), default="cpu",
+    p.add_argument("--precision", choices=("f32", "f64"), default=None, help=_PRECISION_HELP)
+    p.add_argument("--arch", choices=("cpu", "gpu"), default=None,
                    help=_ARCH_HELP + "; rendering always uses Vulkan")
 
 
@@ -100,22 +100,26 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = parser.add_subparsers(dest="command", parser_class=_Parser)
 
-    sub.add_parser("list", help="list scenes (with parameters) and integrators (with order)")
+    lst = sub.add_parser("list", help="list scenes (with parameters) and integrators (with order)")
+    lst.add_argument("--scene-file", metavar="SCENE",
+                     help="print SCENE as a scene file (TOML) with every parameter at its default, to edit "
+                          "and run with `simulate FILE.toml` (see docs/scene-files.md)")
 
     sim = sub.add_parser("simulate", help="run a scene headless and write an .npz")
-    sim.add_argument("scene", help="scene name (see `taichi-sim list`)")
+    sim.add_argument("scene", help="scene name (see `taichi-sim list`), or a scene file FILE.toml "
+                                   "(options given here override the file's values)")
     sim.add_argument("--integrator", default=None,
                      help="integrator name (default: the scene's), or your own class as package.module:Class "
                           "or path/to/file.py:Class (see docs/plugins.md)")
     sim.add_argument("--dt", type=_positive_float, default=None,
                      help="step size in s (default: the scene's; adaptive methods: the first step, "
                           "chosen automatically)")
-    length = sim.add_mutually_exclusive_group(required=True)
+    length = sim.add_mutually_exclusive_group()  # required, unless a scene file gives it
     length.add_argument("--steps", type=_positive_int, metavar="N", help="number of steps to take")
     length.add_argument("--t-end", type=_positive_float, metavar="T",
                         help="end time in s (the last step is shortened to land on it)")
-    sim.add_argument("--precision", choices=("f32", "f64"), default="f64", help=_PRECISION_HELP)
-    sim.add_argument("--arch", choices=("cpu", "gpu"), default="cpu", help=_ARCH_HELP)
+    sim.add_argument("--precision", choices=("f32", "f64"), default=None, help=_PRECISION_HELP)
+    sim.add_argument("--arch", choices=("cpu", "gpu"), default=None, help=_ARCH_HELP)
     sim.add_argument("--set", dest="assignments", action="append", type=_assignment, default=[],
                      metavar="NAME=VALUE", help=_SET_HELP)
     sim.add_argument("--rtol", type=_positive_float, help="relative tolerance (adaptive methods)")
@@ -157,7 +161,7 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--max-energy-growth", type=_positive_float, metavar="F",
                      help="the blow-up guard's energy bound: the run is diverged when its energy "
                           "rises more than F energy scales above the start (default 10)")
-    sim.add_argument("--seed", type=int, default=0,
+    sim.add_argument("--seed", type=int, default=None,
                      help="random seed for scenes with randomness (jitter, wind gusts, tearing noise, "
                           "the sprinkler; default 0)")
     sim.add_argument("--save-every", type=int, default=None, metavar="K",
@@ -168,13 +172,18 @@ def build_parser() -> argparse.ArgumentParser:
                           "at the blow-up guard's checks, 1, 2, 4, ..., 64 and then "
                           "every 100 force evaluations, at most about 2000 samples). A sample costs "
                           "about two force evaluations")
-    sim.add_argument("--out", required=True, help="output .npz path")
+    sim.add_argument("--out", help="output .npz path (required unless a scene file names one)")
+    sim.add_argument("--export", metavar="PATH",
+                     help="also write the frames kept by --save-every for other tools: a folder of OBJ or "
+                          "PLY files, or one USD file (see docs/export.md)")
+    sim.add_argument("--export-format", metavar="obj|ply|usd", help="format of --export")
     sim.add_argument("--curves", metavar="FILE", default=None,
                      help="JSON file of parameter curves over time (see docs/constraints-and-curves.md)")
     sim.add_argument("--quiet", action="store_true", help="no summary line or progress bar")
 
     demo = sub.add_parser("demo", help="the interactive launcher (needs a display and Vulkan)")
-    demo.add_argument("scene", nargs="?", default="cloth", help="scene to start with (default cloth)")
+    demo.add_argument("scene", nargs="?", default="cloth",
+                      help="scene (or scene file FILE.toml) to start with (default cloth)")
     _add_view_options(demo)
     demo.add_argument("--substeps", type=_positive_int, default=None,
                       help="a fixed number of steps per drawn frame (default: as many as keep "
@@ -182,7 +191,7 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--size", default="1280x800", metavar="WxH", help="window size in pixels")
 
     rec = sub.add_parser("record", help="render a scene offscreen into .mp4, .gif or a folder of PNGs")
-    rec.add_argument("scene", nargs="?", help="scene to record (not with --showcase)")
+    rec.add_argument("scene", nargs="?", help="scene (or scene file FILE.toml) to record (not with --showcase)")
     _add_view_options(rec)
     rec.add_argument("--seconds", type=_positive_float, help="video length in s (default 5)")
     rec.add_argument("--fps", type=_positive_float, help="video frames per second (default 30)")
@@ -286,6 +295,13 @@ def build_parser() -> argparse.ArgumentParser:
     adv.add_argument("--precision", choices=("f32", "f64"), default="f64", help=_PRECISION_HELP)
     adv.add_argument("--arch", choices=("cpu", "gpu"), default="cpu", help=_ARCH_HELP)
     adv.add_argument("--seed", type=int, default=0, help="random seed for scenes with randomness (default 0)")
+
+    exp = sub.add_parser("export", help="write a saved run's frames as OBJ or PLY files, or one USD file")
+    exp.add_argument("npz", help="a run written by `simulate --save-every K`")
+    exp.add_argument("--format", required=True, metavar="obj|ply|usd",
+                     help="obj or ply: a folder of frame_NNNN files; usd: one .usda, .usdc or .usd file")
+    exp.add_argument("--out", required=True, metavar="PATH", help="the folder (obj, ply) or file (usd) to write")
+    exp.add_argument("--quiet", action="store_true", help="no summary line or progress bar")
 
     chk = sub.add_parser("check", help="look for a cloth passing through itself in a saved run's frames")
     chk.add_argument("npz", help="a run written by `simulate` (with --save-every for every frame)")

@@ -141,6 +141,7 @@ class Stepper:
         self._events, self._spend = scene.after_step, self.guard.spend
         self.driver = None
         self._before, self._after, self._on_check = [], [], []
+        self._monitors: dict[int, tuple] = {}  # id(integrator) -> (integrator, its monitor)
         for observer in observers:
             self.add_observer(observer)
         self.set_integrator(integrator)
@@ -171,7 +172,14 @@ class Stepper:
         integrator.reset()  # a method switched back to may hold a stale f
         # How far each step is from the equation the method solves (convergence.py); a method
         # that promises the solved step on a scene its precision cannot resolve is refused.
-        self.monitor = ConvergenceMonitor(self.scene, integrator, self.max_residual)
+        # One monitor per method, kept: each holds a State, and a new one per switch back and
+        # forth (the launcher) would allocate a field and compile its copy kernel every time.
+        entry = self._monitors.get(id(integrator))
+        if entry is None or entry[0] is not integrator:
+            entry = self._monitors[id(integrator)] = (integrator, ConvergenceMonitor(self.scene, integrator,
+                                                                                     self.max_residual))
+        self.monitor = entry[1]
+        self.monitor.clear()
         self.refusal = self.monitor.check_precision(self.scene.state, runtime.precision(),
                                                     runtime.machine_epsilon())
         self.warnings: list[str] = []

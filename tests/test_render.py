@@ -277,6 +277,31 @@ def test_launcher_draws_panel_hud_and_help_offscreen(window):
     assert launcher.renderer.drawers[0].trail_count == 1  # restarted, not joined to the old path
 
 
+def test_a_scene_switch_says_so_in_a_shown_frame_before_it_compiles(window, monkeypatch):
+    """The switch waits one frame, whose HUD says what is about to hold the window; the first
+    frame after it reports its compile time, not a cost per frame."""
+    from taichi_sim.app import session as session_module
+    from taichi_sim.app.launcher import Launcher
+
+    session = Session("simple", ["euler"], dt=0.1)
+    launcher = Launcher(session, SIZE, window=window)
+    launcher.draw_frame()
+    launcher.request_scene("spring")
+    assert "compiling spring" in launcher.switching_notice()
+    launcher.draw_frame()  # the frame that shows the notice: still the old scene
+    assert session.scene_name == "simple" and launcher.switching is not None
+    launcher.draw_frame()  # built, compiled and stepped
+    assert session.scene_name == "spring" and launcher.switching_notice() is None
+    runner = session.runners[0]
+    assert runner.compile_s > 0 and runner.sim_ms == 0.0
+    assert any("first frame" in line and "compiling kernels" in line for line in session.hud_lines())
+    monkeypatch.setattr(session_module, "COMPILE_NOTE_S", 0.0)
+    launcher.draw_frame()
+    assert runner.sim_ms > 0 and any(" ms/frame" in line for line in session.hud_lines())
+    launcher.request_scene("simple")  # built before: nothing to compile
+    assert launcher.switching_notice() == "switching to simple..."
+
+
 @pytest.mark.parametrize("scene", ["cloth", "pendulum"])
 def test_the_launcher_frames_the_scene_clear_of_its_panels(window, scene):
     """Nothing of the start-up scene (the cloth's pinned corners, the pendulum's pin) lies under

@@ -137,3 +137,20 @@ def test_a_bad_dt_is_refused_naming_dt(dt):
     with pytest.raises(ts.ConfigError, match="dt"):
         check_dt(dt)
     assert check_dt(None, adaptive=True) is None
+
+
+def test_switching_methods_back_and_forth_keeps_one_monitor_each(f64):
+    """The launcher switches methods at will: each keeps its residual monitor (a State field
+    per monitor; a new one per switch would grow the process and recompile), with its samples
+    cleared, and the new method's samples are its own."""
+    scene = ts.build_scene("cloth", {"nx": 6, "ny": 6})
+    implicit = ts.create_integrator("implicit_euler", scene.system)
+    xpbd = ts.create_integrator("xpbd", scene.system)
+    stepper = Stepper(scene, implicit, 1e-2)
+    first = stepper.monitor
+    stepper.advance_to(0.05)
+    assert first.values
+    stepper.set_integrator(xpbd)
+    assert stepper.monitor is not first
+    stepper.set_integrator(implicit)
+    assert stepper.monitor is first and not first.values

@@ -94,6 +94,7 @@ class Launcher:
         self.frames = 0
         self.error = ""
         self.picking: int | None = None  # the panel whose integrator list is open
+        self.switching: tuple[str, bool] | None = None  # (scene to build, notice shown yet)
         self._renderers: dict = {}  # one per set of scenes, reused when the session comes back
         self.status_path = os.environ.get(STATUS_ENV) or None
         self._status_at = 0.0
@@ -205,7 +206,9 @@ class Launcher:
             elif self._guard(apply_key, event.key, self.session, self.control) == "quit":
                 self.window.running = False
         if scene_steps:
-            self._guard(self.session.cycle_scene, scene_steps)
+            names = list(SCENES)
+            k = names.index(self.session.scene_name) if self.session.scene_name in names else -1
+            self.request_scene(names[(k + scene_steps) % len(names)])
         self.window.get_events(ti.ui.RELEASE)  # drained: GGUI queues them until read
         u, v = self.window.get_cursor_pos()
         over = u < PANEL[2] or (u > HUD[0] and v > 1.0 - HUD[3])
@@ -222,9 +225,38 @@ class Launcher:
         self.control.update(u, v, left=left, right=right,
                             middle=self.window.is_pressed(ti.ui.MMB), over_panel=over)
 
+    def request_scene(self, name: str) -> None:
+        """Switch to preset ``name`` after the next frame is shown: building a scene and
+        compiling its kernels holds this thread (Taichi compiles where a kernel is first called,
+        and GGUI draws only from the thread that opened the window) for up to a minute on a
+        first visit, so the HUD says so first instead of leaving a frozen window unexplained."""
+        if self.switching is None or self.switching[0] != name:
+            self.switching = (name, False)
+
+    def _switch_if_shown(self) -> None:
+        """Do the requested switch once a frame with its notice has been shown."""
+        name, shown = self.switching
+        if not shown:
+            self.switching = (name, True)
+            return
+        self.switching = None
+        self._guard(self.session.select_scene, name)
+
+    def switching_notice(self) -> str | None:
+        """The HUD's line while a requested scene switch waits for its frame, or None."""
+        if self.switching is None:
+            return None
+        name = self.switching[0]
+        if self.session.is_built(name):
+            return f"switching to {name}..."
+        return (f"compiling {name}... (first visit: Taichi builds its kernels; the window "
+                f"waits, up to a minute; later visits are instant)")
+
     def draw_frame(self, interval: float | None = None) -> None:
         """Advance the session one frame (``interval``: wall seconds since the last one, for
         pacing to the clock) and draw the scenes, the panel, the HUD and the help."""
+        if self.switching is not None:
+            self._switch_if_shown()
         if self.session.generation != self.generation:
             self._rebuild()
         elif self.session.resets != self.resets:
@@ -277,7 +309,7 @@ class Launcher:
             for name in SCENES:
                 current = name == s.scene_name
                 if g.button(("> " if current else "  ") + name + "##scene"):
-                    self._guard(s.select_scene, name)
+                    self.request_scene(name)
                     self.picking = None
             g.text("")
             self._integrator_picker(g)
@@ -377,6 +409,9 @@ class Launcher:
         with self.gui.sub_window("Status", *HUD) as g:
             # GGUI clips text at the panel's edge: wrap it (the monospace font is ~7.5 px wide).
             width = max(20, int(HUD[2] * self.size[0] / HUD_CHAR_PX) - 2)
+            notice = self.switching_notice()
+            for part in textwrap.wrap(notice or "", width, subsequent_indent="  "):
+                g.text(part, CURRENT)
             for line in s.hud_lines(self.fps):
                 colour = WARNING if any(word in line for word in ("diverged", "not converged", "stiff",
                                                                   "x real time")) else None

@@ -27,6 +27,7 @@ from .runner import Runner
 MAX_PANELS = 3
 SUBSTEPS_MAX = 500
 DT_RANGE = (1e-5, 0.5)  # s, the step-size slider's range
+COMPILE_NOTE_S = 4.0  # s the HUD shows a first frame's compile time in place of its ms/frame
 
 
 @dataclass(frozen=True)
@@ -133,8 +134,7 @@ class Session:
         t = 0, when the session comes back to them: Taichi 1.7 gives back neither the fields
         of a scene nor the kernels compiled for it, so rebuilding on every switch would grow
         the process by megabytes per switch (and recompile for seconds)."""
-        key = (self.scene_name, tuple(sorted((k, repr(v)) for k, v in self.params.items())),
-               self.seed, len(integrators))
+        key = self._key(self.scene_name, self.params, len(integrators))
         runners = self._built.get(key)
         scenes = [r.scene for r in runners] if runners is not None else \
             [build_scene(self.scene_name, self.params, seed=self.seed) for _ in integrators]
@@ -167,6 +167,15 @@ class Session:
         self.curves = {k: c for k, c in self.curves.items() if applies_live(runners[0].scene, k)}
         for r in runners:
             r.set_curves(self.curves)
+
+    def _key(self, name: str, params: dict, panels: int) -> tuple:
+        return name, tuple(sorted((k, repr(v)) for k, v in params.items())), self.seed, panels
+
+    def is_built(self, name: str) -> bool:
+        """Whether :meth:`select_scene` (``name``) would reuse scenes built before (no field
+        to allocate, no kernel to compile) rather than build them."""
+        preset = scene_preset(name)
+        return self._key(preset.name, self._resolve(preset, {}), len(self.runners)) in self._built
 
     @property
     def integrators(self) -> list[str]:
@@ -411,7 +420,10 @@ class Session:
                 state += f"   max |C| = {r.drift:.2e} m"
             if r.residual is not None and not r.frozen:
                 state += f"   residual {r.residual:.1e}" + ("" if r.converged else " NOT converged")
-            lines.append(f"{r.name}: {r.sim_ms:.1f} ms/frame   {state}")
+            compiled_just_now = r.compile_s is not None and time.perf_counter() - r.compiled_at < COMPILE_NOTE_S
+            cost = f"first frame {r.compile_s:.1f} s (compiling kernels)" if compiled_just_now else \
+                f"{r.sim_ms:.1f} ms/frame" if r.sim_ms else "ms/frame: not measured yet"
+            lines.append(f"{r.name}: {cost}   {state}")
         lines.append(f"status: {self.status()}")
         for advice in dict.fromkeys(r.advice for r in self.runners if r.frozen):
             lines.extend(part.strip() for part in advice.split("; "))
