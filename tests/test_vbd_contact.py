@@ -36,9 +36,14 @@ def shot_scene():
     return b.finalize(name="shot", params={}, default_dt=H, default_integrator="vbd")
 
 
-def test_a_vertex_and_an_edge_shot_at_the_mesh_never_pass_it(f64):
+@pytest.mark.parametrize("serial", [True, False])
+def test_a_vertex_and_an_edge_shot_at_the_mesh_never_pass_it(f64, serial):
+    """Both code paths: one kernel per substep's sweeps (CPU) and one per sweep, the colours as
+    parallel loops (a GPU, or a large mesh), with Chebyshev's over-relaxation there."""
     scene = shot_scene()
-    vbd = create_integrator("vbd", scene.system, self_contact=True, contact_radius=0.01)
+    vbd = create_integrator("vbd", scene.system, self_contact=True, contact_radius=0.01,
+                            chebyshev_rho=0.0 if serial else 0.9)
+    vbd.serial = serial
     tris = scene.mesh.triangles_np
 
     closest = []

@@ -250,7 +250,7 @@ class VBD(Integrator):
             elif self.serial:
                 bad = kernels["substep"](dt, t_end, use_acceleration, previous_dt, self.iterations)
             else:
-                kernels["begin"](dt, use_acceleration, previous_dt)
+                kernels["begin"](dt, use_acceleration, previous_dt, t_end)
                 omega = 1.0
                 for sweep in range(self.iterations):
                     omega = self._omega(sweep, omega)
