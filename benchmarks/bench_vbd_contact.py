@@ -78,10 +78,14 @@ def main() -> None:
     parser.add_argument("--base-t-end", type=float, default=0.3, help="seconds of the default (0: skip)")
     parser.add_argument("--iterations", type=int, default=20)
     parser.add_argument("--substeps", type=int, default=1)
-    parser.add_argument("--contact-radius", type=float, default=None)
+    parser.add_argument("--contact-radius", type=float, default=None, help="the scene's thickness (m)")
+    parser.add_argument("--jitter", type=float, default=None,
+                        help="the scene's jitter (m); 128 x 128 needs 0.001: at 0.002 it starts tangled")
     args = parser.parse_args()
     ts.init(arch="cpu", precision="f32")
     params = {} if args.contact_radius is None else {"thickness": args.contact_radius}
+    if args.jitter is not None:
+        params["jitter"] = args.jitter
     rows = [run(args.n, args.t_end, "vbd", 1 / 60, {"self_contact": True, "iterations": args.iterations,
                                                     "substeps": args.substeps}, {"self_collision": False, **params})]
     if args.base_t_end > 0:
