@@ -85,8 +85,9 @@ class SolveContact:
         lengths = np.linalg.norm(rest[edges[:, 0]] - rest[edges[:, 1]], axis=1)
         # The reach of the bounds: a vertex with nothing nearer moves up to fraction x reach per
         # refresh. The nearest non-adjacent primitives of a flat grid are s / sqrt(2) away (s its
-        # spacing), so a longer reach buys no motion there, and the pairs to test grow as its cube.
-        self.reach = max(2.0 * radius, 0.75 * float(np.median(lengths)))
+        # spacing), so a longer reach buys no motion there, and the pairs to test grow as its cube
+        # in a pile; it must cover the contact radius.
+        self.reach = max(radius, 0.75 * float(np.median(lengths)))
         free = system.free.to_numpy().astype(bool)
         mass = system.mass.to_numpy()
         self.mean_mass = float(mass[free].mean()) if free.any() else 1.0
