@@ -59,6 +59,17 @@ def test_a_vertex_and_an_edge_shot_at_the_mesh_never_pass_it(f64, serial):
     assert np.min(closest, axis=0).max() < 0.01  # both came into contact, not stopped far off
 
 
+def test_a_non_finite_state_is_a_diverged_step_with_contact(f64):
+    scene = shot_scene()
+    vbd = create_integrator("vbd", scene.system, self_contact=True, contact_radius=0.01)
+    vbd.attach_scene(scene)
+    x, v = scene.state.to_numpy()
+    x[4] = np.nan
+    scene.state.from_numpy(x, v)
+    report = vbd.step(scene.state, 0.0, H)
+    assert report.status.value == "diverged" and not report.accepted
+
+
 def fold(n: int = 12, **extra):
     """cloth-fold without the post-step self-collision stage and without dashpots or drag
     (conservative: the energy can only fall)."""

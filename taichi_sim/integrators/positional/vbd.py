@@ -247,6 +247,11 @@ class VBD(Integrator):
             previous_dt = self._last_dt if k == 0 else dt
             if self.contact is not None:
                 bad = self._contact_substep(kernels, state, dt, t_end, use_acceleration, previous_dt)
+                if bad < 0:
+                    self._resume_time = None
+                    return StepReport(accepted=False, h=0.0, next_h=h, f_evals=k * self.iterations,
+                                      status=Status.DIVERGED, message="vbd: the contact detection lost pairs "
+                                      "(positions non-finite or too far apart for its hash)")
             elif self.serial:
                 bad = kernels["substep"](dt, t_end, use_acceleration, previous_dt, self.iterations)
             else:
@@ -269,15 +274,17 @@ class VBD(Integrator):
 
     def _contact_substep(self, kernels, state, dt, t_end, use_acceleration, previous_dt) -> int:
         """A substep with contact in the solve: detect at the start (free of intersections),
-        start from the bounded guess, sweep, detecting again every ``contact_refresh`` sweeps."""
+        start from the bounded guess, sweep, detecting again every ``contact_refresh`` sweeps.
+        Returns the non-finite particles, or -1 when a detection could miss pairs."""
         contact = self.contact
-        contact.refresh(state.x)
+        if contact.refresh(state.x):
+            return -1
         kernels["begin"](dt, use_acceleration, previous_dt, t_end)
         every = contact.refresh_every or self.iterations
         done, omega = 0, 1.0
         while done < self.iterations:
-            if done:
-                contact.refresh(self.point.x)
+            if done and contact.refresh(self.point.x):
+                return -1
             count = min(every, self.iterations - done)
             if self.serial:
                 kernels["sweeps"](dt, t_end, done, count)

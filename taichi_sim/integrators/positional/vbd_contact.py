@@ -117,11 +117,13 @@ class SolveContact:
 
     # -- detection (host side, once per refresh) -------------------------------------------------
 
-    def refresh(self, x) -> None:
+    def refresh(self, x) -> int:
         """Find the pairs closer than the reach at positions ``x`` (the iterate, free of
-        intersections), reset the bounds' reference to ``x`` and their shift to zero."""
+        intersections), reset the bounds' reference to ``x`` and their shift to zero. Returns
+        the number of hash boxes clipped (0 unless positions are non-finite or beyond floats'
+        reach): then pairs may be missed and the step must not go on."""
         if not self.self_contact:
-            return
+            return 0
         for grid, prims, alive in ((self.triangle_grid, self.mesh.triangles, self.triangle_alive),
                                    (self.edge_grid, self.edges, self.edge_alive)):
             # Cells as wide as the longest box: a box spans at most 2 per axis (never clipped, so
@@ -135,8 +137,7 @@ class SolveContact:
         count, dropped = int(self.pair_count[None]), int(self.dropped[None])
         self.pairs_total += min(count, self.pair_capacity)
         self.dropped_total += dropped
-        if self.triangle_grid.overflowed() or self.edge_grid.overflowed():
-            raise RuntimeError("vbd contact: a hash box was clipped (a pair could be missed)")
+        return self.triangle_grid.overflowed() + self.edge_grid.overflowed()
 
     @ti.kernel
     def _collect(self, x: ti.template()):
@@ -217,9 +218,6 @@ class SolveContact:
         for k in ti.static(range(4)):
             gap += w[k] * x[ids[k]]
         return gap, w
-
-    def fit_shift_needed(self) -> bool:
-        return self.self_contact and self.all_free
 
     # -- the per-vertex terms (inside the solve) -------------------------------------------------
 
