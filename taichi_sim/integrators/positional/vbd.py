@@ -13,6 +13,7 @@ from ...systems.base import System
 from ..base import Integrator, Status, StepReport
 from ..equation import FIXED_WORK, Equation
 from ..implicit.common import positive_int
+from .colouring import colour_vertices
 from .vbd_contact import SolveContact, check_contact_options
 
 # Below this many particles plus springs (times spare threads) the colour loops run on one
@@ -20,35 +21,6 @@ from .vbd_contact import SolveContact, check_contact_options
 # vertices, too few to pay a parallel loop's hand-off (see XPBD's SERIAL_SPRINGS, measured the
 # same way); never on a GPU.
 SERIAL_WORK = 2_000_000
-
-
-def colour_vertices(particle_count: int, ends: np.ndarray) -> tuple[np.ndarray, list[int]]:
-    """Greedy vertex colouring of the graph whose edges are the springs ``ends`` ((S, 2)).
-
-    Returns ``(order, starts)``: ``order`` ((n,) int32) lists the particles colour by colour,
-    colour c holding ``order[starts[c]:starts[c + 1]]``; no two particles of one colour share a
-    spring, so a colour's vertices can be solved in parallel. At most D + 1 colours (D the
-    largest number of springs at a particle); 9 to 10 on the 12-neighbour cloth grid.
-    """
-    ends = np.asarray(ends, dtype=np.int64).reshape(-1, 2)
-    if len(ends) and np.any(ends[:, 0] == ends[:, 1]):
-        raise ValueError("ends: a spring joins a particle to itself")
-    both = np.concatenate([ends, ends[:, ::-1]]) if len(ends) else np.zeros((0, 2), np.int64)
-    both = both[np.argsort(both[:, 0], kind="stable")]
-    offsets = np.searchsorted(both[:, 0], np.arange(particle_count + 1))
-    neighbours = both[:, 1].tolist()
-    colours = [-1] * particle_count
-    for i in range(particle_count):  # once, when the integrator is bound
-        taken = 0
-        for j in neighbours[offsets[i]:offsets[i + 1]]:
-            if colours[j] >= 0:
-                taken |= 1 << colours[j]
-        colours[i] = (~taken & (taken + 1)).bit_length() - 1  # lowest free colour
-    colour = np.asarray(colours, dtype=np.int64)
-    order = np.argsort(colour, kind="stable").astype(np.int32)
-    count = int(colour.max()) + 1 if particle_count else 0
-    starts = np.searchsorted(colour[order], np.arange(count + 1)).tolist()
-    return order, starts
 
 
 def _positive(name: str, value, allow_zero: bool = False) -> float:
