@@ -447,7 +447,8 @@ class SceneBuilder:
                       features=features, static_arrays=arrays, default_dt=default_dt,
                       default_integrator=default_integrator, seed=seed, post_step=post_step,
                       springs=springs, mesh=mesh, spheres=spheres, capsules=capsules, boxes=boxes, plane=plane,
-                      emitter=emitter, constraints=constraints, kinematic=kinematic)
+                      emitter=emitter, constraints=constraints, kinematic=kinematic,
+                      rest_x=np.concatenate(self._rest_x) if self._rest_x else None)
         if self._grab is not None:
             grabber = Grabber(scene, grab_term)
             scene.grabber = grabber

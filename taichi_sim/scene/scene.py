@@ -29,6 +29,7 @@ class Scene:
             emitter).
         springs, mesh, spheres, capsules, boxes, plane, emitter, grabber, constraints, kinematic:
             the optional parts, or None (``kinematic``: the scripted pins, also in ``post_step``).
+        rest_x: (n, 3) float64 positions the springs rest in (before a seeded jitter), or None.
     """
 
     name: str
@@ -53,6 +54,7 @@ class Scene:
     grabber: Any = None
     constraints: Any = None
     kinematic: Any = None
+    rest_x: np.ndarray | None = None
 
     @property
     def particle_count(self) -> int:
