@@ -15,6 +15,7 @@ from ..equation import FIXED_WORK, Equation
 from ..implicit.common import positive_int
 from .colouring import colour_vertices
 from .vbd_contact import SolveContact, check_contact_options
+from .vbd_springs import VBDSprings, fraction_option, positive_option
 
 # Below this many particles plus springs (times spare threads) the colour loops run on one
 # thread and a whole substep is one kernel launch: a colour of a 64 x 64 cloth is ~450
@@ -23,21 +24,8 @@ from .vbd_contact import SolveContact, check_contact_options
 SERIAL_WORK = 2_000_000
 
 
-def _positive(name: str, value, allow_zero: bool = False) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
-            or value < 0 or (value == 0 and not allow_zero):
-        raise ConfigError(f"{name} must be a finite number {'>=' if allow_zero else '>'} 0, got {value!r}")
-    return float(value)
-
-
-def _fraction(name: str, value) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value < 1:
-        raise ConfigError(f"{name} must be a number in [0, 1), got {value!r}")
-    return float(value)
-
-
 @ti.data_oriented
-class VBD(Integrator):
+class VBD(VBDSprings, Integrator):
     """Vertex block descent (Chen, Liu, Yang & Yuksel 2024, "Vertex Block Descent").
 
     A step of h seconds (``substeps`` pieces of dt = h / substeps) minimises backward Euler's
@@ -124,12 +112,12 @@ class VBD(Integrator):
         if not isinstance(warm_start, (bool, np.bool_)):
             raise ConfigError(f"warm_start must be True or False, got {warm_start!r}")
         self.warm_start = bool(warm_start)
-        self.chebyshev_rho = _fraction("chebyshev_rho", chebyshev_rho)
+        self.chebyshev_rho = fraction_option("chebyshev_rho", chebyshev_rho)
         if not isinstance(augmented, (bool, np.bool_)):
             raise ConfigError(f"augmented must be True or False, got {augmented!r}")
         self.augmented = bool(augmented)
-        self.penalty = _positive("penalty", penalty)
-        self.penalty_growth = _positive("penalty_growth", penalty_growth, allow_zero=True)
+        self.penalty = positive_option("penalty", penalty)
+        self.penalty_growth = positive_option("penalty_growth", penalty_growth, allow_zero=True)
         for name, flag in (("contact", contact), ("self_contact", self_contact)):
             if not isinstance(flag, (bool, np.bool_)):
                 raise ConfigError(f"{name} must be True or False, got {flag!r}")
@@ -465,67 +453,6 @@ class VBD(Integrator):
                 self.delta[i] = delta
                 self.point.x[i] = self.start_x[i] + delta
                 self.point.v[i] = delta / dt
-
-    @ti.func
-    def _springs_at(self, i, dt):
-        """The springs' force on i at the iterate (N) and their block of H (N/m, 3x3): for each
-        spring k u u^T + max(0, k (|d| - r) / |d|) (I - u u^T) + (c / dt) u u^T."""
-        springs = self.springs
-        f = ti.Vector.zero(self.delta.dtype, 3)
-        H = ti.Matrix.zero(self.delta.dtype, 3, 3)
-        for e in range(springs.offsets[i], springs.offsets[i + 1]):
-            s = springs.incident[e]
-            if springs.is_alive(s):
-                j = springs.other[e]
-                d = self.point.x[i] - self.point.x[j]
-                length = d.norm()
-                if length > 0.0:
-                    u = d / length
-                    k = springs.stiffness[s]
-                    tension = k * (length - springs.rest[s])
-                    along = k
-                    if ti.static(self.has_multipliers):
-                        tension, along = self._augmented_tension(s, length)
-                    f -= tension * u
-                    transverse = ti.max(tension / length, 0.0)
-                    if ti.static(springs.damped):
-                        c = springs.damping[s]
-                        f -= c * (self.point.v[i] - self.point.v[j]).dot(u) * u
-                        along += c / dt
-                    H += transverse * ti.Matrix.identity(self.delta.dtype, 3) \
-                        + (along - transverse) * u.outer_product(u)
-        return f, H
-
-    @ti.func
-    def _augmented_tension(self, s, length):
-        """(tension (N), its derivative in the length (N/m)) of spring s in the augmented
-        formulation: T = (rho C + lambda) / (1 + rho / k), C = |d| - r. Its fixed point in
-        lambda (lambda = T) is T = k C, the spring's own tension, whatever rho: converged, the
-        sweeps solve the same step; on the way the vertices see the stiffness rho k / (k + rho)
-        <= rho instead of k, and lambda carries the tension the stiff springs hold."""
-        k = self.springs.stiffness[s]
-        tension = ti.cast(0.0, self.delta.dtype)
-        along = ti.cast(0.0, self.delta.dtype)
-        if k > 0.0:
-            rho = self.spring_penalty[s]
-            scale = 1.0 / (1.0 + rho / k)
-            tension = (rho * (length - self.springs.rest[s]) + self.multiplier[s]) * scale
-            along = rho * scale
-        return tension, along
-
-    @ti.func
-    def _update_multiplier(self, s):
-        """After a sweep: lambda = T at the iterate, and rho grows by penalty_growth |C| up to k
-        (the AVBD ramp)."""
-        springs = self.springs
-        if springs.is_alive(s):
-            e = springs.ends[s]
-            length = (self.point.x[e[0]] - self.point.x[e[1]]).norm()
-            tension, _ = self._augmented_tension(s, length)
-            self.multiplier[s] = tension
-            stretch = ti.abs(length - springs.rest[s])
-            self.spring_penalty[s] = ti.min(self.spring_penalty[s] + self.penalty_growth * stretch,
-                                             springs.stiffness[s])
 
     @ti.func
     def _accelerate(self, i, dt, omega, sweep, t):
