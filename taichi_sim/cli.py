@@ -2,10 +2,11 @@
 from __future__ import annotations
 
 import sys
+import warnings
 
 from .cli_export import cmd_export, export_frames, export_request
 from .cli_parser import EXIT_USAGE, build_parser
-from .errors import ConfigError
+from .errors import ConfigError, InputWarning
 from .scene.params import scene_assignments
 
 # The most steps one `simulate` takes. The cheapest scene (the circle ODE, RK4) runs at about a
@@ -459,9 +460,14 @@ def _main(argv: list[str] | None) -> int:
             return cmd_export(args)
         if args.command is None:
             return cmd_default()
-        return {"list": cmd_list, "simulate": cmd_simulate, "demo": cmd_demo,
-                "record": cmd_record, "bench": cmd_bench, "advise": cmd_advise,
-                "check": cmd_check}[args.command](args)
+        with warnings.catch_warnings():  # input warnings as one line each, like the errors
+            shown = warnings.showwarning
+            warnings.showwarning = lambda message, category, *rest, **kw: (
+                print(f"taichi-sim: warning: {message}", file=sys.stderr) if issubclass(category, InputWarning)
+                else shown(message, category, *rest, **kw))
+            return {"list": cmd_list, "simulate": cmd_simulate, "demo": cmd_demo,
+                    "record": cmd_record, "bench": cmd_bench, "advise": cmd_advise,
+                    "check": cmd_check}[args.command](args)
     except ConfigError as exc:
         print(f"taichi-sim: error: {exc}", file=sys.stderr)
         return EXIT_USAGE

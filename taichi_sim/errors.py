@@ -19,3 +19,8 @@ def unknown_name(kind: str, name: str, known, *, otherwise: str = "") -> str:
     if close:
         return f"{kind} {name!r}: did you mean {close[0]!r}? (all {len(known)}: `taichi-sim list`)"
     return f"{kind} {name!r} (choose from {', '.join(known)}{otherwise})"
+
+
+class InputWarning(UserWarning):
+    """Input that is used, but perhaps not as meant (a mesh with non-manifold edges, several
+    pieces, or triangles removed on loading). The CLI prints each as one line on stderr."""

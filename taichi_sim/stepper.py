@@ -162,6 +162,9 @@ class Stepper:
         """Step with ``integrator`` (bound to the scene's system) from the current state on."""
         if self.dt is None and not integrator.adaptive:
             raise ConfigError("dt is required for a fixed-step integrator")
+        attach = getattr(integrator, "attach_scene", None)
+        if attach is not None:  # a method that takes the scene's contact into its solve (vbd)
+            attach(self.scene)
         self.integrator = integrator
         # read once: an attribute of a Taichi data-oriented object costs about a microsecond
         self._integrate = integrator.step

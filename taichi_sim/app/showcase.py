@@ -61,6 +61,9 @@ SHOWCASE: tuple[Showcase, ...] = (
              _clip("cloth-twist", ["symplectic_euler"], params={"nx": 24, "ny": 24})),
     Showcase("cloth-wind", "a flag on a pole in gusty wind: the two sides in two colours",
              _clip("cloth-wind", ["symplectic_euler"], params={"nx": 24, "ny": 24})),
+    Showcase("garment", "a skirt sewn from ten flat panels (5 000 vertices), pinned at the waist, "
+             "drapes in folds over hips and legs (XPBD at one step per frame)",
+             _clip("garment", ["xpbd"])),
     Showcase("sprinkler", "a sprinkler: drops that darken and fade with age bounce on the ground",
              _clip("sprinkler", ["symplectic_euler"])),
     Showcase("sprinkler-fire", "a burner: buoyant, turbulent flames cool from yellow to red, "

@@ -21,7 +21,7 @@ from ..errors import ConfigError
 
 
 def check_contact_mesh(x0: np.ndarray, triangles: np.ndarray, thickness: float, *,
-                       rest: np.ndarray | None = None) -> float:
+                       rest: np.ndarray | None = None, name: str = "thickness") -> float:
     """Check that the self-contact stage can run on this mesh as built.
 
     Args:
@@ -43,7 +43,7 @@ def check_contact_mesh(x0: np.ndarray, triangles: np.ndarray, thickness: float, 
     """
     if isinstance(thickness, bool) or not isinstance(thickness, (int, float, np.floating)) \
             or not np.isfinite(thickness) or thickness <= 0:
-        raise ConfigError(f"thickness must be a finite number > 0 (m), got {thickness!r}")
+        raise ConfigError(f"{name} must be a finite number > 0 (m), got {thickness!r}")
     thickness = float(thickness)
     x = _positions(x0)
     rest = x if rest is None else _positions(rest)
@@ -71,9 +71,9 @@ def check_contact_mesh(x0: np.ndarray, triangles: np.ndarray, thickness: float, 
                           "self_collision needs a start free of contact")
     smallest = min(_vertex_triangle(rest, tris, thickness), _edge_edge(rest, edges, thickness))
     if smallest <= thickness:
-        raise ConfigError(f"thickness {thickness:g} m must be below {smallest:.6g} m, the smallest distance "
-                          f"between non-adjacent parts of the cloth at rest (contacts closer than the thickness "
-                          f"would push the resting cloth apart); use a smaller thickness or a coarser grid")
+        raise ConfigError(f"{name} {thickness:g} m must be below {smallest:.6g} m, the smallest distance "
+                          f"between non-adjacent parts of the cloth at rest (contacts closer than the {name} "
+                          f"would push the resting cloth apart); use a smaller {name} or a coarser grid")
     return smallest
 
 

@@ -431,7 +431,8 @@ class SceneBuilder:
         scene = Scene(name=name, system=system, state=state, x0=x0, v0=v0, params=params,
                       features=features, static_arrays=arrays, default_dt=default_dt,
                       default_integrator=default_integrator, seed=seed, parts=parts, post_step=list(parts),
-                      springs=springs, mesh=mesh, constraints=constraints)
+                      springs=springs, mesh=mesh, constraints=constraints,
+                      rest_x=np.concatenate(self._rest_x) if self._rest_x else None)
         if self._grab is not None:
             grabber = Grabber(scene, grab_term)
             scene.grabber = grabber

@@ -223,6 +223,16 @@ def build_cloth(preset: ScenePreset, p: dict[str, Any], seed: int) -> Scene:
         b.displace(np.random.default_rng(seed).normal(scale=p["jitter"], size=(nx * ny, 3)))
     if p["tear"] and len(ends):
         b.set_tearing(tear_thresholds(p, ends, kind, seed))
+    if p["twist"]:
+        add_twist(b, p, x)
+    add_cloth_extras(b, p, seed, p["particle_mass"])
+    return preset.finish(b, p, seed)
+
+
+def add_cloth_extras(b: SceneBuilder, p: dict[str, Any], seed: int, grab_mass: float) -> None:
+    """The extras any cloth (a grid or a mesh) switches on with its parameters: wind, spheres,
+    capsules, boxes, the ground, self-collision and grab (its dashpot critically damped for a
+    particle of ``grab_mass``, kg). Wants the cloth's particles, springs and triangles added."""
     if p["wind"]:
         b.set_wind(speed=p["wind_speed"], heading=p["wind_heading"], gust=p["wind_gust"],
                    gust_frequency=p["wind_gust_frequency"], drag_coefficient=p["wind_drag"], seed=seed)
@@ -241,13 +251,22 @@ def build_cloth(preset: ScenePreset, p: dict[str, Any], seed: int) -> Scene:
     if p["plane"]:
         b.set_plane((0.0, p["plane_height"], 0.0), (0.0, 1.0, 0.0), min(p["restitution"], 1.0),
                     p["plane_friction"])
-    if p["twist"]:
-        add_twist(b, p, x)
     if p["self_collision"]:
         b.enable_self_collision(p["thickness"], p["self_friction"], int(p["collision_iterations"]))
     if p["grab"]:
-        b.enable_grab(p["grab_stiffness"], damping=2 * math.sqrt(p["grab_stiffness"] * p["particle_mass"]))
-    return preset.finish(b, p, seed)
+        b.enable_grab(p["grab_stiffness"], damping=2 * math.sqrt(p["grab_stiffness"] * grab_mass))
+
+
+def cloth_params(*names: str) -> tuple[Param, ...]:
+    """The cloth parameters ``names`` (in that order), for other cloth families to share."""
+    by_name = {p.name: p for p in CLOTH_PARAMS}
+    return tuple(by_name[name] for name in names)
+
+
+#: The parameters :func:`add_cloth_extras` reads.
+EXTRA_PARAM_NAMES = tuple(p.name for p in CLOTH_PARAMS if p.name.split("_")[0] in (
+    "wind", "sphere", "object", "capsule", "box", "plane", "restitution", "self", "thickness",
+    "collision", "grab"))
 
 
 def cloth_size(p: dict[str, Any]) -> Size:

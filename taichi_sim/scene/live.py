@@ -18,8 +18,9 @@ def _set_spring_stiffness(scene: Scene, p: dict) -> bool:
     springs = scene.springs
     if springs is None:
         return False
-    if "shear_stiffness" in p:  # a cloth: one stiffness per spring kind
-        k = kind_stiffness(springs.kind_np, p)
+    if "flex_stiffness" in p:  # a cloth, grid or mesh (no shear springs): one stiffness per kind
+        k = kind_stiffness(springs.kind_np, [p["stiffness"], p.get("shear_stiffness", p["stiffness"]),
+                                             p["flex_stiffness"]])
     else:
         k = p["stiffness"]
     springs.set_parameters(stiffness=k)

@@ -10,6 +10,8 @@ from ..systems.circle import CircleSystem
 from .builder import SceneBuilder
 from .cloth_scenes import CLOTH_SCENES
 from .constraint_scenes import CONSTRAINT_SCENES
+from .garment import GARMENT
+from .mesh_scenes import MESH
 from .params import Param, resolve
 from .preset import ScenePreset, common_params
 from .scene import Scene
@@ -74,6 +76,8 @@ SCENES: dict[str, ScenePreset] = {s.name: s for s in (
     ), build_pendulum, default_dt=1e-3, default_integrator="symplectic_euler",
         size=lambda p: Size(p["particle_count"], p["particle_count"] - 1), size_params=("particle_count",)),
     *CLOTH_SCENES,
+    MESH,
+    GARMENT,
     SPRINKLER,
     SPRINKLER_FIRE,
     SPRINKLER_SMOKE,

@@ -32,6 +32,7 @@ class Scene:
         post_step: the events applied after every accepted step, in order: the parts (a
             caller may wrap one here to watch it).
         springs, mesh, grabber, constraints: what the forces and the integrators read, or None.
+        rest_x: (n, 3) float64 positions the springs rest in (before a seeded jitter), or None.
     """
 
     name: str
@@ -51,6 +52,7 @@ class Scene:
     mesh: Any = None
     grabber: Any = None
     constraints: Any = None
+    rest_x: np.ndarray | None = None
 
     def part(self, name: str):
         """The part called ``name`` (e.g. ``"spheres"``, ``"plane"``), or None."""

@@ -1,5 +1,6 @@
-"""Edge colouring of a spring graph: springs of one colour share no particle, so a Gauss-Seidel
-sweep can update all of them in parallel without atomics or races."""
+"""Colourings of a spring graph for Gauss-Seidel sweeps in parallel: of its edges (springs of one
+colour share no particle: XPBD) and of its vertices (particles of one colour share no spring:
+VBD)."""
 from __future__ import annotations
 
 import numpy as np
@@ -28,4 +29,33 @@ def colour_springs(particle_count: int, ends: np.ndarray) -> tuple[np.ndarray, l
     order = np.argsort(colours, kind="stable").astype(np.int32)
     count = int(colours.max()) + 1 if len(ends) else 0
     starts = np.searchsorted(colours[order], np.arange(count + 1)).tolist()
+    return order, starts
+
+
+def colour_vertices(particle_count: int, ends: np.ndarray) -> tuple[np.ndarray, list[int]]:
+    """Greedy vertex colouring of the graph whose edges are the springs ``ends`` ((S, 2)).
+
+    Returns ``(order, starts)``: ``order`` ((n,) int32) lists the particles colour by colour,
+    colour c holding ``order[starts[c]:starts[c + 1]]``; no two particles of one colour share a
+    spring, so a colour's vertices can be solved in parallel. At most D + 1 colours (D the
+    largest number of springs at a particle); 9 to 10 on the 12-neighbour cloth grid.
+    """
+    ends = np.asarray(ends, dtype=np.int64).reshape(-1, 2)
+    if len(ends) and np.any(ends[:, 0] == ends[:, 1]):
+        raise ValueError("ends: a spring joins a particle to itself")
+    both = np.concatenate([ends, ends[:, ::-1]]) if len(ends) else np.zeros((0, 2), np.int64)
+    both = both[np.argsort(both[:, 0], kind="stable")]
+    offsets = np.searchsorted(both[:, 0], np.arange(particle_count + 1))
+    neighbours = both[:, 1].tolist()
+    colours = [-1] * particle_count
+    for i in range(particle_count):  # once, when the integrator is bound
+        taken = 0
+        for j in neighbours[offsets[i]:offsets[i + 1]]:
+            if colours[j] >= 0:
+                taken |= 1 << colours[j]
+        colours[i] = (~taken & (taken + 1)).bit_length() - 1  # lowest free colour
+    colour = np.asarray(colours, dtype=np.int64)
+    order = np.argsort(colour, kind="stable").astype(np.int32)
+    count = int(colour.max()) + 1 if particle_count else 0
+    starts = np.searchsorted(colour[order], np.arange(count + 1)).tolist()
     return order, starts

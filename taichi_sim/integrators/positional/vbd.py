@@ -13,6 +13,9 @@ from ...systems.base import System
 from ..base import Integrator, Status, StepReport
 from ..equation import FIXED_WORK, Equation
 from ..implicit.common import positive_int
+from .colouring import colour_vertices
+from .vbd_contact import SolveContact, check_contact_options
+from .vbd_springs import VBDSprings, fraction_option, positive_option
 
 # Below this many particles plus springs (times spare threads) the colour loops run on one
 # thread and a whole substep is one kernel launch: a colour of a 64 x 64 cloth is ~450
@@ -21,50 +24,8 @@ from ..implicit.common import positive_int
 SERIAL_WORK = 2_000_000
 
 
-def colour_vertices(particle_count: int, ends: np.ndarray) -> tuple[np.ndarray, list[int]]:
-    """Greedy vertex colouring of the graph whose edges are the springs ``ends`` ((S, 2)).
-
-    Returns ``(order, starts)``: ``order`` ((n,) int32) lists the particles colour by colour,
-    colour c holding ``order[starts[c]:starts[c + 1]]``; no two particles of one colour share a
-    spring, so a colour's vertices can be solved in parallel. At most D + 1 colours (D the
-    largest number of springs at a particle); 9 to 10 on the 12-neighbour cloth grid.
-    """
-    ends = np.asarray(ends, dtype=np.int64).reshape(-1, 2)
-    if len(ends) and np.any(ends[:, 0] == ends[:, 1]):
-        raise ValueError("ends: a spring joins a particle to itself")
-    both = np.concatenate([ends, ends[:, ::-1]]) if len(ends) else np.zeros((0, 2), np.int64)
-    both = both[np.argsort(both[:, 0], kind="stable")]
-    offsets = np.searchsorted(both[:, 0], np.arange(particle_count + 1))
-    neighbours = both[:, 1].tolist()
-    colours = [-1] * particle_count
-    for i in range(particle_count):  # once, when the integrator is bound
-        taken = 0
-        for j in neighbours[offsets[i]:offsets[i + 1]]:
-            if colours[j] >= 0:
-                taken |= 1 << colours[j]
-        colours[i] = (~taken & (taken + 1)).bit_length() - 1  # lowest free colour
-    colour = np.asarray(colours, dtype=np.int64)
-    order = np.argsort(colour, kind="stable").astype(np.int32)
-    count = int(colour.max()) + 1 if particle_count else 0
-    starts = np.searchsorted(colour[order], np.arange(count + 1)).tolist()
-    return order, starts
-
-
-def _positive(name: str, value, allow_zero: bool = False) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
-            or value < 0 or (value == 0 and not allow_zero):
-        raise ConfigError(f"{name} must be a finite number {'>=' if allow_zero else '>'} 0, got {value!r}")
-    return float(value)
-
-
-def _fraction(name: str, value) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value < 1:
-        raise ConfigError(f"{name} must be a number in [0, 1), got {value!r}")
-    return float(value)
-
-
 @ti.data_oriented
-class VBD(Integrator):
+class VBD(VBDSprings, Integrator):
     """Vertex block descent (Chen, Liu, Yang & Yuksel 2024, "Vertex Block Descent").
 
     A step of h seconds (``substeps`` pieces of dt = h / substeps) minimises backward Euler's
@@ -109,6 +70,18 @@ class VBD(Integrator):
             Diaz & Yuksel 2025, "Augmented Vertex Block Descent"); off by default.
         penalty: the augmented form's penalty rho at the start of each substep (N/m, > 0).
         penalty_growth: its ramp: rho grows by this times |C| after each sweep (N/m^2, >= 0).
+        contact: the scene's objects (plane, spheres, capsules, boxes) in the solve as contact
+            energies (:class:`~.vbd_contact.SolveContact`), once :meth:`attach_scene` has
+            been given the scene (the Stepper does); default True.
+        self_contact: the cloth against itself in the solve (default False).
+        contact_radius: contact radius (m, > 0); None: the scene's ``thickness`` (0.005 m
+            without one). With self_contact it must be below the rest mesh's smallest distance
+            between non-adjacent parts.
+        contact_stiffness: the penalty's stiffness in units of the vertex's m / dt^2 (> 0).
+        bound_fraction: each vertex's displacement cap as a fraction of its distance to the
+            nearest object or contact partner, in (0, 0.5).
+        friction_epsilon: the slip speed (m/s) below which friction is smoothed (IPC's eps_v).
+        contact_refresh: sweeps between self-contact detections; 0 (default): once per substep.
     """
 
     name = "vbd"
@@ -130,19 +103,30 @@ class VBD(Integrator):
 
     def __init__(self, system: System, *, iterations: int = 20, substeps: int = 1, warm_start: bool = True,
                  chebyshev_rho: float = 0.0, augmented: bool = False, penalty: float = 1e3,
-                 penalty_growth: float = 1e5):
+                 penalty_growth: float = 1e5, contact: bool = True, self_contact: bool = False,
+                 contact_radius: float | None = None, contact_stiffness: float = 100.0,
+                 bound_fraction: float = 0.4, friction_epsilon: float = 0.01, contact_refresh: int = 0):
         super().__init__(system)
         self.iterations = positive_int("iterations", iterations)
         self.substeps = positive_int("substeps", substeps)
         if not isinstance(warm_start, (bool, np.bool_)):
             raise ConfigError(f"warm_start must be True or False, got {warm_start!r}")
         self.warm_start = bool(warm_start)
-        self.chebyshev_rho = _fraction("chebyshev_rho", chebyshev_rho)
+        self.chebyshev_rho = fraction_option("chebyshev_rho", chebyshev_rho)
         if not isinstance(augmented, (bool, np.bool_)):
             raise ConfigError(f"augmented must be True or False, got {augmented!r}")
         self.augmented = bool(augmented)
-        self.penalty = _positive("penalty", penalty)
-        self.penalty_growth = _positive("penalty_growth", penalty_growth, allow_zero=True)
+        self.penalty = positive_option("penalty", penalty)
+        self.penalty_growth = positive_option("penalty_growth", penalty_growth, allow_zero=True)
+        for name, flag in (("contact", contact), ("self_contact", self_contact)):
+            if not isinstance(flag, (bool, np.bool_)):
+                raise ConfigError(f"{name} must be True or False, got {flag!r}")
+        check_contact_options(contact_radius, contact_stiffness, bound_fraction, friction_epsilon, contact_refresh)
+        self.contact_options = dict(objects=bool(contact), self_contact=bool(self_contact), radius=contact_radius,
+                                    stiffness=float(contact_stiffness), bound_fraction=float(bound_fraction),
+                                    friction_epsilon=float(friction_epsilon), refresh=int(contact_refresh))
+        self.contact: SolveContact | None = None  # set by attach_scene when the scene has contact
+        self.has_contact = self.has_self_contact = False  # read by the kernels (ti.static)
         real, n = runtime.real(), system.particle_count
         self.springs = system.term("springs")
         self.has_springs = self.springs is not None
@@ -168,6 +152,8 @@ class VBD(Integrator):
         order, self.starts = colour_vertices(n, ends)
         self.order = ti.field(ti.i32, shape=max(1, n))
         self.order.from_numpy(order)
+        self.colour_start = ti.field(ti.i32, shape=len(self.starts))  # the serial kernels loop over colours
+        self.colour_start.from_numpy(np.asarray(self.starts, np.int32))
         self.serial = runtime.serial_loops(n + (self.springs.spring_count if self.has_springs else 0),
                                            SERIAL_WORK)
         self.rest_starts = ti.field(ti.i32, shape=())  # substeps whose sweeps started at V = 0
@@ -175,6 +161,27 @@ class VBD(Integrator):
         self._resume_time: float | None = None  # when the last step ended (warm start continues it)
         self._last_dt = 0.0
         self.sweeps = 0  # sweeps run since construction (all substeps)
+
+    def attach_scene(self, scene) -> None:
+        """Put the scene's objects (and, with ``self_contact``, its mesh) in the solve. Raises
+        ConfigError for a contact radius the mesh cannot take or a start that intersects."""
+        if getattr(self, "_attached", None) is scene:
+            return  # already bound to it (a launcher switching methods back)
+        self._attached = scene
+        options = dict(self.contact_options)
+        has_objects = options["objects"] and (
+            scene.plane is not None or any(getattr(p, "shape_functions", False) for p in scene.parts))
+        if not (has_objects or options["self_contact"]):
+            self.contact = None
+            self.has_contact = self.has_self_contact = False
+            self._kernels = {}
+            return
+        if options["radius"] is None:
+            options["radius"] = float(scene.params.get("thickness", 0.005))
+        options["self_friction"] = float(scene.params.get("self_friction", 0.0))
+        self.contact = SolveContact(scene, self.delta, **options)
+        self.has_contact, self.has_self_contact = True, self.contact.self_contact
+        self._kernels = {}  # the kernels compile the contact terms in
 
     @property
     def colour_count(self) -> int:
@@ -198,10 +205,17 @@ class VBD(Integrator):
                 self.solved_h = dt
             t_end = t + (k + 1) * dt  # backward Euler evaluates the forces at the substep's end
             previous_dt = self._last_dt if k == 0 else dt
-            if self.serial:
+            if self.contact is not None:
+                bad = self._contact_substep(kernels, state, dt, t_end, use_acceleration, previous_dt)
+                if bad < 0:
+                    self._resume_time = None
+                    return StepReport(accepted=False, h=0.0, next_h=h, f_evals=k * self.iterations,
+                                      status=Status.DIVERGED, message="vbd: the contact detection lost pairs "
+                                      "(positions non-finite or too far apart for its hash)")
+            elif self.serial:
                 bad = kernels["substep"](dt, t_end, use_acceleration, previous_dt, self.iterations)
             else:
-                kernels["begin"](dt, use_acceleration, previous_dt)
+                kernels["begin"](dt, use_acceleration, previous_dt, t_end)
                 omega = 1.0
                 for sweep in range(self.iterations):
                     omega = self._omega(sweep, omega)
@@ -217,6 +231,29 @@ class VBD(Integrator):
         self._resume_time = t + h
         work = self.substeps * self.iterations
         return StepReport(accepted=True, h=h, next_h=h, f_evals=work, linear_iterations=work)
+
+    def _contact_substep(self, kernels, state, dt, t_end, use_acceleration, previous_dt) -> int:
+        """A substep with contact in the solve: detect at the start (free of intersections),
+        start from the bounded guess, sweep, detecting again every ``contact_refresh`` sweeps.
+        Returns the non-finite particles, or -1 when a detection could miss pairs."""
+        contact = self.contact
+        if contact.refresh(state.x):
+            return -1
+        kernels["begin"](dt, use_acceleration, previous_dt, t_end)
+        every = contact.refresh_every or self.iterations
+        done, omega = 0, 1.0
+        while done < self.iterations:
+            if done and contact.refresh(self.point.x):
+                return -1
+            count = min(every, self.iterations - done)
+            if self.serial:
+                kernels["sweeps"](dt, t_end, done, count)
+            else:
+                for sweep in range(done, done + count):
+                    omega = self._omega(sweep, omega)
+                    kernels["sweep"](dt, t_end, omega, sweep)
+            done += count
+        return kernels["end"](dt)
 
     def _omega(self, sweep: int, omega: float) -> float:
         """Chebyshev weight of sweep ``sweep`` (0-based) given the last one's (1 when off)."""
@@ -240,14 +277,14 @@ class VBD(Integrator):
 
         @ti.kernel
         def substep(dt: float, t: float, use_acceleration: ti.i32, previous_dt: float, iterations: ti.i32) -> ti.i32:
-            vbd._begin(y, dt, use_acceleration, previous_dt)
+            vbd._begin(y, dt, use_acceleration, previous_dt, t)
             ti.loop_config(serialize=True)
             for _ in range(1):  # one serial task: every sweep, colour after colour
                 omega = 1.0
                 rho2 = vbd.chebyshev_rho ** 2
                 for sweep in range(iterations):
-                    for c in ti.static(range(vbd.colour_count)):
-                        for q in range(vbd.starts[c], vbd.starts[c + 1]):
+                    for c in range(vbd.colour_count):
+                        for q in range(vbd.colour_start[c], vbd.colour_start[c + 1]):
                             vbd._solve_vertex(vbd.order[q], dt, t)
                     if ti.static(vbd.has_multipliers):
                         for s in range(vbd.springs.spring_count):
@@ -258,12 +295,35 @@ class VBD(Integrator):
                         elif sweep > 1:
                             omega = 4.0 / (4.0 - rho2 * omega)
                         for i in range(vbd.system.particle_count):
-                            vbd._accelerate(i, dt, omega, sweep)
+                            vbd._accelerate(i, dt, omega, sweep, t)
             return vbd._end(y, dt)
 
         @ti.kernel
-        def begin(dt: float, use_acceleration: ti.i32, previous_dt: float):
-            vbd._begin(y, dt, use_acceleration, previous_dt)
+        def begin(dt: float, use_acceleration: ti.i32, previous_dt: float, t: float):
+            vbd._begin(y, dt, use_acceleration, previous_dt, t)
+
+        @ti.kernel
+        def sweeps(dt: float, t: float, first: ti.i32, count: ti.i32):
+            ti.loop_config(serialize=True)
+            for _ in range(1):  # one serial task: the sweeps first .. first + count - 1
+                omega = 1.0
+                rho2 = vbd.chebyshev_rho ** 2
+                for sweep in range(first + count):
+                    if ti.static(vbd.chebyshev):
+                        if sweep == 1:
+                            omega = 2.0 / (2.0 - rho2)
+                        elif sweep > 1:
+                            omega = 4.0 / (4.0 - rho2 * omega)
+                    if sweep >= first:
+                        for c in range(vbd.colour_count):
+                            for q in range(vbd.colour_start[c], vbd.colour_start[c + 1]):
+                                vbd._solve_vertex(vbd.order[q], dt, t)
+                        if ti.static(vbd.has_multipliers):
+                            for s in range(vbd.springs.spring_count):
+                                vbd._update_multiplier(s)
+                        if ti.static(vbd.chebyshev):
+                            for i in range(vbd.system.particle_count):
+                                vbd._accelerate(i, dt, omega, sweep, t)
 
         @ti.kernel
         def sweep(dt: float, t: float, omega: float, index: ti.i32):
@@ -275,16 +335,16 @@ class VBD(Integrator):
                     vbd._update_multiplier(s)
             if ti.static(vbd.chebyshev):
                 for i in range(vbd.system.particle_count):
-                    vbd._accelerate(i, dt, omega, index)
+                    vbd._accelerate(i, dt, omega, index, t)
 
         @ti.kernel
         def end(dt: float) -> ti.i32:
             return vbd._end(y, dt)
 
-        return {"substep": substep, "begin": begin, "sweep": sweep, "end": end}
+        return {"substep": substep, "begin": begin, "sweeps": sweeps, "sweep": sweep, "end": end}
 
     @ti.func
-    def _begin(self, y, dt, use_acceleration, previous_dt):
+    def _begin(self, y, dt, use_acceleration, previous_dt, t):
         """Keep (x0, v0) and put the iterate at the start guess (see the class docstring)."""
         direction = ti.Vector.zero(y.x.dtype, 3)
         g = ti.cast(0.0, y.x.dtype)
@@ -294,7 +354,6 @@ class VBD(Integrator):
                 direction = self.gravity.g[None] / g
         for i in range(self.system.particle_count):
             delta = ti.Vector.zero(y.x.dtype, 3)
-            v = ti.Vector.zero(y.x.dtype, 3)
             if self.system.free[i]:
                 if use_acceleration and previous_dt > 0.0:
                     # The last substep's acceleration along gravity, clamped to [0, g] (Chen et
@@ -303,12 +362,28 @@ class VBD(Integrator):
                     delta = dt * y.v[i] + dt * dt * ti.min(ti.max(along, 0.0), g) * direction
                 else:
                     delta = dt * y.v[i]
-                v = delta / dt
             self.start_x[i] = y.x[i]
             self.start_v[i] = y.v[i]
             self.delta[i] = delta
-            self.point.x[i] = y.x[i] + delta
-            self.point.v[i] = v
+        if ti.static(self.has_contact):
+            # The guess kept within the bounds, measured from the mean guess (a falling cloth
+            # moves as a whole); from none where an object stops a vertex short of that.
+            self.contact.fit_shift(self.delta, self.system.free)
+            stopped = 0
+            for i in range(self.system.particle_count):
+                if self.system.free[i]:
+                    kept = self.contact.limit(i, ti.Vector.zero(y.x.dtype, 3), self.delta[i], self.start_x[i], t)
+                    stopped += int(self.contact.outside_ball(i, kept, self.start_x[i]))
+            if ti.static(self.has_self_contact):
+                if stopped > 0:
+                    self.contact.shift[None] = ti.Vector.zero(y.x.dtype, 3)
+            for i in range(self.system.particle_count):
+                if self.system.free[i]:
+                    self.delta[i] = self.contact.limit(i, ti.Vector.zero(y.x.dtype, 3), self.delta[i],
+                                                       self.start_x[i], t)
+        for i in range(self.system.particle_count):
+            self.point.x[i] = self.start_x[i] + self.delta[i]
+            self.point.v[i] = self.delta[i] / dt
         # The guess against staying put (V = 0): on a stiff cloth the guess may stretch the
         # springs by more energy than the whole motion carries, which a few sweeps do not undo
         # (the energy rose step after step); the sweeps start from the lower merit.
@@ -319,6 +394,8 @@ class VBD(Integrator):
         at_rest = self._merit(dt) < guess_merit
         if at_rest:
             self.rest_starts[None] += 1
+            if ti.static(self.has_self_contact):
+                self.contact.shift[None] = ti.Vector.zero(y.x.dtype, 3)  # staying put needs none
         for i in range(self.system.particle_count):
             delta = self.delta[i]
             if at_rest:
@@ -359,86 +436,35 @@ class VBD(Integrator):
                 f, block = self._springs_at(i, dt)
                 r -= f
                 H += block
+            if ti.static(self.has_contact):
+                f, block = self.contact.terms(i, self.point.x, m, dt, t)
+                r -= f
+                H += block
             for term in ti.static(self.others):
                 r -= term.force(i, self.point, m, t)
                 H -= term.jacobian_diagonal_block(i, self.point, 1.0 / dt, 1.0, t)
             # H is symmetric positive definite (mass plus PSD blocks): its determinant is > 0
             # unless something is not finite, and then the vertex stays put.
             if H.determinant() > 0.0:
+                old = delta
                 delta -= H.inverse() @ r
+                if ti.static(self.has_contact):
+                    delta = self.contact.limit(i, old, delta, self.start_x[i], t)
                 self.delta[i] = delta
                 self.point.x[i] = self.start_x[i] + delta
                 self.point.v[i] = delta / dt
 
     @ti.func
-    def _springs_at(self, i, dt):
-        """The springs' force on i at the iterate (N) and their block of H (N/m, 3x3): for each
-        spring k u u^T + max(0, k (|d| - r) / |d|) (I - u u^T) + (c / dt) u u^T."""
-        springs = self.springs
-        f = ti.Vector.zero(self.delta.dtype, 3)
-        H = ti.Matrix.zero(self.delta.dtype, 3, 3)
-        for e in range(springs.offsets[i], springs.offsets[i + 1]):
-            s = springs.incident[e]
-            if springs.is_alive(s):
-                j = springs.other[e]
-                d = self.point.x[i] - self.point.x[j]
-                length = d.norm()
-                if length > 0.0:
-                    u = d / length
-                    k = springs.stiffness[s]
-                    tension = k * (length - springs.rest[s])
-                    along = k
-                    if ti.static(self.has_multipliers):
-                        tension, along = self._augmented_tension(s, length)
-                    f -= tension * u
-                    transverse = ti.max(tension / length, 0.0)
-                    if ti.static(springs.damped):
-                        c = springs.damping[s]
-                        f -= c * (self.point.v[i] - self.point.v[j]).dot(u) * u
-                        along += c / dt
-                    H += transverse * ti.Matrix.identity(self.delta.dtype, 3) \
-                        + (along - transverse) * u.outer_product(u)
-        return f, H
-
-    @ti.func
-    def _augmented_tension(self, s, length):
-        """(tension (N), its derivative in the length (N/m)) of spring s in the augmented
-        formulation: T = (rho C + lambda) / (1 + rho / k), C = |d| - r. Its fixed point in
-        lambda (lambda = T) is T = k C, the spring's own tension, whatever rho: converged, the
-        sweeps solve the same step; on the way the vertices see the stiffness rho k / (k + rho)
-        <= rho instead of k, and lambda carries the tension the stiff springs hold."""
-        k = self.springs.stiffness[s]
-        tension = ti.cast(0.0, self.delta.dtype)
-        along = ti.cast(0.0, self.delta.dtype)
-        if k > 0.0:
-            rho = self.spring_penalty[s]
-            scale = 1.0 / (1.0 + rho / k)
-            tension = (rho * (length - self.springs.rest[s]) + self.multiplier[s]) * scale
-            along = rho * scale
-        return tension, along
-
-    @ti.func
-    def _update_multiplier(self, s):
-        """After a sweep: lambda = T at the iterate, and rho grows by penalty_growth |C| up to k
-        (the AVBD ramp)."""
-        springs = self.springs
-        if springs.is_alive(s):
-            e = springs.ends[s]
-            length = (self.point.x[e[0]] - self.point.x[e[1]]).norm()
-            tension, _ = self._augmented_tension(s, length)
-            self.multiplier[s] = tension
-            stretch = ti.abs(length - springs.rest[s])
-            self.spring_penalty[s] = ti.min(self.spring_penalty[s] + self.penalty_growth * stretch,
-                                             springs.stiffness[s])
-
-    @ti.func
-    def _accelerate(self, i, dt, omega, sweep):
+    def _accelerate(self, i, dt, omega, sweep, t):
         """Chebyshev over-relaxation of vertex i after sweep ``sweep`` (0-based):
         delta = omega (delta - delta two sweeps back) + delta two sweeps back."""
         if self.system.free[i]:
             delta = self.delta[i]
             if sweep >= 1:
+                old = delta
                 delta = omega * (delta - self.earlier[i]) + self.earlier[i]
+                if ti.static(self.has_contact):
+                    delta = self.contact.limit(i, old, delta, self.start_x[i], t)
                 self.delta[i] = delta
                 self.point.x[i] = self.start_x[i] + delta
                 self.point.v[i] = delta / dt

@@ -15,6 +15,9 @@ class Obstacle:
     unit) at q, a point in object k's frame, and ``surface_velocity(k, t, r)`` (m/s)."""
 
     is_obstacle = True  # (the ScenePart flag the builder reads to hand it to self-contact)
+    # ``count``, ``path``, ``friction`` and the per-object ``distance``/``normal``/``surface_velocity``
+    # above, which the VBD solve's contacts read object by object (a mesh has none of them)
+    shape_functions = True
 
     @ti.func
     def nearest_surface(self, x, t, reach):

@@ -1,0 +1,110 @@
+"""Contact in the VBD solve against the default (symplectic Euler + the post-step Bridson stage)
+on `cloth-fold`, in one process: steps/s, the cost of each phase, intersecting frames, energy.
+
+    python benchmarks/bench_vbd_contact.py --n 64 --t-end 5 --base-t-end 0.3
+
+`vbd` runs with self_contact on and the post-step self-collision stage off (`self_collision=0`),
+at h = 1/60 s in f32 with the guard on; every step's positions are checked with the exact
+intersection test (taichi_sim.geometry.self_intersections, the `check` command's). The default
+runs the preset as it is (symplectic Euler at its 1 ms step with the Bridson stage) for
+``--base-t-end`` seconds. Per-phase times are wall times around each phase with ti.sync(),
+medians over the steps after the first two (compiling). Timings depend on the machine's load.
+"""
+import argparse
+import statistics
+import time
+
+import taichi as ti
+
+import taichi_sim as ts
+from taichi_sim.geometry import self_intersections
+
+
+def timed(fn, bucket: list):
+    def wrapper(*args, **kwargs):
+        ti.sync()
+        start = time.perf_counter()
+        out = fn(*args, **kwargs)
+        ti.sync()
+        bucket.append(time.perf_counter() - start)
+        return out
+    return wrapper
+
+
+def run(n: int, t_end: float, integrator: str | None, dt: float | None, options: dict, params: dict) -> dict:
+    scene = ts.build_scene("cloth-fold", {"nx": n, "ny": n, **params})
+    name = integrator or scene.default_integrator
+    dt = dt or scene.default_dt
+    method = ts.create_integrator(name, scene.system, **options)
+    steps, events, refresh = [], [], []
+    method.step = timed(method.step, steps)
+    scene.after_step = timed(scene.after_step, events)
+    stepper = ts.Stepper(scene, method, dt)
+    if getattr(method, "contact", None) is not None and method.contact.self_contact:
+        method.contact.refresh = timed(method.contact.refresh, refresh)
+    tris = scene.mesh.triangles_np
+    energy0 = scene.energy()
+    top, bad_frames, first_bad = energy0, 0, None
+    count = int(round(t_end / dt))
+    wall = time.perf_counter()
+    check_time = 0.0
+    for k in range(count):
+        stepper.step()
+        if stepper.failure is not None:
+            return {"name": name, "failure": stepper.failure.message, "steps": k}
+        top = max(top, scene.energy())
+        start = time.perf_counter()
+        if len(self_intersections(scene.state.to_numpy()[0], tris).pairs):
+            bad_frames += 1
+            first_bad = first_bad if first_bad is not None else (k + 1) * dt
+        check_time += time.perf_counter() - start
+    wall = time.perf_counter() - wall - check_time
+    warm = slice(2, None)
+    step_med = statistics.median(steps[warm])
+    event_med = statistics.median(events[warm])
+    substeps = getattr(method, "substeps", 1)
+    refresh_med = statistics.median(refresh[2 * substeps:]) * substeps if len(refresh) > 2 * substeps else 0.0
+    return {"name": name, "dt": dt, "steps": count, "steps_per_s": 1.0 / (step_med + event_med),
+            "wall": wall, "step_ms": 1e3 * step_med, "refresh_ms": 1e3 * refresh_med,
+            "solve_ms": 1e3 * (step_med - refresh_med), "events_ms": 1e3 * event_med,
+            "bad_frames": bad_frames, "first_bad": first_bad, "energy0": energy0, "energy_max": top,
+            "pairs": getattr(getattr(method, "contact", None), "pairs_total", 0)}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--n", type=int, default=64)
+    parser.add_argument("--t-end", type=float, default=5.0)
+    parser.add_argument("--base-t-end", type=float, default=0.3, help="seconds of the default (0: skip)")
+    parser.add_argument("--iterations", type=int, default=20)
+    parser.add_argument("--substeps", type=int, default=1)
+    parser.add_argument("--contact-radius", type=float, default=None, help="the scene's thickness (m)")
+    parser.add_argument("--jitter", type=float, default=None,
+                        help="the scene's jitter (m); 128 x 128 needs 0.001: at 0.002 it starts tangled")
+    args = parser.parse_args()
+    ts.init(arch="cpu", precision="f32")
+    params = {} if args.contact_radius is None else {"thickness": args.contact_radius}
+    if args.jitter is not None:
+        params["jitter"] = args.jitter
+    rows = [run(args.n, args.t_end, "vbd", 1 / 60, {"self_contact": True, "iterations": args.iterations,
+                                                    "substeps": args.substeps}, {"self_collision": False, **params})]
+    if args.base_t_end > 0:
+        rows.append(run(args.n, args.base_t_end, None, None, {}, params))
+    for row in rows:
+        print(row)
+    print()
+    print("| method | h (s) | steps | steps/s | step (ms) | refresh (ms) | solve (ms) | events (ms) "
+          "| frames intersecting | energy max / start (J) |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        if "failure" in r:
+            print(f"| {r['name']} | failed after {r['steps']} steps: {r['failure']} |")
+            continue
+        print(f"| {r['name']} | {r['dt']:.4g} | {r['steps']} | {r['steps_per_s']:.3g} | {r['step_ms']:.3g} "
+              f"| {r['refresh_ms']:.3g} | {r['solve_ms']:.3g} | {r['events_ms']:.3g} | {r['bad_frames']} of {r['steps']} "
+              f"| {r['energy_max']:.4g} / {r['energy0']:.4g} |")
+    print("load average:", open("/proc/loadavg").read().split()[:3])
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,355 @@
+"""Contact inside vertex block descent: the scene's objects and the cloth against itself as
+energies in each vertex's 3x3 block, and the conservative bounds on each vertex's displacement
+that keep anything from crossing between two detections (docs/vbd.md, "Contact in the solve")."""
+
+import math
+
+import numpy as np
+import taichi as ti
+
+from ... import runtime
+from ...collide.closest_points import closest_barycentric, segment_parameters
+from ...collide.hash_grid import PrimitiveHash
+from ...collide.mesh_check import check_contact_mesh
+from ...errors import ConfigError
+
+CONTACTS_PER_VERTEX = 48  # contact pairs a vertex keeps between refreshes; more are counted, not kept
+PAIRS_PER_VERTEX = 16  # room in the pair list per vertex
+
+
+@ti.data_oriented
+class SolveContact:
+    """What :class:`~.vbd.VBD` adds to vertex i's block when contact is in the solve.
+
+    Objects (the ground plane, spheres, capsules, boxes, where they are at the substep's end):
+    with d the signed distance to the surface and n its outward normal, below the contact
+    radius r the energy 1/2 k_i (r - d)^2 with k_i = ``stiffness`` m_i / dt^2, and IPC's lagged
+    friction mu lambda f0(|u|) on the tangential slip u of the substep relative to the surface
+    (lambda = k_i (r - d), f0 smoothed below |u| = ``friction_epsilon`` dt). Each vertex step
+    is then shortened to ``bound_fraction`` times the vertex's distance to the nearest object
+    (conservative advancement: a vertex outside a convex object cannot reach it).
+
+    Self-contact: vertex-triangle and edge-edge pairs closer than r at the last refresh (a
+    spatial hash at the current positions, once per substep or every ``refresh`` sweeps), each
+    pair the energy 1/2 k (r - d)^2 (k = ``stiffness`` m / dt^2, m the mean particle mass) plus
+    friction ``self_friction`` as above. Every vertex's displacement since the refresh, less one
+    translation ``shift`` common to all (the start guess's mean, when no particle is pinned), is
+    capped at ``bound_fraction`` (< 1/2) times the distance from the vertex to the nearest
+    primitive it is part of a pair with (Chen et al. 2025, "Offset Geometric Contact"): the
+    two sides of any pair then close by less than their distance, so nothing crosses between
+    refreshes, whatever the order the vertices are solved in.
+
+    Args:
+        scene: the :class:`~taichi_sim.scene.Scene` (its plane, the parts with the
+            ``Obstacle`` shape functions: spheres, capsules, boxes; its mesh).
+        delta: the integrator's (n,) displacement field x - x0 (m) (read for the slip).
+        objects: put the scene's objects in the solve.
+        self_contact: put the cloth against itself in the solve (needs a mesh).
+        radius: contact radius r (m).
+    """
+
+    def __init__(self, scene, delta, *, objects: bool, self_contact: bool, radius: float, stiffness: float,
+                 bound_fraction: float, friction_epsilon: float, self_friction: float, refresh: int):
+        system = scene.system
+        real, n = runtime.real(), system.particle_count
+        self.system, self.delta = system, delta
+        self.plane = scene.plane if objects else None
+        self.obstacles = [p for p in scene.parts if getattr(p, "shape_functions", False)] if objects else []
+        self.has_plane = self.plane is not None
+        self.has_objects = self.has_plane or bool(self.obstacles)
+        self.self_contact = bool(self_contact)
+        self.stiffness, self.fraction = float(stiffness), float(bound_fraction)
+        self.friction_epsilon, self.self_friction = float(friction_epsilon), float(self_friction)
+        self.refresh_every = int(refresh)
+        self.radius = float(radius)
+        self.refreshes = 0  # detections run since construction
+        if not self.self_contact:
+            return
+        mesh = scene.mesh
+        if mesh is None:
+            raise ConfigError("vbd option self_contact needs a scene with a triangle mesh (a cloth)")
+        if mesh.tearable:
+            raise ConfigError("vbd option self_contact: a tearing cloth is not supported (its triangles change)")
+        x0 = scene.state.to_numpy()[0]
+        tris = mesh.triangles_np.astype(np.int64)
+        rest = scene.rest_x if scene.rest_x is not None else x0
+        check_contact_mesh(x0, tris, radius, rest=rest, name="vbd option contact_radius")
+        from ...geometry import self_intersections
+
+        tangled = self_intersections(x0, tris)
+        if len(tangled.pairs):
+            raise ConfigError(f"x: the cloth intersects itself at the start ({len(tangled.pairs)} triangle pairs); "
+                              "vbd's self_contact keeps a cloth free of intersections, it cannot untangle one")
+        self.mesh = mesh
+        edges = np.unique(np.sort(np.concatenate([tris[:, [0, 1]], tris[:, [1, 2]], tris[:, [2, 0]]]), axis=1),
+                          axis=0)
+        lengths = np.linalg.norm(rest[edges[:, 0]] - rest[edges[:, 1]], axis=1)
+        # The reach of the bounds: a vertex with nothing nearer moves up to fraction x reach per
+        # refresh. The nearest non-adjacent primitives of a flat grid are s / sqrt(2) away (s its
+        # spacing), so a longer reach buys no motion there, and the pairs to test grow as its cube
+        # in a pile; it must cover the contact radius.
+        self.reach = max(radius, 0.75 * float(np.median(lengths)))
+        free = system.free.to_numpy().astype(bool)
+        mass = system.mass.to_numpy()
+        self.mean_mass = float(mass[free].mean()) if free.any() else 1.0
+        self.all_free = bool(free.all())
+        self.edge_count = len(edges)
+        self.edges = ti.Vector.field(2, ti.i32, shape=max(1, len(edges)))
+        self.edges.from_numpy(edges.astype(np.int32))
+        self.triangle_alive = ti.field(ti.i32, shape=max(1, mesh.triangle_count))
+        self.triangle_alive.fill(1)
+        self.edge_alive = ti.field(ti.i32, shape=max(1, len(edges)))
+        self.edge_alive.fill(1)
+        # a vertex is a point: the triangles' boxes grow by all of the reach, the edges' by half each
+        self.triangle_grid = PrimitiveHash(mesh.triangle_count, 3, self.reach, self.reach, entries_per_primitive=16)
+        self.edge_grid = PrimitiveHash(len(edges), 2, self.reach, 0.5 * self.reach, entries_per_primitive=16)
+        self.ref_x = ti.Vector.field(3, real, shape=n)  # positions at the last refresh (m)
+        self.nearest = ti.field(real, shape=n)  # distance to the nearest pair partner, capped at reach (m)
+        self.shift = ti.Vector.field(3, real, shape=())  # the translation the bounds are measured from (m)
+        self.pair_capacity = PAIRS_PER_VERTEX * n
+        self.pair_ids = ti.Vector.field(4, ti.i32, shape=self.pair_capacity)
+        self.pair_kind = ti.field(ti.i32, shape=self.pair_capacity)  # 0 vertex-triangle, 1 edge-edge
+        self.pair_count = ti.field(ti.i32, shape=())
+        self.vertex_pairs = ti.field(ti.i32, shape=(n, CONTACTS_PER_VERTEX))
+        self.vertex_pair_count = ti.field(ti.i32, shape=n)
+        self.dropped = ti.field(ti.i32, shape=())  # pairs not kept (lists full) since the last refresh
+        self.dropped_total = 0
+        self.pairs_total = 0
+
+    # -- detection (host side, once per refresh) -------------------------------------------------
+
+    def refresh(self, x) -> int:
+        """Find the pairs closer than the reach at positions ``x`` (the iterate, free of
+        intersections), reset the bounds' reference to ``x`` and their shift to zero. Returns
+        the number of hash boxes clipped (0 unless positions are non-finite or beyond floats'
+        reach): then pairs may be missed and the step must not go on."""
+        if not self.self_contact:
+            return 0
+        for grid, prims, alive in ((self.triangle_grid, self.mesh.triangles, self.triangle_alive),
+                                   (self.edge_grid, self.edges, self.edge_alive)):
+            # Cells as wide as the longest box: a box spans at most 2 per axis (never clipped, so
+            # no pair is missed), and with c the cell and b a box, a query meets about (b + c)^4 / c^2
+            # primitives on a sheet, least at c = b (1.8 times fewer than at c = b / 3).
+            extent = grid.longest_box(x, x, prims, alive)
+            grid.cell[None] = max(extent * 1.001, 1e-9)
+            grid.build(x, x, prims, alive)
+        self._collect(x)
+        self.refreshes += 1
+        count, dropped = int(self.pair_count[None]), int(self.dropped[None])
+        self.pairs_total += min(count, self.pair_capacity)
+        self.dropped_total += dropped
+        return self.triangle_grid.overflowed() + self.edge_grid.overflowed()
+
+    @ti.kernel
+    def _collect(self, x: ti.template()):
+        n = self.system.particle_count
+        for i in range(n):
+            self.nearest[i] = self.reach
+            self.vertex_pair_count[i] = 0
+            self.ref_x[i] = x[i]
+        self.pair_count[None] = 0
+        self.dropped[None] = 0
+        self.shift[None] = ti.Vector.zero(x.dtype, 3)
+        tg = self.triangle_grid
+        for v in range(n):
+            p = x[v]
+            cell = tg.cell_of(p)
+            first, last = tg.entries(tg.bucket(cell))
+            for e in range(first, last):
+                t = tg.items[e]
+                tri = self.mesh.triangles[t]
+                if tri[0] != v and tri[1] != v and tri[2] != v and all(cell >= tg.cell_lo[t]) \
+                        and all(cell <= tg.cell_hi[t]) and all(p >= tg.lo[t]) and all(p <= tg.hi[t]):
+                    a, b, c = x[tri[0]], x[tri[1]], x[tri[2]]
+                    w = closest_barycentric(p, a, b, c)
+                    d = (p - w[0] * a - w[1] * b - w[2] * c).norm()
+                    self._near(ti.Vector([v, tri[0], tri[1], tri[2]]), 0, d)
+        eg = self.edge_grid
+        for e1 in range(self.edge_count):
+            c_lo, c_hi = eg.cell_lo[e1], eg.cell_hi[e1]
+            ends = self.edges[e1]
+            for i, j, k in ti.ndrange((c_lo[0], c_hi[0] + 1), (c_lo[1], c_hi[1] + 1), (c_lo[2], c_hi[2] + 1)):
+                cell = ti.Vector([i, j, k])
+                first, last = eg.entries(eg.bucket(cell))
+                for e in range(first, last):
+                    e2 = eg.items[e]
+                    other = self.edges[e2]
+                    if e2 > e1 and eg.first_shared_cell(cell, c_lo, c_hi, e2) \
+                            and ends[0] != other[0] and ends[0] != other[1] and ends[1] != other[0] \
+                            and ends[1] != other[1] and all(eg.lo[e1] <= eg.hi[e2]) and all(eg.lo[e2] <= eg.hi[e1]):
+                        ids = ti.Vector([ends[0], ends[1], other[0], other[1]])
+                        gap, _ = self._pair_geometry(ids, 1, x)
+                        self._near(ids, 1, gap.norm())
+
+    @ti.func
+    def _near(self, ids, kind, d):
+        """Record a pair at distance d (m): the bounds of its four vertices, and a contact pair
+        when closer than the radius."""
+        if d < self.reach:
+            for k in ti.static(range(4)):
+                ti.atomic_min(self.nearest[ids[k]], d)
+            if d < self.radius:
+                slot = ti.atomic_add(self.pair_count[None], 1)
+                if slot < self.pair_capacity:
+                    self.pair_ids[slot] = ids
+                    self.pair_kind[slot] = kind
+                    for k in ti.static(range(4)):
+                        if self.system.free[ids[k]]:
+                            s = ti.atomic_add(self.vertex_pair_count[ids[k]], 1)
+                            if s < CONTACTS_PER_VERTEX:
+                                self.vertex_pairs[ids[k], s] = slot
+                            else:
+                                ti.atomic_add(self.dropped[None], 1)
+                else:
+                    ti.atomic_add(self.dropped[None], 1)
+
+    @ti.func
+    def _pair_geometry(self, ids, kind, x):
+        """(gap vector between the pair's closest points (m), the four vertices' signed weights):
+        gap = sum_k w_k x[ids[k]]. Vertex-triangle: ids = (v, a, b, c), gap from the triangle to
+        v; edge-edge: ids = (p, q, r, s), gap from segment rs to segment pq."""
+        w = ti.Vector.zero(x.dtype, 4)
+        if kind == 0:
+            bary = closest_barycentric(x[ids[0]], x[ids[1]], x[ids[2]], x[ids[3]])
+            w = ti.Vector([1.0, -bary[0], -bary[1], -bary[2]], dt=x.dtype)
+        else:
+            ab = segment_parameters(x[ids[0]], x[ids[1]], x[ids[2]], x[ids[3]])
+            w = ti.Vector([1.0 - ab[0], ab[0], ab[1] - 1.0, -ab[1]], dt=x.dtype)
+        gap = ti.Vector.zero(x.dtype, 3)
+        for k in ti.static(range(4)):
+            gap += w[k] * x[ids[k]]
+        return gap, w
+
+    # -- the per-vertex terms (inside the solve) -------------------------------------------------
+
+    @ti.func
+    def terms(self, i, x, m, dt, t):
+        """Contact force on vertex i (N) and its PSD block of the Hessian (N/m) at the iterate
+        ``x`` (the point's positions field), objects where they are at time t (s)."""
+        f = ti.Vector.zero(x.dtype, 3)
+        H = ti.Matrix.zero(x.dtype, 3, 3)
+        if ti.static(self.has_objects):
+            k = self.stiffness * m / (dt * dt)
+            p = x[i]
+            slip = self.delta[i]
+            if ti.static(self.has_plane):
+                n = self.plane.normal[None]
+                f, H = self._push(f, H, (p - self.plane.point[None]).dot(n), n, k, 1.0, slip,
+                                  self.plane.friction[None], dt)
+            for collider in ti.static(self.obstacles):
+                for c in range(collider.count):
+                    q = p - collider.path.center(c, t)
+                    d = collider.distance(c, q)
+                    if d < self.radius:
+                        n = collider.normal(c, q)
+                        moved = slip - dt * collider.surface_velocity(c, t, q)
+                        f, H = self._push(f, H, d, n, k, 1.0, moved, collider.friction[c], dt)
+        if ti.static(self.self_contact):
+            k = self.stiffness * self.mean_mass / (dt * dt)
+            for s in range(ti.min(self.vertex_pair_count[i], CONTACTS_PER_VERTEX)):
+                pair = self.vertex_pairs[i, s]
+                ids = self.pair_ids[pair]
+                gap, w = self._pair_geometry(ids, self.pair_kind[pair], x)
+                d = gap.norm()
+                if d < self.radius and d > 0.0:
+                    weight = ti.cast(0.0, x.dtype)
+                    slip = ti.Vector.zero(x.dtype, 3)
+                    for j in ti.static(range(4)):
+                        if ids[j] == i:
+                            weight = w[j]
+                        slip += w[j] * self.delta[ids[j]]
+                    f, H = self._push(f, H, d, gap / d, k, weight, slip, self.self_friction, dt)
+        return f, H
+
+    @ti.func
+    def _push(self, f, H, d, n, k, weight, slip, mu, dt):
+        """Add the penalty 1/2 k (r - d)^2 along n and its friction, for a vertex that enters the
+        gap with weight ``weight`` (d(gap)/dx_i = weight I)."""
+        if d < self.radius:
+            normal_force = k * (self.radius - d)
+            nn = n.outer_product(n)
+            f += normal_force * weight * n
+            H += k * weight * weight * nn
+            if mu > 0.0:
+                u = slip - slip.dot(n) * n
+                y = u.norm()
+                eps = self.friction_epsilon * dt
+                ratio = 1.0 / ti.max(y, 1e-30)  # f1(y) / y, IPC's mollifier below eps
+                if y < eps:
+                    ratio = 2.0 / eps - y / (eps * eps)
+                scale = mu * normal_force * ratio
+                f -= scale * weight * u
+                H += scale * weight * weight * (ti.Matrix.identity(self.delta.dtype, 3) - nn)
+        return f, H
+
+    @ti.func
+    def limit(self, i, old, new, start, t):
+        """The displacement (m, from the substep's start ``start``) vertex i may take instead of
+        ``new``, coming from ``old``: inside its ball around the refresh point plus the shift,
+        then no further than ``bound_fraction`` of its distance to the nearest object."""
+        out = new
+        if ti.static(self.self_contact):
+            centre = self.ref_x[i] - start + self.shift[None]
+            bound = self.fraction * self.nearest[i]
+            off = out - centre
+            length = off.norm()
+            if length > bound:
+                out = centre + off * (bound / length)
+        if ti.static(self.has_objects):
+            p = start + old
+            step = out - old
+            scale = ti.cast(1.0, self.delta.dtype)
+            if ti.static(self.has_plane):
+                n = self.plane.normal[None]
+                scale = ti.min(scale, self._approach_scale((p - self.plane.point[None]).dot(n), n, step))
+            for collider in ti.static(self.obstacles):
+                for c in range(collider.count):
+                    q = p - collider.path.center(c, t)
+                    scale = ti.min(scale, self._approach_scale(collider.distance(c, q), collider.normal(c, q), step))
+            out = old + scale * step
+        return out
+
+    @ti.func
+    def _approach_scale(self, gap, n, step):
+        """The share of ``step`` (m) that nears a convex object, ``gap`` (m) away along its
+        outward normal n, by at most bound_fraction x gap: the object lies behind the tangent
+        plane at its nearest point, so such a step cannot reach it. 1 from inside (pushed out)."""
+        scale = ti.cast(1.0, self.delta.dtype)
+        approach = -step.dot(n)
+        if gap > 0.0 and approach > self.fraction * gap:
+            scale = self.fraction * gap / approach
+        return scale
+
+    @ti.func
+    def outside_ball(self, i, delta, start):
+        """Whether displacement ``delta`` of vertex i lies outside its ball (round-off allowed)."""
+        out = False
+        if ti.static(self.self_contact):
+            out = (delta - (self.ref_x[i] - start + self.shift[None])).norm() > self.fraction * self.nearest[i] * (1.0 + 1e-5)
+        return out
+
+    @ti.func
+    def fit_shift(self, delta, free):
+        """The translation the bounds are measured from: the mean start displacement when every
+        particle is free (a pinned particle does not move, so then none); a top-level loop."""
+        if ti.static(self.self_contact):
+            if ti.static(self.all_free):
+                total = ti.Vector.zero(delta.dtype, 3)
+                for i in range(self.system.particle_count):
+                    total += delta[i]
+                self.shift[None] = total / self.system.particle_count
+
+
+def check_contact_options(radius, stiffness, bound_fraction, friction_epsilon, refresh) -> None:
+    """Refuse bad contact options by name (ConfigError); None radius means "the scene's"."""
+    for name, value in (("contact_radius", radius), ("contact_stiffness", stiffness),
+                        ("friction_epsilon", friction_epsilon)):
+        if value is None and name == "contact_radius":
+            continue
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+            raise ConfigError(f"{name} must be a finite number > 0, got {value!r}")
+    if isinstance(bound_fraction, bool) or not isinstance(bound_fraction, (int, float)) \
+            or not 0 < bound_fraction < 0.5:
+        raise ConfigError(f"bound_fraction must be a number in (0, 0.5), got {bound_fraction!r}")
+    if isinstance(refresh, bool) or not isinstance(refresh, (int, np.integer)) or refresh < 0:
+        raise ConfigError(f"contact_refresh must be an integer >= 0 (0: once per substep), got {refresh!r}")

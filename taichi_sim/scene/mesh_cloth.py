@@ -1,0 +1,181 @@
+"""Any triangle mesh as cloth: stretch springs on its edges, bending springs across its interior
+edges, masses from its area, pins from a spec string (docs/meshes.md)."""
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from ..errors import ConfigError
+from ..memory import Size
+from . import cloth as topo
+from .builder import SceneBuilder
+from .cloth_scenes import EXTRA_PARAM_NAMES, add_cloth_extras, cloth_params
+from .mesh_import import ClothMesh
+from .params import Param
+from .preset import with_defaults
+
+
+def vertex_masses(x, triangles, density: float) -> np.ndarray:
+    """(n,) mass (kg) of each vertex: a third of the area (m^2) of each triangle it belongs to,
+    times the area ``density`` (kg/m^2). The masses sum to density times the mesh's area."""
+    x = np.asarray(x, float)
+    triangles = np.asarray(triangles, np.int64).reshape(-1, 3)
+    a, b, c = (x[triangles[:, k]] for k in range(3))
+    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    mass = np.zeros(len(x))
+    np.add.at(mass, triangles.ravel(), np.repeat(density * area / 3.0, 3))
+    return mass
+
+
+def mesh_edges(triangles) -> tuple[np.ndarray, np.ndarray]:
+    """The mesh's edges and, for each, how many triangles share it.
+
+    Returns:
+        edges: (E, 2) int64 vertex ids, lower id first, sorted.
+        counts: (E,) 1 on the boundary, 2 inside, more where the mesh is non-manifold.
+    """
+    triangles = np.asarray(triangles, np.int64).reshape(-1, 3)
+    edges = np.sort(triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    return np.unique(edges, axis=0, return_counts=True)
+
+
+def bending_pairs(triangles) -> np.ndarray:
+    """(B, 2) int64: for each interior edge shared by exactly two triangles, the two vertices
+    opposite it (the flex spring across the edge; a fold along the edge stretches or squeezes
+    it). Non-manifold edges get none."""
+    triangles = np.asarray(triangles, np.int64).reshape(-1, 3)
+    edges = np.sort(triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    opposite = triangles[:, [2, 0, 1]].reshape(-1)
+    _, inverse, counts = np.unique(edges, axis=0, return_inverse=True, return_counts=True)
+    inverse = inverse.reshape(-1)
+    interior = counts[inverse] == 2
+    order = np.argsort(inverse[interior], kind="stable")
+    across = opposite[interior][order].reshape(-1, 2)
+    across = across[across[:, 0] != across[:, 1]]
+    return np.sort(across, axis=1)
+
+
+def mesh_springs(triangles, *, bending: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """Springs of a mesh cloth: one structural (kind 0) along every edge, and (``bending``) one
+    flex (kind 2) across every interior edge.
+
+    Returns:
+        ends: (S, 2) int64 vertex ids.
+        kind: (S,) int8.
+    """
+    edges, _ = mesh_edges(triangles)
+    parts = [(edges, topo.STRUCTURAL)]
+    if bending:
+        parts.append((bending_pairs(triangles), topo.FLEX))
+    ends = np.concatenate([e for e, _ in parts]).reshape(-1, 2)
+    kind = np.concatenate([np.full(len(e), k, np.int8) for e, k in parts])
+    return ends, kind
+
+
+def select_pins(spec: str, mesh: ClothMesh) -> np.ndarray:
+    """(n,) bool: the vertices the ``pin`` spec holds (see :data:`PIN_HELP`). ConfigError for a
+    spec that does not parse, or that selects no vertex or every vertex."""
+    spec = spec.strip()
+    x, n = mesh.x, mesh.vertex_count
+    kind, _, arg = spec.partition(":")
+    kind = kind.strip().lower()
+    pinned = np.zeros(n, bool)
+    if kind == "none" and not arg:
+        return pinned
+    try:
+        if kind == "ids":
+            ids = np.asarray([int(t) for t in arg.split(",") if t.strip()], np.int64)
+            if len(ids) == 0:
+                raise ValueError
+            bad = ids[(ids < 0) | (ids >= n)]
+            if len(bad):
+                raise ConfigError(f"parameter pin: vertex id {bad[0]} is not in 0..{n - 1} (the mesh "
+                                  f"{mesh.source} has {n} vertices)")
+            pinned[ids] = True
+        elif kind == "box":
+            bounds = np.asarray([float(t) for t in arg.split(",")], float)
+            if bounds.shape != (6,) or not np.isfinite(bounds).all():
+                raise ValueError
+            low, high = np.minimum(bounds[:3], bounds[3:]), np.maximum(bounds[:3], bounds[3:])
+            pinned = np.all((x >= low) & (x <= high), axis=1)
+        elif kind in ("top", "bottom"):
+            reach = float(arg)
+            if not (reach >= 0 and np.isfinite(reach)):
+                raise ValueError
+            y = x[:, 1]
+            pinned = y >= y.max() - reach if kind == "top" else y <= y.min() + reach
+        elif kind == "group":
+            if arg not in mesh.groups:
+                known = ", ".join(sorted(mesh.groups)) or "none"
+                raise ConfigError(f"parameter pin: the mesh {mesh.source} has no group {arg!r} (its groups: "
+                                  f"{known})")
+            pinned[mesh.groups[arg]] = True
+        else:
+            raise ValueError
+    except ConfigError:
+        raise
+    except ValueError:
+        raise ConfigError(f"parameter pin: cannot read {spec!r}; give {PIN_HELP}") from None
+    if not pinned.any():
+        raise ConfigError(f"parameter pin: {spec!r} selects no vertex of the mesh {mesh.source} "
+                          "(pin=none pins nothing on purpose)")
+    if pinned.all():
+        raise ConfigError(f"parameter pin: {spec!r} selects every vertex of the mesh {mesh.source}; "
+                          "nothing would move")
+    return pinned
+
+
+PIN_HELP = ("none, ids:3,17,42 (vertex ids), box:x0,y0,z0,x1,y1,z1 (m), top:D or bottom:D (vertices "
+            "within D m of the highest or lowest y) or group:NAME (an OBJ o/g group, a glTF node)")
+
+
+def add_mesh_cloth(b: SceneBuilder, p: dict[str, Any], seed: int, mesh: ClothMesh, *,
+                   mass: np.ndarray | None = None, pinned: np.ndarray | None = None) -> None:
+    """Add ``mesh`` to ``b`` as cloth with the parameters ``p`` (those of :data:`MESH_CLOTH_PARAMS`),
+    rest lengths as the mesh is: its vertices (``mass``, kg, default :func:`vertex_masses` at
+    ``density``; ``pinned``, default from the ``pin`` spec), its springs, its triangles, seeded
+    jitter, tearing and every extra (:func:`~taichi_sim.scene.cloth_scenes.add_cloth_extras`)."""
+    if mass is None:
+        mass = vertex_masses(mesh.x, mesh.triangles, p["density"])
+    if pinned is None:
+        pinned = select_pins(p["pin"], mesh)
+    b.add_particles(mesh.x, mass, pinned=pinned)
+    ends, kind = mesh_springs(mesh.triangles, bending=p["bending"])
+    stiffness = np.where(kind == topo.FLEX, p["flex_stiffness"], p["stiffness"])
+    b.add_springs(ends, stiffness=stiffness, damping=p["damping"], kind=kind)
+    b.add_triangles(mesh.triangles)
+    if p["jitter"] > 0:  # after the springs: the rest lengths stay those of the mesh as loaded
+        b.displace(np.random.default_rng(seed).normal(scale=p["jitter"], size=mesh.x.shape))
+    if p["tear"] and len(ends):
+        strain = np.full(len(ends), p["tear_strain"], float)
+        strain[kind == topo.FLEX] *= p["tear_flex_factor"]
+        b.set_tearing(strain)
+    add_cloth_extras(b, p, seed, float(np.mean(mass)))
+
+
+def mesh_size(mesh: ClothMesh, bending: bool) -> Size:
+    """Particles, springs and triangles a mesh cloth allocates (counted with numpy only)."""
+    edges, counts = mesh_edges(mesh.triangles)
+    springs = len(edges)
+    if bending:
+        springs += len(bending_pairs(mesh.triangles))
+    return Size(mesh.vertex_count, springs, len(mesh.triangles))
+
+
+#: What every mesh cloth (a file or a garment) reads: the spring model, mass, pins and extras.
+MESH_CLOTH_PARAMS: tuple[Param, ...] = (
+    Param("pin", "top:0.02", "", f"pinned vertices: {PIN_HELP}"),
+    Param("density", 0.2, "kg/m^2", "area density of the cloth: each vertex gets a third of the area of "
+          "each of its triangles times this", minimum=0.0, exclusive=True),
+    Param("stiffness", 500.0, "N/m", "stiffness of the stretch springs along the mesh edges", minimum=0.0),
+    Param("bending", True, "", "a flex spring across each interior edge, between the two vertices "
+          "opposite it"),
+    Param("flex_stiffness", 20.0, "N/m", "stiffness of the bending springs", minimum=0.0),
+    # drag and the dashpot act per particle and per spring: the grid's defaults (for 0.01 kg
+    # particles) would hold back vertices of a few grams per m^2 like honey, and make an
+    # explicit step unstable (c / m above 2 / h); these suit vertices of about 3e-5 kg
+    *with_defaults(cloth_params("jitter", "gravity", "drag", "damping", "tear", "tear_strain",
+                                "tear_flex_factor"), drag=2e-5, damping=1e-4),
+    *cloth_params(*EXTRA_PARAM_NAMES),
+)

@@ -1,0 +1,216 @@
+"""Contact inside vertex block descent (docs/vbd.md, "Contact in the solve"): nothing crosses at
+speed, a folding cloth never intersects itself, objects keep vertices out and friction holds a
+vertex on a slope; bad contact options and tangled starts are refused. Small scenes: kernel
+compilation dominates."""
+
+import math
+
+import numpy as np
+import pytest
+from helpers import step_checked
+
+import taichi_sim as ts
+from taichi_sim.errors import ConfigError
+from taichi_sim.geometry import self_intersections
+from taichi_sim.integrators import create_integrator
+from taichi_sim.scene.builder import SceneBuilder
+from taichi_sim.scene.colliders import SpherePath
+
+H = 1 / 60
+
+
+def shot_scene():
+    """A pinned triangle T1 standing in the plane z = 0 (x in [-1, 1], y in [-1, 0]); a vertex
+    0.05 m in front of its face, shot at it at 30 m/s (0.5 m a step); a free triangle T2 in
+    the plane x = 0 whose lower edge, 0.05 m above T1's upper edge and across it, falls at
+    30 m/s. No gravity: only contact stops them."""
+    b = SceneBuilder()
+    x = np.array([[-1.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, -1.0, 0.0],  # T1
+                  [0.0, 0.05, -1.0], [0.0, 0.05, 1.0], [0.0, 1.05, 0.0],  # T2
+                  [0.3, -0.4, 0.05]])  # the shot vertex
+    v = np.zeros_like(x)
+    v[3:6, 1] = -30.0
+    v[6, 2] = -30.0
+    b.add_particles(x, 0.01, v=v, pinned=np.array([1, 1, 1, 0, 0, 0, 0], bool))
+    b.add_triangles(np.array([[0, 1, 2], [3, 4, 5]]))
+    return b.finalize(name="shot", params={}, default_dt=H, default_integrator="vbd")
+
+
+@pytest.mark.parametrize("serial", [True, False])
+def test_a_vertex_and_an_edge_shot_at_the_mesh_never_pass_it(f64, serial):
+    """Both code paths: one kernel per substep's sweeps (CPU) and one per sweep, the colours as
+    parallel loops (a GPU, or a large mesh), with Chebyshev's over-relaxation there."""
+    scene = shot_scene()
+    vbd = create_integrator("vbd", scene.system, self_contact=True, contact_radius=0.01,
+                            chebyshev_rho=0.0 if serial else 0.9)
+    vbd.serial = serial
+    tris = scene.mesh.triangles_np
+
+    closest = []
+
+    def on_their_side(scene):
+        x = scene.state.to_numpy()[0]
+        assert x[6, 2] > 0.0, "the vertex passed through the triangle"
+        assert x[3:5, 1].min() > 0.0, "the edge passed through the other edge"
+        assert not len(self_intersections(x, tris).pairs)
+        closest.append((x[6, 2], x[3:5, 1].max()))
+
+    step_checked(scene, vbd, H, 12, on_their_side)
+    assert np.min(closest, axis=0).max() < 0.01  # both came into contact, not stopped far off
+
+
+def test_a_non_finite_state_is_a_diverged_step_with_contact(f64):
+    scene = shot_scene()
+    vbd = create_integrator("vbd", scene.system, self_contact=True, contact_radius=0.01)
+    vbd.attach_scene(scene)
+    x, v = scene.state.to_numpy()
+    x[4] = np.nan
+    scene.state.from_numpy(x, v)
+    report = vbd.step(scene.state, 0.0, H)
+    assert report.status.value == "diverged" and not report.accepted
+
+
+def fold(n: int = 12, **extra):
+    """cloth-fold without the post-step self-collision stage and without dashpots or drag
+    (conservative: the energy can only fall)."""
+    return ts.build_scene("cloth-fold", {"nx": n, "ny": n, "self_collision": False, "jitter": 0.002, **extra})
+
+
+def test_a_cloth_folding_on_itself_never_intersects_and_never_gains_energy(f32):
+    scene = fold()
+    vbd = create_integrator("vbd", scene.system, self_contact=True)
+    tris = scene.mesh.triangles_np
+    energy = [scene.energy()]
+
+    def clean(scene):
+        assert not len(self_intersections(scene.state.to_numpy()[0], tris).pairs)
+        energy.append(scene.energy())
+
+    step_checked(scene, vbd, H, 90, clean)
+    energy = np.asarray(energy)
+    assert np.all(energy <= energy[0] * (1 + 1e-6)), energy.max() - energy[0]
+    assert vbd.contact.pairs_total > 0  # the layers met
+
+
+def test_without_self_contact_the_same_fold_intersects(f32):
+    scene = fold()
+    vbd = create_integrator("vbd", scene.system)  # objects (the ground) only
+    tris = scene.mesh.triangles_np
+    crossed = []
+    step_checked(scene, vbd, H, 90, lambda s: crossed.append(len(self_intersections(s.state.to_numpy()[0], tris).pairs)))
+    assert max(crossed) > 0
+
+
+def test_objects_in_the_solve_keep_a_draped_cloth_out(f64):
+    """A 10 x 10 cloth dropped on a sphere and a box standing on the ground: no vertex ends a
+    step inside any of them (nor below the ground), and the post-step object events, kept as a
+    fail-safe, have nothing left to do."""
+    scene = ts.build_scene("cloth", {"nx": 10, "ny": 10, "pin": "none", "plane": True, "sphere": True,
+                                     "sphere_radius": 0.2, "sphere_x": -0.25, "sphere_y": 0.2, "box": True,
+                                     "box_x": 0.3, "box_y": 0.15, "box_half_x": 0.15, "box_half_y": 0.15,
+                                     "box_half_z": 0.15, "height": 0.6, "object_faces": False})
+    vbd = create_integrator("vbd", scene.system)
+    stepper = ts.Stepper(scene, vbd, H)
+    sphere_c = scene.spheres.centers()[0]
+    box_c, half = scene.boxes.centers()[0], np.array([0.15, 0.15, 0.15])
+    events_moved = 0.0
+    for _ in range(60):
+        report = vbd.step(scene.state, stepper.t, H)
+        assert report.status.value == "ok"
+        x = scene.state.to_numpy()[0]
+        assert np.linalg.norm(x - sphere_c, axis=1).min() >= 0.2
+        inside_box = np.all(np.abs(x - box_c) < half, axis=1)
+        assert not inside_box.any()
+        assert x[:, 1].min() >= scene.plane.point_np[1]
+        stepper.t += H
+        scene.after_step(stepper.t, H)
+        events_moved = max(events_moved, float(np.abs(scene.state.to_numpy()[0] - x).max()))
+    assert events_moved < 1e-9
+    assert np.linalg.norm(x - sphere_c, axis=1).min() < 0.2 + 0.02  # it lies on the sphere
+
+
+def test_a_vertex_shot_at_a_thin_box_stops_on_its_near_side(f64):
+    """A particle at 60 m/s (1 m a step) towards a box 2 cm thick: the penalty alone lets it
+    through (its inertial target lies 1 m beyond, past the box's middle, where the nearest face
+    is the far one); the cap on each step's approach stops it on the side it came from. No
+    post-step events run here."""
+    b = SceneBuilder()
+    b.add_particles(np.array([[0.0, 0.3, 0.0]]), 0.01, v=np.array([[0.0, -60.0, 0.0]]))
+    b.add_box(SpherePath((0.0, 0.0, 0.0)), (0.2, 0.01, 0.2))
+    scene = b.finalize(name="box-shot", params={}, default_dt=H, default_integrator="vbd")
+    vbd = create_integrator("vbd", scene.system, contact_radius=0.005)
+    vbd.attach_scene(scene)
+    for k in range(6):
+        assert vbd.step(scene.state, k * H, H).status.value == "ok"
+        assert scene.state.to_numpy()[0][0, 1] > 0.01
+
+
+def test_friction_holds_a_vertex_on_a_slope_and_lets_it_slide_past_its_angle(f64):
+    """A particle on a plane tilted 20 degrees: mu = 0.5 > tan 20 holds it (drift under 1 cm in
+    1 s); mu = 0.1 lets it slide as 1/2 g (sin - mu cos) t^2, within 10 %."""
+    theta = math.radians(20.0)
+    normal = np.array([-math.sin(theta), math.cos(theta), 0.0])
+    b = SceneBuilder()
+    b.add_particles(0.01 * normal.reshape(1, 3), 0.01)  # at the contact radius
+    b.set_gravity((0.0, -9.81, 0.0))
+    b.set_plane((0.0, 0.0, 0.0), normal, restitution=0.0, friction=0.5)
+    scene = b.finalize(name="slope", params={}, default_dt=H, default_integrator="vbd")
+    vbd = create_integrator("vbd", scene.system, contact_radius=0.01)
+    vbd.attach_scene(scene)
+    for mu, expected in ((0.5, None), (0.1, 0.5 * 9.81 * (math.sin(theta) - 0.1 * math.cos(theta)))):
+        scene.plane.friction[None] = mu
+        scene.reset()
+        vbd.reset()
+        start = scene.state.to_numpy()[0][0]
+        for k in range(60):
+            assert vbd.step(scene.state, k * H, H).status.value == "ok"
+        x = scene.state.to_numpy()[0][0]
+        along = float(np.linalg.norm((x - start) - (x - start).dot(normal) * normal))
+        assert (x - scene.plane.point_np).dot(normal) > 0.0
+        if expected is None:
+            assert along < 0.01, along
+        else:
+            assert abs(along - expected) < 0.1 * expected, (along, expected)
+
+
+@pytest.mark.parametrize("option, value", [
+    ("contact_radius", 0.0), ("contact_radius", -1.0), ("contact_stiffness", 0.0),
+    ("bound_fraction", 0.5), ("bound_fraction", 0.0), ("friction_epsilon", float("nan")),
+    ("contact_refresh", -1), ("self_contact", "yes"), ("contact", 1),
+])
+def test_bad_contact_options_are_refused_by_name(f64, option, value):
+    scene = ts.build_scene("cloth", {"nx": 3, "ny": 3})
+    with pytest.raises(ConfigError, match=option):
+        create_integrator("vbd", scene.system, **{option: value})
+
+
+def test_a_contact_radius_the_mesh_cannot_take_and_a_tangled_start_are_refused(f64):
+    scene = fold(n=8)  # spacing 1/7 m: non-adjacent parts 0.1 m apart at rest
+    vbd = create_integrator("vbd", scene.system, self_contact=True, contact_radius=0.2)
+    with pytest.raises(ConfigError, match="contact_radius"):
+        vbd.attach_scene(scene)
+    scene = shot_scene()
+    x, v = scene.state.to_numpy()
+    x[3:6, 1] -= 0.5  # T2's lower edge through T1
+    scene.state.from_numpy(x, v)
+    tangled = create_integrator("vbd", scene.system, self_contact=True, contact_radius=0.01)
+    with pytest.raises(ConfigError, match="intersects itself at the start"):
+        tangled.attach_scene(scene)
+
+
+@pytest.mark.parametrize("option, problem", [
+    ("contact_radius=0.2", "contact_radius"),  # above the 8 x 8 grid's 0.101 m between non-adjacent parts
+    ("contact_radius=0", "contact_radius"), ("bound_fraction=0.5", "bound_fraction"),
+    ("contact_refresh=-1", "contact_refresh"), ("contact_stiffness=-3", "contact_stiffness"),
+])
+def test_the_command_line_refuses_bad_contact_options_in_one_line_and_writes_nothing(tmp_path, capsys, option,
+                                                                                      problem):
+    from taichi_sim.cli import main
+
+    code = main(["simulate", "cloth-fold", "--set", "nx=8", "--set", "ny=8", "--set", "self_collision=0",
+                 "--integrator", "vbd", "--option", "self_contact=1", "--option", option, "--dt", "0.02",
+                 "--steps", "2", "--out", str(tmp_path / "run.npz"), "--quiet"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2
+    assert problem in err and len(err.splitlines()) == 1 and err.startswith("taichi-sim: error:")
+    assert list(tmp_path.iterdir()) == []
