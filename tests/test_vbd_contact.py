@@ -112,7 +112,7 @@ def test_objects_in_the_solve_keep_a_draped_cloth_out(f64):
     vbd = create_integrator("vbd", scene.system)
     stepper = ts.Stepper(scene, vbd, H)
     sphere_c = scene.spheres.centers()[0]
-    box_c, half = scene.boxes.centers()[0], np.array([0.15, 0.15, 0.15])
+    box_c, half = scene.part("boxes").centers()[0], np.array([0.15, 0.15, 0.15])
     events_moved = 0.0
     for _ in range(60):
         report = vbd.step(scene.state, stepper.t, H)

@@ -266,7 +266,7 @@ def cloth_params(*names: str) -> tuple[Param, ...]:
 #: The parameters :func:`add_cloth_extras` reads.
 EXTRA_PARAM_NAMES = tuple(p.name for p in CLOTH_PARAMS if p.name.split("_")[0] in (
     "wind", "sphere", "object", "capsule", "box", "plane", "restitution", "self", "thickness",
-    "collision", "grab"))
+    "collision", "grab", "collider"))
 
 
 def cloth_size(p: dict[str, Any]) -> Size:
