@@ -127,3 +127,14 @@ def test_the_check_leaves_zero_area_triangles_out_and_says_so(tmp_path, capsys):
     assert main(["check", str(tmp_path / "bad.npz")]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "non-finite" in err
+
+
+def test_a_start_that_already_passes_through_itself_is_refused_before_the_run():
+    """A seeded jitter large against the spacing can leave triangles crossing at t = 0; the
+    stage would keep those crossings for the whole run, so the build refuses, naming them."""
+    params = {"nx": 16, "ny": 16, "jitter": 0.03, "self_collision": True, "thickness": 0.01}
+    ts.init(arch="cpu", precision="f64")
+    loose = ts.build_scene("cloth-fold", {**params, "self_collision": False})
+    assert self_intersections(loose.x0, loose.mesh.triangles_np).count > 0
+    with pytest.raises(ConfigError, match="starts passing through itself"):
+        ts.build_scene("cloth-fold", params)

@@ -18,6 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import ConfigError
+from ..geometry.intersections import self_intersections
 
 
 def check_contact_mesh(x0: np.ndarray, triangles: np.ndarray, thickness: float, *,
@@ -39,7 +40,8 @@ def check_contact_mesh(x0: np.ndarray, triangles: np.ndarray, thickness: float, 
         ConfigError (a ValueError): naming ``thickness`` when it is not a finite number > 0 or is
         at least that smallest distance (with the limit); naming ``triangles`` for a triangle
         with a repeated vertex or of zero area; naming ``x`` for non-finite positions or for
-        non-adjacent parts that touch at the start (coincident points).
+        non-adjacent parts that touch at the start (coincident points) or a start whose
+        triangles intersect.
     """
     if isinstance(thickness, bool) or not isinstance(thickness, (int, float, np.floating)) \
             or not np.isfinite(thickness) or thickness <= 0:
@@ -69,6 +71,13 @@ def check_contact_mesh(x0: np.ndarray, triangles: np.ndarray, thickness: float, 
     if min(_vertex_triangle(x, tris, tiny), _edge_edge(x, edges, tiny)) <= tiny:
         raise ConfigError("x: non-adjacent parts of the cloth touch as built (coincident particles?); "
                           "self_collision needs a start free of contact")
+    # a start that already crosses itself (a jitter large against the spacing, a mesh file that
+    # passes through itself): contact would keep those crossings for the whole run
+    crossing = self_intersections(x, tris).count
+    if crossing:
+        raise ConfigError(f"x: the cloth starts passing through itself ({crossing} pair(s) of intersecting "
+                          f"triangles; a jitter too large for the spacing?); contact keeps a start's "
+                          f"crossings, it cannot undo them")
     smallest = min(_vertex_triangle(rest, tris, thickness), _edge_edge(rest, edges, thickness))
     if smallest <= thickness:
         raise ConfigError(f"{name} {thickness:g} m must be below {smallest:.6g} m, the smallest distance "
