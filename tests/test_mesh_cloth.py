@@ -306,3 +306,26 @@ def test_a_live_change_of_stiffness_keeps_each_kind_its_own(f64, tmp_path):
     assert LIVE_SETTERS["flex_stiffness"](scene, values)
     k, kind = scene.springs.stiffness.to_numpy(), scene.springs.kind_np
     assert set(k[kind == topo.STRUCTURAL]) == {300.0} and set(k[kind == topo.FLEX]) == {3.0}
+
+
+@pytest.mark.parametrize("motion, moved", [
+    ("lift", lambda t: np.array([0.0, 0.3 * min(t, 0.2), 0.0])),
+    ("sweep", lambda t: np.array([0.3 * min(t, 0.2), 0.0, 0.0])),
+    ("oscillate", lambda t: np.array([0.0, 0.1 * np.sin(2 * np.pi * t), 0.0])),
+])
+def test_pinned_vertices_follow_their_motion_and_pull_the_cloth(f64, tmp_path, motion, moved):
+    """A mesh cloth's pins ride the kinematic pins: at every step they are where the motion puts
+    them (lift and sweep for pin_duration, then still), and the free vertices follow."""
+    path, x0 = grid_obj(tmp_path, 5, 5)
+    params = {"file": str(path), "pin": "box:-0.6,0.9,-0.6,0.6,1.1,-0.4", "pin_motion": motion,
+              "pin_duration": 0.2, "pin_speed": 0.3, "pin_amplitude": 0.1, "pin_frequency": 1.0}
+    scene = ts.build_scene("mesh", params)
+    pinned = ~scene.system.free.to_numpy().astype(bool)
+    assert pinned.sum() == 5 and scene.features["kinematic"] == 5
+    result = ts.run(scene, "xpbd", dt=0.01, steps=30)
+    assert result.status.value == "ok"
+    x, _ = scene.state.to_numpy()
+    np.testing.assert_allclose(x[pinned], x0[pinned] + moved(result.t), atol=1e-9)
+    still = ts.build_scene("mesh", {**params, "pin_motion": "static"})
+    ts.run(still, "xpbd", dt=0.01, steps=30)
+    assert np.abs(x[~pinned] - still.state.to_numpy()[0][~pinned]).max() > 1e-3

@@ -89,6 +89,52 @@ class TwistPath:
         return float((2 * np.linalg.norm(radial, axis=1) + np.abs(self.slide)).max()) if len(r) else 0.0
 
 
+@dataclass(frozen=True)
+class TranslatePath:
+    """Particles moved together, without turning: each one's offset from its start is
+    ``velocity min(t, duration) + amplitude sin(2 pi frequency t) axis`` (the sine keeps going
+    after ``duration``; it stays within +-amplitude).
+
+    Attributes:
+        x0: (k, 3) start positions (m).
+        velocity: (3,) m/s while ``duration`` lasts; duration: s (>= 0).
+        amplitude: m (>= 0); frequency: Hz (>= 0); axis: (3,) the oscillation's direction.
+    """
+
+    x0: np.ndarray
+    velocity: tuple = (0.0, 0.0, 0.0)
+    duration: float = 0.0
+    amplitude: float = 0.0
+    frequency: float = 0.0
+    axis: tuple = (0.0, 1.0, 0.0)
+
+    def __post_init__(self):
+        for name in ("duration", "amplitude", "frequency"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"pin_{name} must be a finite number >= 0, got {value!r}")
+        axis = np.asarray(self.axis, float)
+        if not np.linalg.norm(axis) > 0:
+            raise ValueError("the pins' axis must be a nonzero vector")
+        object.__setattr__(self, "axis", tuple(axis / np.linalg.norm(axis)))
+
+    def at(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """((k, 3) positions (m), (k, 3) velocities (m/s)) at time t (s)."""
+        w = 2 * math.pi * self.frequency
+        velocity = np.asarray(self.velocity, float)
+        moving = 0.0 <= t < self.duration
+        offset = velocity * min(max(t, 0.0), self.duration) + self.amplitude * math.sin(w * t) * np.asarray(self.axis)
+        rate = (velocity if moving else 0.0) + self.amplitude * w * math.cos(w * t) * np.asarray(self.axis)
+        x0 = np.asarray(self.x0, float)
+        return x0 + offset, np.broadcast_to(rate, x0.shape).copy()
+
+    def fastest_speed(self) -> float:
+        return float(np.linalg.norm(self.velocity)) + 2 * math.pi * self.frequency * self.amplitude
+
+    def farthest_travel(self) -> float:
+        return float(np.linalg.norm(self.velocity)) * self.duration + self.amplitude
+
+
 @ti.data_oriented
 class KinematicPins(ScenePart):
     """The post-step event that moves pinned particles ``ids`` along ``path`` (a

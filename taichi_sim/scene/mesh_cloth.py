@@ -11,6 +11,7 @@ from ..memory import Size
 from . import cloth as topo
 from .builder import SceneBuilder
 from .cloth_scenes import EXTRA_PARAM_NAMES, add_cloth_extras, cloth_params
+from .kinematic import TranslatePath
 from .mesh_import import ClothMesh
 from .params import Param
 from .preset import with_defaults
@@ -141,6 +142,8 @@ def add_mesh_cloth(b: SceneBuilder, p: dict[str, Any], seed: int, mesh: ClothMes
     if pinned is None:
         pinned = select_pins(p["pin"], mesh)
     b.add_particles(mesh.x, mass, pinned=pinned)
+    if p["pin_motion"] != "static" and pinned.any():
+        b.add_kinematic(np.flatnonzero(pinned), pin_path(p, mesh.x[pinned]))
     ends, kind = mesh_springs(mesh.triangles, bending=p["bending"])
     stiffness = np.where(kind == topo.FLEX, p["flex_stiffness"], p["stiffness"])
     b.add_springs(ends, stiffness=stiffness, damping=p["damping"], kind=kind)
@@ -152,6 +155,20 @@ def add_mesh_cloth(b: SceneBuilder, p: dict[str, Any], seed: int, mesh: ClothMes
         strain[kind == topo.FLEX] *= p["tear_flex_factor"]
         b.set_tearing(strain)
     add_cloth_extras(b, p, seed, float(np.mean(mass)))
+
+
+PIN_MOTIONS = ("static", "lift", "sweep", "oscillate")
+
+
+def pin_path(p: dict[str, Any], x0: np.ndarray) -> TranslatePath:
+    """Where the pinned vertices (starting at ``x0``, (k, 3) m) go: ``lift`` up (+y) and
+    ``sweep`` along +x at ``pin_speed`` for ``pin_duration``, ``oscillate`` up and down by
+    ``pin_amplitude`` at ``pin_frequency``."""
+    motion = p["pin_motion"]
+    if motion == "oscillate":
+        return TranslatePath(x0, amplitude=p["pin_amplitude"], frequency=p["pin_frequency"])
+    direction = (0.0, 1.0, 0.0) if motion == "lift" else (1.0, 0.0, 0.0)
+    return TranslatePath(x0, velocity=tuple(p["pin_speed"] * np.asarray(direction)), duration=p["pin_duration"])
 
 
 def mesh_size(mesh: ClothMesh, bending: bool) -> Size:
@@ -166,6 +183,13 @@ def mesh_size(mesh: ClothMesh, bending: bool) -> Size:
 #: What every mesh cloth (a file or a garment) reads: the spring model, mass, pins and extras.
 MESH_CLOTH_PARAMS: tuple[Param, ...] = (
     Param("pin", "top:0.02", "", f"pinned vertices: {PIN_HELP}"),
+    Param("pin_motion", "static", "", "how the pinned vertices move: static, lift (up at pin_speed), sweep "
+          "(along +x at pin_speed), both for pin_duration, or oscillate (up and down, pin_amplitude at "
+          "pin_frequency)", choices=PIN_MOTIONS),
+    Param("pin_speed", 0.3, "m/s", "speed of lifted or swept pins", minimum=0.0),
+    Param("pin_duration", 1.0, "s", "how long lifted or swept pins move", minimum=0.0),
+    Param("pin_amplitude", 0.1, "m", "amplitude of oscillating pins", minimum=0.0),
+    Param("pin_frequency", 1.0, "Hz", "frequency of oscillating pins", minimum=0.0),
     Param("density", 0.2, "kg/m^2", "area density of the cloth: each vertex gets a third of the area of "
           "each of its triangles times this", minimum=0.0, exclusive=True),
     Param("stiffness", 500.0, "N/m", "stiffness of the stretch springs along the mesh edges", minimum=0.0),
