@@ -81,10 +81,10 @@ def test_the_wrung_cloth_never_passes_through_itself_with_the_stage_on(f64):
 
     counts = {}
     for stage in (True, False):
-        scene = ts.build_scene("cloth-twist", {"nx": 12, "ny": 12, "self_collision": stage})
-        result = ts.run(scene, "xpbd", dt=1 / 60, steps=150, save_every=5)
+        scene = ts.build_scene("cloth-twist", {"nx": 9, "ny": 9, "self_collision": stage})
+        result = ts.run(scene, "xpbd", dt=1 / 60, steps=120, save_every=5)
         assert result.status.value == "ok"
         tris = scene.mesh.triangles_np
         counts[stage] = [self_intersections(x, tris).count for x in result.x_history]
-    assert len(counts[True]) == 31 and max(counts[True]) == 0
+    assert len(counts[True]) == 25 and max(counts[True]) == 0
     assert sum(c > 0 for c in counts[False]) > 10
