@@ -205,14 +205,15 @@ def test_only_live_emitter_particles_are_drawn(window):
     live = scene.emitter.alive.to_numpy().astype(bool)
     effect = drawer.effect
     assert 0 < effect.count == live.sum() < 64
-    drawn = effect.centers.to_numpy()[:effect.count]
+    centres = effect.centers.to_numpy()[:effect.count]
     expected = scene.state.x.to_numpy()[visual.emitter.first:][live]
-    np.testing.assert_allclose(np.sort(drawn, axis=0), np.sort(expected, axis=0), rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(np.sort(centres, axis=0), np.sort(expected, axis=0), rtol=1e-5, atol=1e-6)
     renderer = Renderer(window, [visual], SIZE)
     renderer.render([scene.state.x], DrawOptions(particles=False))
     without = renderer.read_image()
-    renderer.render([scene.state.x], DrawOptions(particles=True))
-    assert covered(renderer, drawn, renderer.read_image(), without) > 0.9  # the live drops are drawn
+    image = drawn(renderer, [scene.state.x], DrawOptions(particles=True),
+                  lambda image: covered(renderer, centres, image, without) > 0.9)
+    assert covered(renderer, centres, image, without) > 0.9  # the live drops are drawn
 
 
 def _effect_pixels(window, name, seconds):
