@@ -50,6 +50,15 @@ class PendingFile:
             os.close(fd)
             self.tmp = Path(tmp)
 
+    def __enter__(self) -> "PendingFile":
+        return self
+
+    def __exit__(self, kind, error, trace) -> None:
+        """Leaving a ``with`` block by an exception discards the temporary (commit inside the
+        block; a committed file is left alone)."""
+        if kind is not None:
+            self.discard()
+
     def commit(self) -> Path:
         """Flush the temporary to disk, give it a new file's mode and rename it to ``path``
         (replacing a file; a folder target must not exist or be empty)."""

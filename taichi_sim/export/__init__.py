@@ -147,29 +147,18 @@ def export(frames: Frames, fmt: Format, path: str | os.PathLike, *, progress: bo
     path = check_export_path(path, fmt)
     bar = _bar(len(frames.times), progress)
     if fmt.sequence:
-        pending = PendingFile(path, folder=True)
-        try:
+        with bar, PendingFile(path, folder=True) as pending:
             write = fmt.frame_writer(frames.triangles, frames.name)
             for k in range(len(frames.times)):
                 target = pending.tmp / frame_name(k, len(frames.times), fmt.suffixes[0])
                 with open(target, "wb") as f:
                     write(f, frames.positions[k], frames.times[k])
                 bar.update()
-        except BaseException:
-            pending.discard()
-            raise
-        finally:
-            bar.close()
-        return pending.commit()
-    pending = PendingFile(path, suffix=".tmp" + path.suffix)  # USD picks its encoding by suffix
-    try:
+            return pending.commit()
+    # USD picks its encoding by the suffix
+    with bar, PendingFile(path, suffix=".tmp" + path.suffix) as pending:
         fmt.write_file(pending.tmp, frames, on_frame=bar.update)
-    except BaseException:
-        pending.discard()
-        raise
-    finally:
-        bar.close()
-    return pending.commit()
+        return pending.commit()
 
 
 def _bar(total: int, progress: bool | None):

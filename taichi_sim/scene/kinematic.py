@@ -19,6 +19,14 @@ from .. import runtime
 from ..part import MovingSource, ScenePart
 
 
+def unit_axis(axis, what: str) -> tuple:
+    """``axis`` normalised, as a tuple; ValueError naming ``what`` for a zero vector."""
+    axis = np.asarray(axis, float)
+    if not np.linalg.norm(axis) > 0:
+        raise ValueError(f"{what} must be a nonzero vector")
+    return tuple(axis / np.linalg.norm(axis))
+
+
 @dataclass(frozen=True)
 class TwistPath:
     """Particles turned about an axis, each at its own signed angular rate, for a while.
@@ -48,10 +56,7 @@ class TwistPath:
             raise ValueError(f"twist_rate must be a finite number > 0 (turns/s), got {self.rate!r}")
         if not (math.isfinite(self.duration) and self.duration > 0):
             raise ValueError(f"twist_duration must be a finite number > 0 (s), got {self.duration!r}")
-        axis = np.asarray(self.axis, float)
-        if not np.linalg.norm(axis) > 0:
-            raise ValueError("twist axis must be a nonzero vector")
-        object.__setattr__(self, "axis", tuple(axis / np.linalg.norm(axis)))
+        object.__setattr__(self, "axis", unit_axis(self.axis, "twist axis"))
 
     def at(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """((k, 3) positions (m), (k, 3) velocities (m/s)) at time t (s)."""
@@ -113,10 +118,7 @@ class TranslatePath:
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"pin_{name} must be a finite number >= 0, got {value!r}")
-        axis = np.asarray(self.axis, float)
-        if not np.linalg.norm(axis) > 0:
-            raise ValueError("the pins' axis must be a nonzero vector")
-        object.__setattr__(self, "axis", tuple(axis / np.linalg.norm(axis)))
+        object.__setattr__(self, "axis", unit_axis(self.axis, "the pins' axis"))
 
     def at(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """((k, 3) positions (m), (k, 3) velocities (m/s)) at time t (s)."""
