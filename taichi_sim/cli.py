@@ -263,7 +263,7 @@ def _load_curves(args, preset) -> dict | None:
 def _session_args(args) -> dict:
     """Scene, integrators, parameters and step of ``demo`` / ``record``, checked before any
     Taichi work (ConfigError names the culprit)."""
-    from .integrators import integrator_class
+    from .integrators import check_options, integrator_class, parse_options
     from .scene import scene_preset
     from .scene.params import resolve
     from .scene.presets import check_scene_memory
@@ -272,11 +272,18 @@ def _session_args(args) -> dict:
     integrators = args.side_by_side or [args.integrator or preset.default_integrator]
     for name in integrators:
         integrator_class(name)
+    options = {}
+    if args.integrator_options:
+        if args.side_by_side:
+            raise ConfigError("--option sets one integrator's options; drop it with --side-by-side")
+        options = {integrators[0]: parse_options(integrators[0],
+                                                 scene_assignments(args.integrator_options, "--option"))}
+        check_options(integrators[0], options[integrators[0]])
     params = scene_assignments(args.assignments)
     check_scene_memory(preset, resolve(preset.params, preset.name, params), precision=args.precision,
                        integrators=tuple(integrator_class(name) for name in integrators), copies=len(integrators))
     return {"scene": preset.name, "integrators": tuple(integrators), "params": params, "dt": args.dt,
-            "curves": _load_curves(args, preset) or {}}
+            "curves": _load_curves(args, preset) or {}, "options": options}
 
 
 def cmd_demo(args) -> int:
@@ -293,7 +300,8 @@ def cmd_demo(args) -> int:
                                     "is not set); record a video instead with `taichi-sim record`")
         runtime.init(arch=args.arch, precision=args.precision)
         session = Session(spec["scene"], spec["integrators"], params=spec["params"], dt=spec["dt"],
-                          substeps=args.substeps or 10, seed=args.seed, interactive=True)
+                          substeps=args.substeps or 10, seed=args.seed, interactive=True,
+                          integrator_options=spec["options"])
         if args.substeps is not None:
             session.set_real_time(False)
         if spec["curves"]:
@@ -334,7 +342,7 @@ def cmd_record(args) -> int:
         raise ConfigError("record needs a SCENE (or --showcase DIR)")
     spec = _session_args(args)
     clip = Clip(scene=spec["scene"], integrators=spec["integrators"], params=spec["params"],
-                dt=spec["dt"], seconds=args.seconds or 5.0, fps=args.fps or 30.0,
+                dt=spec["dt"], integrator_options=spec["options"], seconds=args.seconds or 5.0, fps=args.fps or 30.0,
                 size=parse_size(args.size or "1280x720"), speed=args.speed or 1.0, seed=args.seed,
                 curves=spec["curves"], strain=args.strain,
                 energy=bool(args.side_by_side) if args.energy is None else args.energy)

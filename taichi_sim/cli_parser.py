@@ -76,6 +76,13 @@ _ARCH_HELP = ("where the simulation runs: cpu (default) or gpu (CUDA, Vulkan or 
               "Taichi finds; the choice is printed)")
 
 
+def _add_option(p: argparse.ArgumentParser, note: str) -> None:
+    p.add_argument("--option", dest="integrator_options", action="append", type=_assignment, default=[],
+                   metavar="NAME=VALUE",
+                   help="a keyword option of the integrator's constructor, e.g. a plug-in's own; repeat "
+                        f"for several (`taichi-sim list` shows each method's options){note}")
+
+
 def _add_view_options(p: argparse.ArgumentParser) -> None:
     """Options shared by ``demo`` and ``record``: what to run and how."""
     which = p.add_mutually_exclusive_group()
@@ -84,6 +91,7 @@ def _add_view_options(p: argparse.ArgumentParser) -> None:
                             "path/to/file.py:Class (see docs/plugins.md)")
     which.add_argument("--side-by-side", dest="side_by_side", type=_name_list, metavar="A,B[,C]",
                        help="run the scene with 2 or 3 integrators at once, drawn next to each other")
+    _add_option(p, "; not with --side-by-side")
     p.add_argument("--dt", type=_positive_float, default=None, help="step size in s (default: the scene's)")
     p.add_argument("--set", dest="assignments", action="append", type=_assignment, default=[],
                    metavar="NAME=VALUE", help=_SET_HELP)
@@ -150,10 +158,7 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--chebyshev-rho", type=float,
                      help="projective_dynamics' Chebyshev acceleration: the spectral radius "
                           "estimate in [0, 1) (default 0: off)")
-    sim.add_argument("--option", dest="integrator_options", action="append", type=_assignment, default=[],
-                     metavar="NAME=VALUE",
-                     help="a keyword option of the integrator's constructor, e.g. a plug-in's own; repeat "
-                          "for several (`taichi-sim list` shows each method's options)")
+    _add_option(sim, "")
     sim.add_argument("--max-residual", type=_positive_float, metavar="R",
                      help="bound on the relative residual of a method that solves a system per step "
                           "(default 1e-2): above it implicit_euler and implicit_midpoint end not_converged "

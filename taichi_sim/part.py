@@ -31,6 +31,8 @@ class SolidMesh:
         reach: (3,) half extents (m) about that origin the camera frames at the start.
         hidden_from_above: a resting object a cloth drapes over, which a camera from above
             would not see (the scene is then seen from low).
+        pose: for a deforming solid (an animated collider mesh), returns its (vertices,
+            normals) now, shaped as ``vertices`` and ``normals``; None for a rigid one.
     """
 
     vertices: np.ndarray
@@ -39,6 +41,7 @@ class SolidMesh:
     place: Callable[[], np.ndarray]
     reach: np.ndarray
     hidden_from_above: bool = False
+    pose: Callable[[], tuple[np.ndarray, np.ndarray]] | None = None
 
 
 @dataclass(frozen=True)

@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from .errors import ConfigError
+from .scene.colliders.mesh_frames import is_pattern, pattern_files
 from .scene.params import Param
 
 SUFFIX = ".toml"
@@ -226,7 +227,11 @@ def _checked(param: Param, value: Any, folder: Path, fail, *, must_exist: bool =
         fail(f"{param.name}: an empty path (leave the key out instead)")
     if param.unit == PATH_UNIT and value:
         resolved = (folder / Path(value).expanduser()).resolve()
-        if must_exist and not resolved.exists():
+        if must_exist and is_pattern(value):  # a sequence of files (a collider mesh's frames)
+            if not pattern_files(str(resolved)):
+                fail(f"{param.name}: no file matches {value!r} (looked for {str(resolved)!r}; paths in a scene "
+                     "file are relative to its folder)")
+        elif must_exist and not resolved.exists():
             fail(f"{param.name}: no such file {value!r} (looked for {str(resolved)!r}; paths in a scene file "
                  "are relative to its folder)")
         value = str(resolved)
@@ -266,12 +271,16 @@ def apply_scene_file(args, command: str) -> SceneFile | None:
         same_method = args.integrator is None or args.integrator == found.integrator
         if args.integrator is None and not getattr(args, "side_by_side", None):
             args.integrator = found.integrator
+        if found.options and getattr(args, "side_by_side", None):
+            listed = ", ".join(f"{k} = {_option_text(v)}" for k, v in found.options.items())
+            print(f"taichi-sim: warning: {found.where('integrator', next(iter(found.options)))}: --side-by-side "
+                  f"runs each method with its default options; the file's {listed} are not used", file=sys.stderr)
+        elif same_method:
+            cli_options = {name for name, _ in args.integrator_options}
+            args.integrator_options = [(k, _option_text(v)) for k, v in found.options.items()
+                                       if k not in cli_options and getattr(args, k, None) is None
+                                       ] + args.integrator_options
         if command == "simulate":
-            if same_method:
-                cli_options = {name for name, _ in args.integrator_options}
-                args.integrator_options = [(k, _option_text(v)) for k, v in found.options.items()
-                                           if k not in cli_options and getattr(args, k, None) is None
-                                           ] + args.integrator_options
             if args.steps is None and args.t_end is None:
                 args.steps, args.t_end = found.run.get("steps"), found.run.get("duration")
             for key, value in {**found.run, **found.output}.items():
@@ -281,11 +290,6 @@ def apply_scene_file(args, command: str) -> SceneFile | None:
             for key in ("dt", "seed", "precision", "arch", "curves"):
                 if key in found.run and getattr(args, key, None) is None:
                     setattr(args, key, found.run[key])
-            if found.options and same_method:
-                listed = ", ".join(f"{k} = {_option_text(v)}" for k, v in found.options.items())
-                print(f"taichi-sim: warning: {found.where('integrator', next(iter(found.options)))}: {command} runs "
-                      f"{found.integrator} with its default options; the file's {listed} apply to simulate only",
-                      file=sys.stderr)
     for key, value in DEFAULTS.items():
         if getattr(args, key, None) is None:
             setattr(args, key, value)

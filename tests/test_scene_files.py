@@ -8,8 +8,10 @@ import numpy as np
 import pytest
 from pxr import Usd
 
-from taichi_sim.cli import main
+from taichi_sim.app.session import Session
+from taichi_sim.cli import _session_args, main
 from taichi_sim.cli_parser import build_parser
+from taichi_sim.errors import ConfigError
 from taichi_sim.export import FORMATS
 from taichi_sim.scene import SCENES, Param
 from taichi_sim.scene_file import apply_scene_file, key_line, load_scene_file
@@ -224,14 +226,22 @@ def test_a_scene_file_run_applies_the_overrides(tmp_path, capsys):
     assert str(data["integrator"]) == "xpbd" and data["x_history"].shape[0] == 3  # t = 0, step 2, the end
 
 
-def test_record_and_demo_take_a_scene_file(tmp_path, capsys):
-    args = parsed(tmp_path, FULL, "--out", "x.gif", command="record")
+def test_record_and_demo_take_a_scene_file_with_its_integrator_options(f64, tmp_path, capsys):
+    args = parsed(tmp_path, FULL, "--out", "x.gif", "--option", "iterations=4", command="record")
     assert (args.scene, args.integrator, args.dt, args.seed, args.precision) == ("cloth", "xpbd", 0.002, 7, "f32")
     assert dict(args.assignments) == {"nx": "4", "stiffness": "100.0"}
-    err = capsys.readouterr().err  # the options it cannot apply are said, never dropped silently
-    assert f"{tmp_path / 'scene.toml'}:7: record runs xpbd with its default options" in err
+    spec = _session_args(args)  # the file's options, the command line's winning
+    assert spec["options"] == {"xpbd": {"substeps": 3, "iterations": 4}}
+    session = Session(spec["scene"], spec["integrators"], params=spec["params"], integrator_options=spec["options"])
+    assert (session.runners[0].integrator.substeps, session.runners[0].integrator.iterations) == (3, 4)
     args = parsed(tmp_path, FULL, "--side-by-side", "euler,rk4", command="demo")
-    assert args.integrator is None and args.side_by_side == ["euler", "rk4"]
+    assert args.integrator is None and args.side_by_side == ["euler", "rk4"] and args.integrator_options == []
+    err = capsys.readouterr().err  # the options it cannot apply are said, never dropped silently
+    assert f"{tmp_path / 'scene.toml'}:7: --side-by-side runs each method with its default options" in err
+    args = parsed(tmp_path, FULL, "--side-by-side", "euler,rk4", "--option", "substeps=2", "--out", "x.gif",
+                  command="record")
+    with pytest.raises(ConfigError, match="--option .* --side-by-side"):
+        _session_args(args)
 
 
 def test_defaults_without_a_scene_file():

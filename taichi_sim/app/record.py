@@ -40,6 +40,8 @@ class Clip:
         supersample: render at this multiple of ``size`` and average down (smoother edges).
         colors: palette size of a GIF.
         curves: parameter name -> :class:`~taichi_sim.curves.Spline` driving it over time.
+        integrator_options: integrator name -> its keyword options (e.g. a scene file's
+            ``[integrator]`` table), used wherever that method runs.
         energy: plot each run's energy under its panel (scenes with an energy).
         strain: colour the cloth by spring strain, with a colour bar (scenes with a cloth).
     """
@@ -56,6 +58,7 @@ class Clip:
     supersample: int = 1
     colors: int = 128
     curves: dict = field(default_factory=dict)
+    integrator_options: dict = field(default_factory=dict)
     energy: bool = False
     strain: bool = False
 
@@ -131,7 +134,8 @@ def record(clip: Clip, out: str | Path, *, still: str | Path | None = None, stil
     check_clip(clip)
     check_output(out, clip.size, clip.fps)
     start = time.perf_counter()
-    session = Session(clip.scene, clip.integrators, params=clip.params, dt=clip.dt, seed=clip.seed)
+    session = Session(clip.scene, clip.integrators, params=clip.params, dt=clip.dt, seed=clip.seed,
+                      integrator_options=clip.integrator_options)
     if clip.curves:
         session.set_curves(clip.curves)
     session.options.strain = clip.strain

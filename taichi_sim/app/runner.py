@@ -28,6 +28,7 @@ class Runner:
         scene: the scene to step (the runner owns its state from now on).
         integrator: registry name of the method.
         dt: the step (s): every step of a fixed-step method, the first of an adaptive one.
+        options: integrator name -> its keyword options, used whenever that method is bound.
 
     Attributes:
         stepper: the :class:`~taichi_sim.stepper.Stepper` that steps the scene; ``t``
@@ -56,10 +57,12 @@ class Runner:
             (:mod:`taichi_sim.guard`, checked at the end of every frame) and could be drawn.
     """
 
-    def __init__(self, scene: Scene, integrator: str, dt: float):
+    def __init__(self, scene: Scene, integrator: str, dt: float, options: dict | None = None):
         self.scene = scene
         integrator_class(integrator)  # unknown names raise ConfigError before anything is bound
-        self._integrators = {integrator: create_integrator(integrator, scene.system)}
+        self._options = options or {}  # integrator name -> its keyword options
+        self._integrators = {integrator: create_integrator(integrator, scene.system,
+                                                           **self._options.get(integrator, {}))}
         self.energy_trace = EnergyTrace()
         self.stepper = Stepper(scene, self._integrators[integrator], dt, observers=(self,))
         self._compiled: set[str] = set()  # integrators that have stepped this scene (kernels built)
@@ -120,7 +123,7 @@ class Runner:
         Each method is bound to the system once and reused when switched back to."""
         integrator_class(name)  # unknown names raise ConfigError before anything changes
         if name not in self._integrators:
-            self._integrators[name] = create_integrator(name, self.scene.system)
+            self._integrators[name] = create_integrator(name, self.scene.system, **self._options.get(name, {}))
         self.stepper.set_integrator(self._integrators[name])
 
     def set_dt(self, dt: float) -> None:

@@ -83,11 +83,13 @@ class Session:
             ``grab`` on (unless ``params`` say otherwise) and :meth:`frame` paces simulated time
             to the wall clock (:attr:`real_time`). Off, a scene gets no grab force term and
             each frame is ``substeps`` steps (what recording and tests want).
+        integrator_options: integrator name -> its keyword options (``create_integrator``),
+            used whenever a panel runs that method (a scene file's ``[integrator]`` table).
     """
 
     def __init__(self, scene: str, integrators: Sequence[str], *, params: dict | None = None,
                  dt: float | None = None, substeps: int = 10, seed: int = 0,
-                 interactive: bool = False):
+                 interactive: bool = False, integrator_options: dict | None = None):
         preset = scene_preset(scene)
         integrators = list(integrators)
         if not 1 <= len(integrators) <= MAX_PANELS:
@@ -97,6 +99,7 @@ class Session:
         integrators = [name if name in INTEGRATORS else integrator_class(name).name for name in integrators]
         self.plugins = list(dict.fromkeys(name for name in integrators if name not in INTEGRATORS))
         self.seed = int(seed)
+        self.integrator_options = {name: dict(opts) for name, opts in (integrator_options or {}).items()}
         self.interactive = bool(interactive)
         self.scene_name = preset.name
         self.params = self._resolve(preset, dict(params or {}))
@@ -146,7 +149,8 @@ class Session:
                 raise ConfigError(f"integrator {name!r} cannot step scene {self.scene_name!r} "
                                   f"(choose from {', '.join(allowed)})")
         if runners is None:
-            runners = self._built[key] = [Runner(s, name, self.dt) for s, name in zip(scenes, integrators)]
+            runners = self._built[key] = [Runner(s, name, self.dt, self.integrator_options)
+                                                for s, name in zip(scenes, integrators)]
         else:
             for r, name in zip(runners, integrators):
                 # Live changes made on an earlier visit are undone: these are the params now.

@@ -214,6 +214,10 @@ class SceneDrawer:
             tris = np.concatenate([np.asarray(s.triangles) + f for s, f in zip(v.solids, firsts)])
             self.solid_indices = ti.field(ti.i32, tris.size)
             self.solid_indices.from_numpy(tris.ravel().astype(np.int32))
+            # deforming solids (an animated collider mesh): their rows of the shape and normals
+            self.solid_poses = [(s.pose, slice(f, f + c)) for s, f, c in zip(v.solids, firsts, counts)
+                                if s.pose is not None]
+            self.solid_normals_np = np.concatenate([s.normals for s in v.solids]).astype(np.float64)
         self.pole = None
         if v.pole is not None:
             verts, normals, tris = rod(v.pole.bottom + self.offset, v.pole.top + self.offset, v.pole.radius)
@@ -315,6 +319,10 @@ class SceneDrawer:
         if self.has_trail:
             self._push_trail()
         if self.solid_vertices is not None:
+            for pose, rows in self.solid_poses:
+                self.solid_shape[rows], self.solid_normals_np[rows] = pose()
+            if self.solid_poses:
+                self.solid_normals.from_numpy(self.solid_normals_np.astype(np.float32))
             centers = np.stack([np.asarray(s.place(), np.float64).reshape(3) for s in self.visual.solids]) + self.offset
             self.solid_vertices.from_numpy((centers[self.solid_owner] + self.solid_shape).astype(np.float32))
         if self.effect is not None and options.particles:

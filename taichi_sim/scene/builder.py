@@ -249,13 +249,14 @@ class SceneBuilder:
         self.add_part(Box(path, tuple(float(c) for c in half_extents), float(friction)))
 
     def add_mesh_collider(self, vertices, triangles, path: SpherePath | None = None, friction: float = 0.0,
-                          skin: float = 0.005) -> None:
-        """A rigid triangle mesh collider (see :class:`~taichi_sim.scene.colliders.mesh_collider.MeshCollider`):
-        ``vertices`` (V, 3) (m) in its own frame, whose origin follows ``path`` (default: fixed
-        at the world's origin), ``triangles`` (T, 3) vertex ids, Coulomb ``friction`` and the
-        ``skin`` (m) particles keep from it."""
+                          skin: float = 0.005, fps: float = 30.0) -> None:
+        """A triangle mesh collider (see :class:`~taichi_sim.scene.colliders.mesh_collider.MeshCollider`):
+        ``vertices`` (V, 3) (m) in its own frame, or (F, V, 3) for an animated mesh whose F
+        frames play at ``fps`` (frames per second; the last is held); its origin follows
+        ``path`` (default: fixed at the world's origin); ``triangles`` (T, 3) vertex ids,
+        Coulomb ``friction`` and the ``skin`` (m) particles keep from it."""
         self.add_part(MeshObstacle(np.asarray(vertices, float), np.asarray(triangles, np.int64),
-                                   path or SpherePath((0.0, 0.0, 0.0)), float(friction), float(skin)))
+                                   path or SpherePath((0.0, 0.0, 0.0)), float(friction), float(skin), float(fps)))
 
     def set_plane(self, point, normal, restitution: float, friction: float = 0.0) -> None:
         """A ground plane through ``point`` with upward ``normal`` (nonzero); restitution in [0, 1]."""

@@ -81,7 +81,10 @@ CLOTH_PARAMS: tuple[Param, ...] = (
     Param("box_friction", 0.3, "", "Coulomb friction coefficient on the box", minimum=0.0),
     # a triangle mesh (a table, a body) from a file
     Param("collider_mesh", "", "path", "a mesh file (OBJ, STL, PLY, GLB, ...: whatever trimesh reads) the cloth "
-          "collides with, in its own coordinates (m); empty for none"),
+          "collides with, in its own coordinates (m), or a pattern of numbered files (body_*.obj) played as "
+          "frames at collider_mesh_fps; empty for none"),
+    Param("collider_mesh_fps", 30.0, "1/s", "frames per second of a collider mesh sequence (the last frame is held)",
+          minimum=0.0, exclusive=True),
     Param("collider_mesh_friction", 0.3, "", "Coulomb friction coefficient on the collider mesh", minimum=0.0),
     Param("collider_mesh_skin", 0.005, "m", "distance the cloth's vertices keep from the collider mesh",
           minimum=0.0, exclusive=True),
@@ -247,7 +250,8 @@ def add_cloth_extras(b: SceneBuilder, p: dict[str, Any], seed: int, grab_mass: f
                   (p["box_half_x"], p["box_half_y"], p["box_half_z"]), p["box_friction"])
     if p["collider_mesh"]:
         vertices, triangles = load_mesh_file(p["collider_mesh"])
-        b.add_mesh_collider(vertices, triangles, friction=p["collider_mesh_friction"], skin=p["collider_mesh_skin"])
+        b.add_mesh_collider(vertices, triangles, friction=p["collider_mesh_friction"], skin=p["collider_mesh_skin"],
+                            fps=p["collider_mesh_fps"])
     if p["plane"]:
         b.set_plane((0.0, p["plane_height"], 0.0), (0.0, 1.0, 0.0), min(p["restitution"], 1.0),
                     p["plane_friction"])

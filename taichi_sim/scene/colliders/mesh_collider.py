@@ -1,5 +1,6 @@
-"""A rigid triangle mesh the cloth collides with (a table, a body), static or translating along
-a scripted path: one scene part (docs/design.md, "Scene parts"; docs/collisions.md).
+"""A triangle mesh the cloth collides with (a table, a body): rigid, static or translating along
+a scripted path, or animated by a sequence of frames (a body that moves); one scene part
+(docs/design.md, "Scene parts"; docs/collisions.md).
 
 The mesh is a two-sided shell of thickness ``skin``: a free particle keeps at least ``skin``
 from every triangle, on the side it came from. After each step, in the mesh's frame a particle
@@ -11,16 +12,23 @@ dropped, so a resting particle still slides); then, up to ``MESH_PASSES`` times,
 within ``skin`` of the mesh moves out to ``skin`` along the way from its nearest mesh point (the
 triangle's normal on its side when it lies on the surface), which rounds a convex edge and
 settles a concave corner. A particle moved gets the inelastic, Coulomb-friction response
-against the mesh's velocity (:func:`~taichi_sim.collide.friction.inelastic_friction`). A closed
-mesh thus keeps out what starts outside it; what starts inside (deeper than ``skin``) stays.
+against the mesh's velocity there (:func:`~taichi_sim.collide.friction.inelastic_friction`).
+A closed mesh thus keeps out what starts outside it; what starts inside (deeper than ``skin``)
+stays.
 
-The triangles are found through a uniform grid over the mesh in its own frame, built once with
-numpy (the mesh is rigid, so it never changes): each cell lists the triangles whose box, grown
-by ``skin``, reaches it. Cloth faces are not tested against the mesh's edges (the vertex test
-only): a mesh edge sharper than the cloth's spacing can cut between vertices (the sphere, capsule
-and box have :class:`FaceContact` for that).
+An animated mesh (:class:`~.mesh_frames.FramePlayer`) is posed at the end of each step. Each
+triangle is then tested in its own moving frame: the particle's start is shifted by the
+triangle's centroid move over the step, which is exact for a triangle that translates and
+leaves out its turn and stretch within the step (each corner's move about the centroid). Its surface
+velocity, for friction, is the centroid's.
+
+The triangles are found through a uniform grid over every frame of the mesh in its own frame
+(:class:`~.mesh_grid.TriangleGrid`): each cell lists the triangles whose box over the current
+frame segment, grown by ``skin``, reaches it, refilled with numpy when the segment changes (a
+rigid mesh: once). Cloth faces are not tested against the mesh's edges (the vertex test only):
+a mesh edge sharper than the cloth's spacing can cut between vertices (the sphere, capsule and
+box have :class:`FaceContact` for that).
 """
-import os
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -30,8 +38,9 @@ from ... import runtime
 from ...collide.closest_points import closest_barycentric, inside
 from ...collide.friction import inelastic_friction
 from ...collide.objects import FAR
-from ...errors import ConfigError
 from ...part import MovingSource, PartSpec, ScenePart, SolidMesh
+from .mesh_frames import FramePlayer
+from .mesh_grid import TriangleGrid
 from .path import PathFields, SpherePath
 from .step_start import StepStart
 
@@ -40,83 +49,51 @@ from .step_start import StepStart
 MESH_PASSES = 4
 # A particle this close to the skin (relative) counts as on it: one put there is, up to rounding.
 SETTLED = 1.0 - 1e-6
-# The grid's most cells: its cells are the mesh's median edge, or larger to stay below this.
-MAX_CELLS = 32**3
-
-
-def load_mesh_file(path: str) -> tuple[np.ndarray, np.ndarray]:
-    """(vertices (V, 3) float64 m, triangles (T, 3) int64) of the mesh file ``path`` (any format
-    trimesh reads: OBJ, STL, PLY, GLB, ...); ConfigError naming ``collider_mesh`` otherwise."""
-    if not os.path.isfile(path):
-        raise ConfigError(f"parameter collider_mesh: no such file {path!r}")
-    import trimesh
-
-    try:
-        mesh = trimesh.load(path, force="mesh")
-    except Exception as exc:  # trimesh raises many kinds on a bad file
-        raise ConfigError(f"parameter collider_mesh: cannot read {path!r} as a mesh ({exc})") from None
-    if not hasattr(mesh, "faces") or len(mesh.faces) == 0:
-        raise ConfigError(f"parameter collider_mesh: {path!r} holds no triangles")
-    return np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64)
 
 
 @dataclass(frozen=True, eq=False)
 class MeshObstacle(PartSpec):
-    """A triangle mesh collider: ``vertices`` (V, 3) (m, in its own frame, whose origin moves
-    along ``path``), ``triangles`` (T, 3) vertex ids, Coulomb ``friction`` (>= 0) and ``skin``
-    (m, > 0), the distance particles keep from it."""
+    """A triangle mesh collider: ``vertices`` (V, 3) m, or (F, V, 3) for a sequence of F
+    frames played at ``fps`` (frames per second; linear between frames, the last held), in
+    its own frame, whose origin moves along ``path``; ``triangles`` (T, 3) vertex ids, shared
+    by every frame; Coulomb ``friction`` (>= 0) and ``skin`` (m, > 0), the distance particles
+    keep from it."""
 
     vertices: np.ndarray
     triangles: np.ndarray
     path: SpherePath = field(default_factory=lambda: SpherePath((0.0, 0.0, 0.0)))
     friction: float = 0.0
     skin: float = 0.005
+    fps: float = 30.0
 
     def __post_init__(self):
         v = np.asarray(self.vertices, float)
         t = np.asarray(self.triangles)
-        if v.ndim != 2 or v.shape[1] != 3 or len(v) < 3 or not np.isfinite(v).all():
-            raise ValueError("collider_mesh: vertices must be (V, 3) finite values, V >= 3")
-        if t.ndim != 2 or t.shape[1] != 3 or len(t) == 0 or t.min() < 0 or t.max() >= len(v):
+        frames = v[None] if v.ndim == 2 else v
+        if frames.ndim != 3 or frames.shape[2] != 3 or frames.shape[1] < 3 or not np.isfinite(frames).all():
+            raise ValueError("collider_mesh: vertices must be (V, 3) or (F, V, 3) finite values, V >= 3")
+        if t.ndim != 2 or t.shape[1] != 3 or len(t) == 0 or t.min() < 0 or t.max() >= frames.shape[1]:
             raise ValueError("collider_mesh: triangles must be (T, 3) ids of its vertices, T >= 1")
-        area = np.linalg.norm(np.cross(v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]]), axis=1)
-        if not np.all(area > 1e-12 * max(float(np.ptp(v, axis=0).max()), 1e-12) ** 2):
-            raise ValueError(f"collider_mesh: {int((area <= 0).sum() or 1)} triangle(s) of zero area")
+        corners = frames[:, t]
+        area = np.linalg.norm(np.cross(corners[:, :, 1] - corners[:, :, 0], corners[:, :, 2] - corners[:, :, 0]),
+                              axis=2)
+        flat = area <= 1e-12 * max(float(np.ptp(frames, axis=(0, 1)).max()), 1e-12) ** 2
+        if flat.any():
+            frame = int(np.flatnonzero(flat.any(axis=1))[0])
+            where = f" in frame {frame}" if len(frames) > 1 else ""
+            raise ValueError(f"collider_mesh: {int(flat[frame].sum())} triangle(s) of zero area{where}")
         if not self.skin > 0:
             raise ValueError("collider_mesh_skin must be > 0")
         if not self.friction >= 0:
             raise ValueError("collider_mesh_friction must be >= 0")
+        if not (self.fps > 0 and np.isfinite(self.fps)):
+            raise ValueError("collider_mesh_fps must be > 0")
 
-
-def triangle_grid(vertices: np.ndarray, triangles: np.ndarray, margin: float):
-    """A uniform grid over the mesh grown by ``margin`` (m): (origin (3,), cell (m), dims (3,),
-    cell_start (cells + 1,), cell_triangles) in CSR form, a triangle in every cell its box grown
-    by ``margin`` reaches."""
-    lo = vertices.min(axis=0) - margin
-    hi = vertices.max(axis=0) + margin
-    extent = hi - lo
-    corners = vertices[triangles]
-    edges = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2)
-    cell = max(float(np.median(edges)), float(np.prod(extent) / MAX_CELLS) ** (1 / 3), 1e-6)
-    dims = np.maximum(1, np.ceil(extent / cell).astype(np.int64))
-    while np.prod(dims) > MAX_CELLS:  # a flat mesh: the volume rule above allows too many
-        cell *= 1.25
-        dims = np.maximum(1, np.ceil(extent / cell).astype(np.int64))
-    first = np.clip(np.floor((corners.min(axis=1) - margin - lo) / cell).astype(np.int64), 0, dims - 1)
-    last = np.clip(np.floor((corners.max(axis=1) + margin - lo) / cell).astype(np.int64), 0, dims - 1)
-    span = last - first + 1
-    counts = span.prod(axis=1)
-    owner = np.repeat(np.arange(len(triangles)), counts)
-    local = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
-    sy, sz = span[owner, 1], span[owner, 2]
-    ix = first[owner, 0] + local // (sy * sz)
-    iy = first[owner, 1] + (local // sz) % sy
-    iz = first[owner, 2] + local % sz
-    cells = (ix * dims[1] + iy) * dims[2] + iz
-    order = np.argsort(cells, kind="stable")
-    start = np.zeros(int(np.prod(dims)) + 1, np.int64)
-    np.cumsum(np.bincount(cells, minlength=int(np.prod(dims))), out=start[1:])
-    return lo, cell, dims, start, owner[order]
+    @property
+    def frames(self) -> np.ndarray:
+        """(F, V, 3) m: every frame (F = 1 for a rigid mesh)."""
+        v = np.asarray(self.vertices, np.float64)
+        return v[None] if v.ndim == 2 else v
 
 
 @ti.data_oriented
@@ -129,35 +106,68 @@ class MeshCollider(ScenePart):
     is_obstacle = True
 
     def __init__(self, spec: MeshObstacle, free):
-        real, npr = runtime.real(), runtime.np_real()
+        real = runtime.real()
         self.spec = spec
         self.free = free
-        self.vertices_np = np.asarray(spec.vertices, np.float64)
+        self.player = FramePlayer(spec.frames, spec.fps)
         self.triangles_np = np.asarray(spec.triangles, np.int64)
         self.skin = float(spec.skin)
         self.count = 1
         self.path = PathFields(1)
         self.path.upload([spec.path])
-        lo, cell, dims, start, listed = triangle_grid(self.vertices_np, self.triangles_np, self.skin)
-        self.grid_origin = tuple(float(c) for c in lo)  # compile-time constants of the kernels
-        self.cell = float(cell)
-        self.dims = tuple(int(d) for d in dims)
+        # one grid over every frame (its geometry is compiled into the kernels); each frame
+        # segment lists the triangles by their boxes over the segment
+        self.grid = TriangleGrid.covering(self.player.frames, self.triangles_np, self.skin)
+        capacity = max(self.grid.entries(*self._grown(k)) for k in range(self.player.segment_count))
+        self.grid_origin, self.cell, self.dims = self.grid.origin, self.grid.cell, self.grid.dims
         T = len(self.triangles_np)
         self.corner = ti.Vector.field(3, real, shape=(T, 3))
         self.face_normal = ti.Vector.field(3, real, shape=T)
-        self.cell_start = ti.field(ti.i32, shape=len(start))
-        self.cell_triangles = ti.field(ti.i32, shape=max(1, len(listed)))
-        corners = self.vertices_np[self.triangles_np]
-        normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-        normals /= np.linalg.norm(normals, axis=1, keepdims=True)
-        self.normals_np = normals
-        self.corner.from_numpy(corners.astype(npr))
-        self.face_normal.from_numpy(normals.astype(npr))
-        self.cell_start.from_numpy(start.astype(np.int32))
-        self.cell_triangles.from_numpy(np.asarray(listed if len(listed) else [0], np.int32))
+        # each triangle's centroid: its move over the last step (m) and its velocity now (m/s)
+        self.face_shift = ti.Vector.field(3, real, shape=T)
+        self.face_velocity = ti.Vector.field(3, real, shape=T)
+        self.cell_start = ti.field(ti.i32, shape=self.grid.cell_count + 1)
+        self.cell_triangles = ti.field(ti.i32, shape=max(1, capacity))
         self.start = StepStart(free.shape[0])
         self.contacts = ti.field(ti.i64, shape=())
+        self.listed_segment = -1
+        self.normals_np = np.zeros((T, 3))
+        self.largest_shift = 0.0
         self.t = 0.0
+        self.t_posed = None
+        self._pose(0.0, 0.0)
+
+    def _grown(self, k: int) -> tuple[np.ndarray, np.ndarray]:
+        lo, hi = self.player.segment_boxes(self.triangles_np, k)
+        return lo - self.skin, hi + self.skin
+
+    def _pose(self, t: float, h: float) -> None:
+        """Put the triangles where the frames have them at t (s), with their move since t - h."""
+        if self.t_posed is not None and not self.player.animated:
+            return  # a rigid mesh stays as built
+        segment, _ = self.player.segment(t)
+        if segment != self.listed_segment:
+            start, listed = self.grid.lists(*self._grown(segment))
+            self.cell_start.from_numpy(start.astype(np.int32))
+            self.cell_triangles.from_numpy(np.pad(listed, (0, self.cell_triangles.shape[0] - len(listed)))
+                                           .astype(np.int32))
+            self.listed_segment = segment
+        npr = runtime.np_real()
+        now = self.player.vertices(t)
+        corners = now[self.triangles_np]
+        normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+        length = np.linalg.norm(normals, axis=1, keepdims=True)
+        # a triangle passing through zero area between two frames keeps its last normal
+        self.normals_np = np.where(length > 0, normals / np.where(length > 0, length, 1.0), self.normals_np)
+        shift = (now - self.player.vertices(t - h))[self.triangles_np].mean(axis=1)
+        velocity = self.player.velocities(t)[self.triangles_np].mean(axis=1)
+        self.corner.from_numpy(corners.astype(npr))
+        self.face_normal.from_numpy(self.normals_np.astype(npr))
+        self.face_shift.from_numpy(shift.astype(npr))
+        self.face_velocity.from_numpy(velocity.astype(npr))
+        self.largest_shift = float(np.linalg.norm(shift, axis=1).max())
+        self.vertices_np = now
+        self.t_posed = t
 
     @classmethod
     def from_specs(cls, specs: list[MeshObstacle], context) -> "MeshCollider":
@@ -170,11 +180,13 @@ class MeshCollider(ScenePart):
     def __call__(self, state, t: float, h: float) -> None:
         self.start.begin(state, t, h)
         self.t = t
-        self._collide(state, self.start.x, t, h, self.spec.friction)
+        self._pose(t, h)
+        self._collide(state, self.start.x, t, h, self.spec.friction, self.largest_shift)
         self.start.end(state, t)
 
     def reset(self) -> None:
         self.t = 0.0
+        self._pose(0.0, 0.0)
 
     def restore(self) -> None:
         self.start.restore()
@@ -194,18 +206,23 @@ class MeshCollider(ScenePart):
         return {"collider_mesh": len(self.triangles_np)}
 
     def arrays(self) -> dict:
-        return {"collider_mesh_vertices": self.vertices_np, "collider_mesh_triangles": self.triangles_np,
+        return {"collider_mesh_vertices": self.vertices_np.copy(), "collider_mesh_triangles": self.triangles_np,
                 "collider_mesh_center": self.center(), "collider_mesh_skin": np.float64(self.skin)}
 
+    def _flat_shaded(self) -> tuple[np.ndarray, np.ndarray]:
+        """Each triangle its own three vertices (about the origin, m) with its normal."""
+        return self.vertices_np[self.triangles_np].reshape(-1, 3), np.repeat(self.normals_np, 3, axis=0)
+
     def visuals(self) -> list:
-        # flat-shaded: each triangle its own three vertices with its normal
-        corners = self.vertices_np[self.triangles_np].reshape(-1, 3)
-        reach = np.maximum(np.abs(self.vertices_np.min(axis=0)), np.abs(self.vertices_np.max(axis=0)))
-        return [SolidMesh(vertices=corners, normals=np.repeat(self.normals_np, 3, axis=0),
-                          triangles=np.arange(len(corners)).reshape(-1, 3), place=self.center, reach=reach)]
+        corners, normals = self._flat_shaded()
+        frames = self.player.frames
+        reach = np.maximum(np.abs(frames.min(axis=(0, 1))), np.abs(frames.max(axis=(0, 1))))
+        return [SolidMesh(vertices=corners, normals=normals, triangles=np.arange(len(corners)).reshape(-1, 3),
+                          place=self.center, reach=reach,
+                          pose=self._flat_shaded if self.player.animated else None)]
 
     def energy_sources(self) -> list:
-        return [MovingSource("moving collider mesh", self.spec.path.fastest_speed())]
+        return [MovingSource("moving collider mesh", self.spec.path.fastest_speed() + self.player.fastest_speed())]
 
     def summary(self) -> str:
         return f"collider mesh: {self.contacts_total} particle contacts"
@@ -231,12 +248,15 @@ class MeshCollider(ScenePart):
         return (ix * self.dims[1] + iy) * self.dims[2] + iz
 
     @ti.func
-    def _crossing(self, a, b):
-        """The earliest s in [0, 1] at which a + s (b - a) crosses a triangle (2 when none), and
-        that triangle's unit normal on a's side."""
-        best, normal = 2.0, 0.0 * a
+    def _crossing(self, a, b, reach):
+        """The earliest s in [0, 1] at which the particle moving from a to b (mesh frame)
+        crosses a triangle (2 when none), that triangle's unit normal on the particle's side,
+        the triangle and where the particle meets it. Each triangle is tested in its own
+        moving frame: the particle starts at a plus the triangle's move over the step (at most
+        ``reach``, m), as the rigid path's move is already taken out of a."""
+        best, normal, face, met = 2.0, 0.0 * a, -1, a
         normal[1] = 1.0
-        first, last = self._cells(ti.min(a, b), ti.max(a, b))
+        first, last = self._cells(ti.min(a, b) - reach, ti.max(a, b) + reach)
         span = ti.max(last - first + 1, 0)
         for k in range(span[0] * span[1] * span[2]):  # one loop over the cells: less to compile
             c = self._cell_id(first, span, k)
@@ -244,13 +264,15 @@ class MeshCollider(ScenePart):
                 f = self.cell_triangles[e]
                 n = self.face_normal[f]
                 p0 = self.corner[f, 0]
-                ha, hb = (a - p0).dot(n), (b - p0).dot(n)
+                af = a + self.face_shift[f]
+                ha, hb = (af - p0).dot(n), (b - p0).dot(n)
                 if ha * hb < 0.0 or (hb == 0.0 and ha != 0.0):
                     s = ha / (ha - hb)
-                    if s < best and inside(a + s * (b - a), p0, self.corner[f, 1], self.corner[f, 2]):
-                        best = s
+                    m = af + s * (b - af)
+                    if s < best and inside(m, p0, self.corner[f, 1], self.corner[f, 2]):
+                        best, face, met = s, f, m
                         normal = n if ha > 0.0 else -n
-        return best, normal
+        return best, normal, face, met
 
     @ti.func
     def _nearest(self, q, radius):
@@ -298,42 +320,49 @@ class MeshCollider(ScenePart):
         if face >= 0:
             dist = d - self.skin
             normal = self._away(q, p, face, q + self.face_normal[face])
-        return dist, normal, self.path.velocity(0, t)
+        velocity = self.path.velocity(0, t)
+        if face >= 0:
+            velocity += self.face_velocity[face]
+        return dist, normal, velocity
 
     @ti.kernel
-    def _collide(self, y: ti.template(), x_start: ti.template(), t: float, h: float, friction: float):
+    def _collide(self, y: ti.template(), x_start: ti.template(), t: float, h: float, friction: float,
+                 reach: float):
         for i in y.x:
             if self.free[i]:
                 center = self.path.center(0, t)
                 a = x_start[i] - self.path.center(0, t - h)
                 b = y.x[i] - center
-                first, last = self._cells(ti.min(a, b) - self.skin, ti.max(a, b) + self.skin)
+                first, last = self._cells(ti.min(a, b) - self.skin - reach, ti.max(a, b) + self.skin + reach)
                 if all(first <= last):  # the motion reaches the grid
                     q = b
                     hit = False
                     n = 0.0 * b
                     n[1] = 1.0
-                    s, crossed = self._crossing(a, b)
+                    touched = -1
+                    s, crossed, face, met = self._crossing(a, b, reach)
                     side = a
                     if s <= 1.0:  # back to the crossing, on by the motion along the surface
                         hit = True
-                        met = a + s * (b - a)
                         rest = b - met
                         q = met + rest - ti.min(rest.dot(crossed), 0.0) * crossed
                         n = crossed
                         side = met + self.skin * crossed
+                        touched = face
                     for _ in range(MESH_PASSES):
-                        d, p, face = self._nearest(q, self.skin)
-                        if face < 0 or d >= SETTLED * self.skin:  # (one put there last pass or step)
+                        d, p, nearest = self._nearest(q, self.skin)
+                        if nearest < 0 or d >= SETTLED * self.skin:  # (one put there last pass or step)
                             break
-                        out = self._away(q, p, face, side)
+                        out = self._away(q, p, nearest, side)
                         q = p + self.skin * out
                         side = q
                         n = out
                         hit = True
+                        touched = nearest
                     if hit:
+                        surface = self.path.velocity(0, t) + self.face_velocity[ti.max(touched, 0)]
                         y.x[i] = center + q
-                        y.v[i] = inelastic_friction(y.v[i], self.path.velocity(0, t), n, friction)
+                        y.v[i] = inelastic_friction(y.v[i], surface, n, friction)
                         self.contacts[None] += 1
 
 
