@@ -241,7 +241,7 @@ class Constraints:
     def _violation(self, y: ti.template()) -> float:
         worst = 0.0
         for r in range(self.row_count):
-            _, c, _, _ = self._row(r, y)
+            _gradient, c, _rate, _drift = self._row(r, y)
             ti.atomic_max(worst, ti.abs(c))
         return worst
 

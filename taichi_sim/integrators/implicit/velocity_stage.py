@@ -192,12 +192,14 @@ class VelocityStage:
             x, v = self._start_point(i, y0, tau, use_guess)
             if self.system.free[i]:
                 kinetic0 += 0.5 * self.system.mass[i] * y0.v[i].norm_sqr()
-            u, _ = self.system.potential_and_dissipation_at(i, y0)
+            u, _dissipation = self.system.potential_and_dissipation_at(i, y0)
             potential0 += u
             # Rounding of the energies: relative to each term's size, and for a force F at a
             # position rounded to eps |x|, |F| eps |x| (a spring's |d| - r near rest length
             # loses digits: at small stretch this dominates ½ k (|d| - r)^2 itself).
-            _, pieces, _ = self.system.force_and_scale(i, y0, t)
+            # (each unused value its own name: Taichi keeps one type per name, and one `_` for
+            # this loop's scalars and vectors fails to compile at opt_level 0)
+            _force, pieces, _rounding = self.system.force_and_scale(i, y0, t)
             magnitude0 += ti.abs(u) + pieces * x.norm()
             if not (finite(x) and finite(v)):
                 bad += 1
