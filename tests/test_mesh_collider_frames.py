@@ -12,6 +12,7 @@ from test_mesh_collider import SKIN, cloth, rotation_z
 import taichi_sim as ts
 from taichi_sim.cli import main
 from taichi_sim.errors import ConfigError
+from taichi_sim.render.drawer import DrawOptions, SceneDrawer
 from taichi_sim.scene.colliders import SpherePath, load_mesh_file
 from taichi_sim.scene.visual import describe
 
@@ -78,6 +79,8 @@ def test_a_plate_turning_under_a_resting_cloth_lifts_it_without_letting_a_vertex
     b.add_mesh_collider(frames, PLATE.faces, skin=SKIN, friction=0.8, fps=50.0)
     scene = b.finalize(name="tilt", params={}, default_dt=5e-3, default_integrator="symplectic_euler")
     player = scene.part("collider_mesh").player
+    visual = describe(scene)
+    drawer = SceneDrawer(visual)  # built with the plate level, drawn as it turns
     stepper = ts.Stepper(scene, "symplectic_euler", 5e-3)
     for step in range(1, 81):
         stepper.step(check=True)
@@ -88,10 +91,14 @@ def test_a_plate_turning_under_a_resting_cloth_lifts_it_without_letting_a_vertex
         assert np.allclose(scene.arrays["collider_mesh_vertices"], player.vertices(step * 5e-3))
     assert np.allclose(height, 0.01 + SKIN, atol=1e-4)  # friction 0.8 > tan 30 holds it on the plate
     assert scene.state.to_numpy()[0][:, 1].max() > 0.15  # turned with it, one side lifted
-    (solid,) = describe(scene).solids
+    (solid,) = visual.solids
     shape, normals = solid.pose()
     assert np.allclose(shape, frames[-1][PLATE.faces].reshape(-1, 3))
-    assert np.allclose(normals[0], np.repeat(scene.part("collider_mesh").normals_np, 3, axis=0)[0])
+    assert np.allclose(normals, np.repeat(scene.part("collider_mesh").normals_np, 3, axis=0))
+    drawer.sync(scene.state.x)
+    drawer.update(DrawOptions(), eye=(0.0, 1.0, 3.0))
+    assert np.allclose(drawer.solid_vertices.to_numpy(), shape, atol=1e-6)
+    assert np.allclose(drawer.solid_normals.to_numpy(), normals, atol=1e-6)
 
 
 def write_frames(folder, offsets, name="plate"):
