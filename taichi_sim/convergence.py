@@ -216,6 +216,8 @@ class ConvergenceMonitor:
             self.reason = "a first-order system"
         elif unmodelled(scene):
             self.reason = f"the scene's {unmodelled(scene)} forces are not in the residual's model"
+        elif getattr(integrator, "unmodelled_forces", ""):
+            self.reason = f"{integrator.name}'s {integrator.unmodelled_forces} forces are not in the residual's model"
         self.active = not self.reason  # an attribute: read at every step
         self.times: list[float] = []
         self.values: list[float] = []

@@ -110,6 +110,10 @@ class Integrator(ABC):
     """The equation a step solves (:class:`~taichi_sim.integrators.equation.Equation`) for the
     methods that solve a system per step; None for the explicit ones. Runs measure its residual
     (:class:`taichi_sim.convergence.ConvergenceMonitor`)."""
+    unmodelled_forces = ""
+    """Forces the method adds inside its own solve that the measured residual's model does not
+    hold (e.g. ``vbd``'s in-solve contact), "" for none: such a run's residual is not measured
+    rather than reported as a convergence figure it is not."""
     tracks_solved_start = False
     """Whether the method, when ``solved_start`` is set to a State, copies into it the start of
     the last piece of a step it solved (a substep, a halving) and sets ``solved_h`` (s)."""

@@ -184,6 +184,15 @@ class VBD(VBDSprings, Integrator):
         self._kernels = {}  # the kernels compile the contact terms in
 
     @property
+    def unmodelled_forces(self) -> str:
+        """The in-solve contact (once attached to a scene that has some): its penalty forces
+        are not in the residual's model, so a run with them does not measure one."""
+        if not self.has_contact:
+            return ""
+        return "self-contact and object contact" if self.has_self_contact and self.contact.has_objects \
+            else ("self-contact" if self.has_self_contact else "object contact")
+
+    @property
     def colour_count(self) -> int:
         """Colours of the vertex graph (parallel phases of one sweep)."""
         return len(self.starts) - 1
