@@ -43,7 +43,8 @@ class RunResult:
         worst_residual: the largest sample (NaN when none); max_residual: the bound applied
             (``max_residual``, or more where the precision rounds more: see
             :meth:`~taichi_sim.convergence.ConvergenceMonitor.check_precision`); warnings:
-            one-line warnings (a fixed-work method whose residual exceeded the bound).
+            one-line warnings (a fixed-work method whose residual exceeded the bound, the
+            integrator's own :meth:`~taichi_sim.integrators.Integrator.run_warning`).
         x_history, t_history: with ``save_every``, the positions (S, N, 3) (m) (for a
             first-order system its state, (S, N, dim)) at t = 0, every ``save_every`` accepted
             steps and at the end, and their times (S,) (s); None otherwise.
@@ -238,7 +239,7 @@ def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: 
                      constraint_violation=None if violation is None else np.asarray(violation, float)[kept],
                      solver_residual=np.asarray(monitor.values, float), residual_t=np.asarray(monitor.times, float),
                      residual_note=monitor.reason, worst_residual=monitor.worst, max_residual=monitor.bound,
-                     warnings=tuple(stepper.warnings))
+                     warnings=tuple(stepper.warnings) + tuple(w for w in (stepper.integrator.run_warning(),) if w))
 
 
 class _History:

@@ -13,6 +13,7 @@ import taichi_sim as ts
 from taichi_sim.errors import ConfigError
 from taichi_sim.geometry import self_intersections
 from taichi_sim.integrators import create_integrator
+from taichi_sim.integrators.positional import vbd_contact
 from taichi_sim.scene.builder import SceneBuilder
 from taichi_sim.scene.colliders import SpherePath
 
@@ -90,6 +91,18 @@ def test_a_cloth_folding_on_itself_never_intersects_and_never_gains_energy(f32):
     energy = np.asarray(energy)
     assert np.all(energy <= energy[0] * (1 + 1e-6)), energy.max() - energy[0]
     assert vbd.contact.pairs_total > 0  # the layers met
+    assert vbd.run_warning() == ""  # every pair found was kept
+
+
+def test_contact_pairs_dropped_for_lack_of_room_are_said(f32, monkeypatch):
+    # each vertex keeps one pair: the fold finds more, and the run must say it lost them
+    monkeypatch.setattr(vbd_contact, "CONTACTS_PER_VERTEX", 1)
+    scene = fold()
+    vbd = create_integrator("vbd", scene.system, self_contact=True)
+    result = ts.run(scene, vbd, dt=H, steps=90)
+    assert vbd.contact.dropped_total > 0
+    assert f"vbd: {vbd.contact.dropped_total} contact pair(s) found but dropped from the solve" in vbd.run_warning()
+    assert vbd.run_warning() in result.warnings
 
 
 def test_without_self_contact_the_same_fold_intersects(f32):

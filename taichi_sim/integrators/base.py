@@ -160,6 +160,12 @@ class Integrator(ABC):
         """Forget anything carried between steps (call after the system itself changed: a
         spring torn, a parameter moved). Stateless methods do nothing."""
 
+    def run_warning(self) -> str:
+        """What may be wrong with the steps taken since the method was bound that no step's
+        status says ('' when nothing; e.g. ``vbd``'s contact pairs dropped for lack of room):
+        a run ends with it among its warnings."""
+        return ""
+
     @abstractmethod
     def step(self, state: State, t: float, h: float) -> StepReport:
         """Advance ``state`` in place from time ``t`` by ``h`` seconds."""

@@ -183,6 +183,16 @@ class VBD(VBDSprings, Integrator):
         self.has_contact, self.has_self_contact = True, self.contact.self_contact
         self._kernels = {}  # the kernels compile the contact terms in
 
+    def run_warning(self) -> str:
+        """Contact pairs found but not kept (a vertex's list of CONTACTS_PER_VERTEX, or the
+        pair list, full): their repulsion was left out of the solve."""
+        dropped = getattr(self.contact, "dropped_total", 0)  # (self-contact keeps lists; objects do not)
+        if not dropped:
+            return ""
+        return (f"vbd: {dropped} contact pair(s) found but dropped from the solve (a vertex keeps "
+                f"{self.contact.per_vertex} between detections): the cloth may intersect itself (taichi-sim check "
+                "FILE.npz tells)")
+
     @property
     def unmodelled_forces(self) -> str:
         """The in-solve contact (once attached to a scene that has some): its penalty forces

@@ -105,7 +105,8 @@ class SolveContact:
         self.pair_ids = ti.Vector.field(4, ti.i32, shape=self.pair_capacity)
         self.pair_kind = ti.field(ti.i32, shape=self.pair_capacity)  # 0 vertex-triangle, 1 edge-edge
         self.pair_count = ti.field(ti.i32, shape=())
-        self.vertex_pairs = ti.field(ti.i32, shape=(n, CONTACTS_PER_VERTEX))
+        self.per_vertex = CONTACTS_PER_VERTEX  # (read once: the kernels compile it in)
+        self.vertex_pairs = ti.field(ti.i32, shape=(n, self.per_vertex))
         self.vertex_pair_count = ti.field(ti.i32, shape=n)
         self.dropped = ti.field(ti.i32, shape=())  # pairs not kept (lists full) since the last refresh
         self.dropped_total = 0
@@ -191,7 +192,7 @@ class SolveContact:
                     for k in ti.static(range(4)):
                         if self.system.free[ids[k]]:
                             s = ti.atomic_add(self.vertex_pair_count[ids[k]], 1)
-                            if s < CONTACTS_PER_VERTEX:
+                            if s < self.per_vertex:
                                 self.vertex_pairs[ids[k], s] = slot
                             else:
                                 ti.atomic_add(self.dropped[None], 1)
@@ -241,7 +242,7 @@ class SolveContact:
                         f, H = self._push(f, H, d, n, k, 1.0, moved, collider.friction[c], dt)
         if ti.static(self.self_contact):
             k = self.stiffness * self.mean_mass / (dt * dt)
-            for s in range(ti.min(self.vertex_pair_count[i], CONTACTS_PER_VERTEX)):
+            for s in range(ti.min(self.vertex_pair_count[i], self.per_vertex)):
                 pair = self.vertex_pairs[i, s]
                 ids = self.pair_ids[pair]
                 gap, w = self._pair_geometry(ids, self.pair_kind[pair], x)
