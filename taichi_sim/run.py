@@ -239,7 +239,14 @@ def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: 
                      constraint_violation=None if violation is None else np.asarray(violation, float)[kept],
                      solver_residual=np.asarray(monitor.values, float), residual_t=np.asarray(monitor.times, float),
                      residual_note=monitor.reason, worst_residual=monitor.worst, max_residual=monitor.bound,
-                     warnings=tuple(stepper.warnings) + tuple(w for w in (stepper.integrator.run_warning(),) if w))
+                     warnings=tuple(stepper.warnings) + _integrator_warnings(stepper.integrator))
+
+
+def _integrator_warnings(integrator) -> tuple[str, ...]:
+    """The integrator's :meth:`~taichi_sim.integrators.Integrator.run_warning`, if it says
+    anything (an object stepping like an integrator without deriving from one has none)."""
+    said = getattr(integrator, "run_warning", lambda: "")()
+    return (said,) if said else ()
 
 
 class _History:
