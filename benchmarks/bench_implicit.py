@@ -36,6 +36,7 @@ import numpy as np
 import taichi as ti
 
 import taichi_sim as ts
+from taichi_sim.scene.cloth import per_particle
 
 N = 64
 STIFFNESS = 1e4  # N/m, structural, shear and flex alike (the default; --stiffness)
@@ -43,7 +44,8 @@ DT = 1 / 60  # s
 
 
 def cloth_params(stiffness: float = STIFFNESS, size: int = N) -> dict:
-    return {"nx": size, "ny": size, "stiffness": stiffness, "shear_stiffness": stiffness, "flex_stiffness": stiffness}
+    return {"nx": size, "ny": size, "stiffness": stiffness, "shear_stiffness": stiffness, "flex_stiffness": stiffness,
+            **per_particle(size, size, mass=0.01, drag=0.005)}
 
 
 def init(precision: str, args) -> None:

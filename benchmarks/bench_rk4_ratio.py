@@ -18,6 +18,7 @@ import time
 import taichi as ti
 
 import taichi_sim as ts
+from taichi_sim.scene.cloth import per_particle
 
 METHODS = ("symplectic_euler", "rk4")
 
@@ -34,7 +35,7 @@ def main() -> None:
     for n in (int(s) for s in args.sizes.split(",")):
         runs = {}
         for name in METHODS:
-            scene = ts.build_scene("cloth", {"nx": n, "ny": n})
+            scene = ts.build_scene("cloth", {"nx": n, "ny": n, **per_particle(n, n, mass=0.01, drag=0.005)})
             method = ts.create_integrator(name, scene.system)
             for _ in range(20):
                 method.step(scene.state, 0.0, 1e-5)

@@ -16,6 +16,7 @@ import time
 
 import taichi_sim as ts
 from taichi_sim.integrators.implicit import common
+from taichi_sim.scene.cloth import per_particle
 
 DT = 1 / 60
 
@@ -59,7 +60,8 @@ def main() -> None:
     parser.add_argument("--ceilings", default="0.1,0.01,0.001")
     args = parser.parse_args()
     ts.init(arch="cpu", precision="f64")
-    scene = ts.build_scene("cloth", {"nx": args.size, "ny": args.size, "stiffness": args.stiffness})
+    scene = ts.build_scene("cloth", {"nx": args.size, "ny": args.size, "stiffness": args.stiffness,
+                                      **per_particle(args.size, args.size, mass=0.01, drag=0.005)})
     for label, options in (("forcing", {}), ("exact", {"cg_tolerance": 1e-10, "cg_max_iterations": 20000})):
         _, wall = run(scene, args.steps, True, label, **options)
         print(f"  {label}: {wall:.1f} s")

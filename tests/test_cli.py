@@ -68,13 +68,13 @@ def test_every_scene_runs_with_every_integrator(tmp_path, scene, integrator):
 
 def test_set_values_reach_the_scene_and_t_end_lands(tmp_path):
     code, path = simulate(tmp_path, "cloth", "--set", "nx=5", "--set", "ny=3", "--set", "stiffness=123",
-                          "--set", "particle_mass=0.02", "--set", "drag=0.5", "--set", "gravity=3",
+                          "--set", "density=0.3", "--set", "area_drag=7.5", "--set", "gravity=3",
                           "--dt", "0.004", "--t-end", "0.01", "--precision", "f32")
     assert code == 0
     data = np.load(path)
-    assert len(data["mass"]) == 15 and np.all(data["mass"] == 0.02)
+    assert len(data["mass"]) == 15 and np.allclose(data["mass"], 0.02, rtol=1e-12)
     assert np.all(data["stiffness"][data["spring_kind"] == 0] == 123)
-    assert float(data["drag"]) == 0.5 and data["gravity"].tolist() == [0, -3, 0]
+    assert np.isclose(float(data["drag"]), 0.5, rtol=1e-12) and data["gravity"].tolist() == [0, -3, 0]
     assert float(data["t"]) == 0.01 and int(data["steps"]) == 3
 
 

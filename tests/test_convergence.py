@@ -16,9 +16,10 @@ from taichi_sim.convergence import (
 from taichi_sim.errors import ConfigError
 from taichi_sim.integrators import Status
 from taichi_sim.integrators.equation import EXACT, FIXED_WORK, Equation
+from taichi_sim.scene.cloth import per_particle
 
 BACKWARD_EULER = Equation("backward_euler", EXACT)
-STIFF_CLOTH = {"nx": 8, "ny": 8, "stiffness": 1e6}
+STIFF_CLOTH = {"nx": 8, "ny": 8, "stiffness": 1e6, **per_particle(8, 8, mass=0.01, drag=0.005)}
 
 
 def cloth(**params):
@@ -37,7 +38,7 @@ def test_a_cloth_left_where_it_was_leaves_its_whole_weight_unbalanced(f64):
 
 def test_the_exact_backward_euler_step_of_a_falling_particle_has_no_residual(f64):
     # Without springs the step is closed form: v1 = (v0 + h g) / (1 + h c / m), x1 = x0 + h v1.
-    scene = ts.build_scene("cloth", {"nx": 2, "ny": 2, "stiffness": 0.0, "pin": "none", "drag": 0.3})
+    scene = ts.build_scene("cloth", {"nx": 2, "ny": 2, "stiffness": 0.0, "pin": "none", "area_drag": 1.2})
     model = ForceModel(scene)
     h, m = 0.02, model.mass[:, None]
     x0, v0 = scene.x0, np.full_like(scene.x0, 0.5)

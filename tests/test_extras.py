@@ -8,6 +8,7 @@ from helpers import step_checked
 import taichi_sim as ts
 from taichi_sim.cli import main
 from taichi_sim.scene import cloth as topo
+from taichi_sim.scene.cloth import per_particle
 
 
 def step_and_check(scene, integrator_name, dt, steps, check):
@@ -38,7 +39,7 @@ def test_no_particle_ends_a_step_inside_the_sphere(f64):
 
 def test_a_resting_cloth_on_a_sphere_gains_no_energy(f64):
     scene = ts.build_scene("cloth-sphere", {"nx": 10, "ny": 10, "plane": False, "damping": 0.2,
-                                            "drag": 0.02})
+                                            "area_drag": 2.0})
     ts.run(scene, "symplectic_euler", dt=1e-3, steps=4000, energy_every=0)  # falls and settles
     rest = ts.run(scene, "symplectic_euler", dt=1e-3, steps=1000, energy_every=50)
     e = rest.energy
@@ -239,7 +240,7 @@ def test_wind_force_is_zero_edge_on_and_scales_with_area(f64):
 # --- grab ----------------------------------------------------------------------------------
 
 def test_grab_picks_along_a_ray_and_pulls(f64):
-    scene = ts.build_scene("cloth", {"nx": 8, "ny": 8, "grab": True, "pin": "corners"})
+    scene = ts.build_scene("cloth", {"nx": 8, "ny": 8, "grab": True, "pin": "corners", **per_particle(8, 8, mass=0.01, drag=0.005)})
     x0 = scene.state.to_numpy()[0]
     target_id = topo.grid_index(8, 8)[3, 2]
     eye = x0[target_id] + np.array([0.0, 2.0, 0.0])

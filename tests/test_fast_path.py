@@ -15,7 +15,7 @@ COMBINATIONS = [
     {"nx": 7, "ny": 5},
     {"nx": 5, "ny": 6, "shear": False, "damping": 0.0, "jitter": 0.01, "pin": "pole"},
     {"nx": 6, "ny": 5, "flex": False, "structural": False, "orientation": "vertical", "pin": "sides"},
-    {"nx": 6, "ny": 6, "wind": True, "sphere": True, "plane": True, "grab": True, "drag": 0.02},
+    {"nx": 6, "ny": 6, "wind": True, "sphere": True, "plane": True, "grab": True, "area_drag": 0.72},
 ]
 
 

@@ -11,6 +11,7 @@ import taichi_sim as ts
 from taichi_sim.forces import ForceTerm
 from taichi_sim.integrators import Status, create_integrator
 from taichi_sim.integrators.implicit.common import FORCING_CEILING, LINEARISED_CG_TOLERANCE, forcing_tolerance
+from taichi_sim.scene.cloth import per_particle
 
 LINEARISED = "implicit_euler_linearised"
 STIFF_CLOTH = {"nx": 12, "ny": 12, "stiffness": 1e8, "shear_stiffness": 1e8, "flex_stiffness": 1e8}
@@ -102,7 +103,7 @@ def test_assembly_is_the_lower_triangle_of_the_matrix_free_product(f64, rng, tmp
     # The direct solver assembles only the lower triangle (Eigen's LL^T reads only it); with its
     # mirror it must be the A whose product the residual check and CG use: springs stretched
     # and compressed (the clamp acts), dashpots, drag, a pinned set and a torn spring.
-    scene = ts.build_scene("cloth", {"nx": 5, "ny": 5, "damping": 0.3, "drag": 0.1, "tear": True})
+    scene = ts.build_scene("cloth", {"nx": 5, "ny": 5, "damping": 0.3, "area_drag": 2.5, "tear": True})
     springs = scene.system.term("springs")
     alive = springs.alive.to_numpy()
     alive[3] = 0
@@ -185,7 +186,7 @@ class _Probe:
     (allocated once: every new field passed to a kernel compiles a new variant of it)."""
 
     def __init__(self):
-        self.scene = ts.build_scene("cloth", {"nx": 5, "ny": 5, "damping": 0.3, "drag": 0.1, "grab": True})
+        self.scene = ts.build_scene("cloth", {"nx": 5, "ny": 5, "damping": 0.3, "area_drag": 2.5, "grab": True})
         self.scene.system.term("grab").hold(12, [0.1, 1.2, 0.0])
         n = self.scene.particle_count
         self.state = self.scene.system.make_state()
@@ -306,7 +307,7 @@ def test_cached_system_matrix_equals_the_direct_evaluation(f64, rng):
     # the same A p as the gather that rebuilds every spring's block: springs (stretched and
     # compressed, so the clamp acts on some), dashpots, drag, the grab spring, pinned particles
     # and a torn spring.
-    scene = ts.build_scene("cloth", {"nx": 6, "ny": 6, "damping": 0.3, "drag": 0.1, "grab": True, "tear": True})
+    scene = ts.build_scene("cloth", {"nx": 6, "ny": 6, "damping": 0.3, "area_drag": 3.6, "grab": True, "tear": True})
     scene.system.term("grab").hold(14, [0.1, 1.2, 0.0])
     springs = scene.system.term("springs")
     alive = springs.alive.to_numpy()
@@ -478,7 +479,8 @@ def test_ssor_and_jacobi_reach_the_same_step_within_their_tolerances(precision):
     # |b - A dv| like block Jacobi, and needs fewer iterations.
     ts.init(arch="cpu", precision=precision)
     h = 1 / 60
-    params = {"nx": 16, "ny": 16, "jitter": 0.01, "stiffness": 1e4, "shear_stiffness": 1e4, "flex_stiffness": 1e4}
+    params = {"nx": 16, "ny": 16, "jitter": 0.01, "stiffness": 1e4, "shear_stiffness": 1e4, "flex_stiffness": 1e4,
+              **per_particle(16, 16, mass=0.01, drag=0.005)}
     changes, reports = {}, {}
     for preconditioner in ("jacobi", "ssor"):
         scene = ts.build_scene("cloth", params, seed=3)

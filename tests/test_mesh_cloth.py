@@ -182,10 +182,11 @@ def test_a_grid_mesh_sags_like_the_grid_cloth(f64, tmp_path):
     springs at the default ratio), so with equal masses the two cloths sag alike."""
     nx = ny = 7
     path, _ = grid_obj(tmp_path, nx, ny)
-    common = {"damping": 0.0, "drag": 0.3, "gravity": 9.8}
-    grid = ts.build_scene("cloth", dict(common, nx=nx, ny=ny, pin="corners", flex=False, particle_mass=0.01,
-                                        stiffness=50.0, shear_stiffness=25.0))
-    p = resolve(MESH.params, "mesh", dict(common, file=str(path), bending=False, stiffness=50.0, pin="none"))
+    common = {"damping": 0.0, "gravity": 9.8}
+    grid = ts.build_scene("cloth", dict(common, nx=nx, ny=ny, pin="corners", flex=False, stiffness=50.0,
+                                        shear_stiffness=25.0, **topo.per_particle(nx, ny, mass=0.01, drag=0.3)))
+    p = resolve(MESH.params, "mesh", dict(common, drag=0.3, file=str(path), bending=False, stiffness=50.0,
+                                          pin="none"))
     b = SceneBuilder()
     add_mesh_cloth(b, p, 0, load_mesh(path), mass=np.full(nx * ny, 0.01), pinned=cloth_pins(nx, ny, "corners"))
     mesh = MESH.finish(b, p, 0)

@@ -11,7 +11,7 @@ SMALL_SCENES = {
     "simple": {},
     "spring": {"drag": 0.3, "damping": 0.2},
     "pendulum": {"particle_count": 6, "drag": 0.1, "damping": 0.5},
-    "cloth": {"nx": 5, "ny": 4, "drag": 0.2, "damping": 0.4},
+    "cloth": {"nx": 5, "ny": 4, "area_drag": 4.0, "damping": 0.4},
 }
 
 
@@ -55,7 +55,7 @@ def test_eval_f_reads_only_its_input_and_writes_all_of_its_output(f64, rng, name
 
 
 def test_internal_forces_obey_newtons_third_law(f64, rng):
-    scene = ts.build_scene("cloth", {"nx": 6, "ny": 5, "gravity": 0.0, "drag": 0.0,
+    scene = ts.build_scene("cloth", {"nx": 6, "ny": 5, "gravity": 0.0, "area_drag": 0.0,
                                      "damping": 0.7, "pin": "none"})
     y, _, _ = random_state(scene, rng)
     forces = ts.State(scene.particle_count, False).x
@@ -66,7 +66,7 @@ def test_internal_forces_obey_newtons_third_law(f64, rng):
 
 
 def test_spring_and_gravity_forces_are_minus_the_energy_gradient(f64, rng):
-    scene = ts.build_scene("cloth", {"nx": 4, "ny": 3, "damping": 0.0, "drag": 0.0, "pin": "none",
+    scene = ts.build_scene("cloth", {"nx": 4, "ny": 3, "damping": 0.0, "area_drag": 0.0, "pin": "none",
                                      "shear_stiffness": 70.0, "flex_stiffness": 30.0})
     n = scene.particle_count
     x = scene.x0 + rng.normal(scale=0.03, size=(n, 3))

@@ -57,7 +57,7 @@ def test_energy_never_rises_above_the_start_on_conservative_cloths(f64):
     """A 6 x 6 cloth without dashpots or drag, hanging from two corners, swinging: every step at
     k = 1e2, 1e4 and 1e8 N/m and h = 1/60 and 1/30 s, with the default sweeps. The same
     scene and integrator throughout (stiffness and h are not compiled in)."""
-    scene = ts.build_scene("cloth", cloth(6, 1e2, damping=0.0, drag=0.0))
+    scene = ts.build_scene("cloth", cloth(6, 1e2, damping=0.0, area_drag=0.0))
     springs = scene.springs
     base = springs.arrays()["stiffness"] / 1e2
     vbd = create_integrator("vbd", scene.system)

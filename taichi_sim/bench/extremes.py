@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..scene.cloth import KIND_RATIOS, kind_stiffness
+from ..scene.cloth import KIND_RATIOS, kind_stiffness, per_particle
 
 AUDIT_ENERGY_GROWTH = 100.0
 AUDIT_REACH = 1000.0
@@ -41,12 +41,12 @@ AUDIT_STRAIN = 100.0
 SCENES = {
     "spring": ("spring", {}),
     "pendulum": ("pendulum", {"particle_count": 10}),
-    "cloth": ("cloth", {"nx": 6, "ny": 6}),
+    "cloth": ("cloth", {"nx": 6, "ny": 6, **per_particle(6, 6, 0.01, 0.005)}),
 }
 QUICK_SCENES = {
     "spring": ("spring", {}),
     "pendulum": ("pendulum", {"particle_count": 4}),
-    "cloth": ("cloth", {"nx": 3, "ny": 3}),
+    "cloth": ("cloth", {"nx": 3, "ny": 3, **per_particle(3, 3, 0.01, 0.005)}),
 }
 STIFFNESSES = (1.0, 1e4, 1e8)
 STEP_SIZES = (1e-6, 1 / 60, 1.0)

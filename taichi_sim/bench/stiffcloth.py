@@ -17,7 +17,7 @@ import time
 
 import numpy as np
 
-from ..scene.cloth import swept_stiffness
+from ..scene.cloth import per_particle, swept_stiffness
 
 METHODS: tuple[tuple[str, dict], ...] = (
     ("implicit_euler", {}),
@@ -28,6 +28,8 @@ METHODS: tuple[tuple[str, dict], ...] = (
     ("xpbd", {"substeps": 10}),
     ("xpbd", {"substeps": 50}),
     ("xpbd", {"substeps": 10, "iterations": 4}),
+    ("vbd", {}),
+    ("vbd", {"substeps": 5, "iterations": 4}),
 )
 STEPS = (1 / 60, 1 / 120, 1 / 240, 1 / 480)
 
@@ -41,10 +43,11 @@ def label(name: str, options: dict) -> str:
 
 def cloth_params(size: int, k: float, conservative: bool = False) -> dict:
     """A size x size cloth with structural stiffness k (N/m; shear k/2, flex k/5, the cloth
-    family's ratios); ``conservative``: no dashpots, no drag."""
-    params = {"nx": size, "ny": size, **swept_stiffness(k)}
+    family's ratios) and 0.01 kg, 0.005 N s/m a particle at every size (the study's cloth since
+    before the grid's mass became per area); ``conservative``: no dashpots, no drag."""
+    params = {"nx": size, "ny": size, **swept_stiffness(k), **per_particle(size, size, mass=0.01, drag=0.005)}
     if conservative:
-        params.update(damping=0.0, drag=0.0)
+        params.update(damping=0.0, area_drag=0.0)
     return params
 
 

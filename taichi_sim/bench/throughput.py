@@ -36,6 +36,7 @@ import tempfile
 import time
 from dataclasses import dataclass, replace
 
+from ..scene.cloth import per_particle
 from .common import memory_bytes
 
 BYTES_PER_PARTICLE = 4096  # generous: state, scratch of the largest method, 6 springs each, incidence
@@ -154,7 +155,9 @@ def measure_cli(precision: str, n: int, dt: float, steps: int, repeats: int) -> 
     """Seconds per step through the command line: ``simulate`` with ``steps`` and with 10 steps,
     alternated ``repeats`` times; the difference of the medians over the difference of the step
     counts takes out start-up and saving."""
-    base = ["cloth", "--set", f"nx={n}", "--set", f"ny={n}", "--integrator", "symplectic_euler",
+    fixed = per_particle(n, n, mass=0.01, drag=0.005)  # the worker's cloth (fixed_particles)
+    base = ["cloth", "--set", f"nx={n}", "--set", f"ny={n}", "--set", f"density={fixed['density']!r}",
+            "--set", f"area_drag={fixed['area_drag']!r}", "--integrator", "symplectic_euler",
             "--dt", repr(dt), "--precision", precision]
     short, long = [], []
     try:

@@ -1,6 +1,8 @@
 """Cloth grid topology, built with numpy (no Python loops over particles or springs)."""
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 STRUCTURAL, SHEAR, FLEX = 0, 1, 2
@@ -80,3 +82,28 @@ def grid_triangles(nx: int, ny: int) -> np.ndarray:
     first = np.stack([a, b, d], axis=-1).reshape(-1, 3)
     second = np.stack([a, d, c], axis=-1).reshape(-1, 3)
     return np.concatenate([first, second])
+
+
+def grid_particle_area(p: dict[str, Any]) -> float:
+    """Each particle's share (m^2) of the grid cloth of parameters ``p``: size^2 / (nx ny)."""
+    return p["size"] ** 2 / (p["nx"] * p["ny"])
+
+
+def grid_particle_mass(p: dict[str, Any]) -> float:
+    """Each particle's mass (kg): the area density times its share of the area, so the cloth
+    weighs the same at any resolution."""
+    return p["density"] * grid_particle_area(p)
+
+
+def grid_particle_drag(p: dict[str, Any]) -> float:
+    """Each particle's drag coefficient (N s/m): ``area_drag`` times its share of the area."""
+    return p["area_drag"] * grid_particle_area(p)
+
+
+def per_particle(nx: int, ny: int, mass: float, drag: float = 0.0, size: float = 1.0) -> dict[str, float]:
+    """The grid cloth parameters (``density``, ``area_drag``) that give each particle of an
+    nx x ny cloth of side ``size`` (m) this ``mass`` (kg) and ``drag`` (N s/m): the way to build
+    a cloth of fixed particles (a study defined on them, or a figure taken before the grid's mass
+    became an area density: 0.01 kg and 0.005 N s/m at every size)."""
+    area = size * size / (nx * ny)
+    return {"density": mass / area, "area_drag": drag / area}

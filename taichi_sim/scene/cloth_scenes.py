@@ -6,6 +6,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import ConfigError
+from ..forces.springs.spectrum import omega_max_bound
 from ..memory import Size
 from . import cloth as topo
 from .builder import SceneBuilder
@@ -16,6 +17,15 @@ from .preset import ScenePreset, common_params, with_defaults
 from .scene import Scene
 
 PIN_MODES = ("corners", "edge", "pole", "sides", "border", "none")
+
+# kg/m^2: 0.01 kg a particle on the default 1 m^2 cloth of 32 x 32 (the mass every grid cloth had
+# per particle before its mass became an area density)
+GRID_DENSITY = 10.24
+GRID_AREA_DRAG = 5.12  # N s/m^3: 0.005 N s/m a particle there, as before
+# Presets whose default method is conditionally stable: their default step stays below this
+# share of 2 / omega_max's bound at any resolution (a finer grid's particles are lighter)
+EXPLICIT_DEFAULTS = ("symplectic_euler",)
+EXPLICIT_STEP_SHARE = 0.9
 
 CLOTH_PARAMS: tuple[Param, ...] = (
     Param("nx", 32, "", "particles along the grid's i axis (world x)", minimum=2),
@@ -36,7 +46,11 @@ CLOTH_PARAMS: tuple[Param, ...] = (
           choices=PIN_MODES),
     Param("jitter", 0.0, "m", "std. dev. of seeded random noise added to initial positions",
           minimum=0.0),
-    *common_params(mass=0.01, drag=0.005, damping=0.05),
+    Param("density", GRID_DENSITY, "kg/m^2", "area density: the cloth weighs density x size^2 at any nx, ny, "
+          "shared equally by its particles", minimum=0.0, exclusive=True),
+    Param("area_drag", GRID_AREA_DRAG, "N s/m^3", "viscous drag per m^2 of cloth: each particle feels "
+          "-area_drag x its share of the area x v (the same decay at any nx, ny)", minimum=0.0),
+    *(q for q in common_params(mass=0.01, drag=0.005, damping=0.05) if q.name not in ("particle_mass", "drag")),
     # wind
     Param("wind", False, "", "aerodynamic gusting wind on the cloth triangles"),
     Param("wind_speed", 6.0, "m/s", "mean wind speed", minimum=0.0),
@@ -216,7 +230,8 @@ def build_cloth(preset: ScenePreset, p: dict[str, Any], seed: int) -> Scene:
         x = topo.grid_positions(nx, ny, size, size, origin=(-size / 2, p["height"], 0.0),
                                 u_axis=(1, 0, 0), v_axis=(0, -1, 0))
     b = SceneBuilder()
-    b.add_particles(x, p["particle_mass"], pinned=cloth_pins(nx, ny, p["pin"]))
+    mass = topo.grid_particle_mass(p)
+    b.add_particles(x, mass, pinned=cloth_pins(nx, ny, p["pin"]))
     b.declare_grid(0, nx, ny)
     ends, kind = topo.grid_springs(nx, ny, structural=p["structural"], shear=p["shear"], flex=p["flex"])
     stiffness = topo.kind_stiffness(kind, p)
@@ -228,8 +243,20 @@ def build_cloth(preset: ScenePreset, p: dict[str, Any], seed: int) -> Scene:
         b.set_tearing(tear_thresholds(p, ends, kind, seed))
     if p["twist"]:
         add_twist(b, p, x)
-    add_cloth_extras(b, p, seed, p["particle_mass"])
-    return preset.finish(b, p, seed)
+    add_cloth_extras(b, p, seed, mass)
+    scene = preset.finish(b, p, seed, drag=topo.grid_particle_drag(p))
+    if preset.default_integrator in EXPLICIT_DEFAULTS:
+        # a finer grid has lighter particles and a shorter stable step (2 / omega_max ~ 1 / n)
+        omega = omega_max_bound(scene.arrays)
+        if omega > 0 and scene.default_dt > EXPLICIT_STEP_SHARE * 2.0 / omega:
+            scene.default_dt = round_down(EXPLICIT_STEP_SHARE * 2.0 / omega)
+    return scene
+
+
+def round_down(value: float, digits: int = 2) -> float:
+    """``value`` (> 0) rounded down to ``digits`` significant digits (5.457e-4 -> 5.4e-4)."""
+    scale = 10.0 ** (math.floor(math.log10(value)) - digits + 1)
+    return float(f"{math.floor(value / scale) * scale:.{digits}g}")
 
 
 def add_cloth_extras(b: SceneBuilder, p: dict[str, Any], seed: int, grab_mass: float) -> None:
@@ -305,7 +332,7 @@ CLOTH_SCENES = (
                 build_cloth, default_dt=1e-3, default_integrator="symplectic_euler", **_CLOTH_SIZE),
     ScenePreset("cloth-wind", "a flag pinned to a pole, fluttering in gusty wind",
                 with_defaults(CLOTH_PARAMS, orientation="vertical", pin="pole", height=1.5, wind=True,
-                              wind_speed=8.0, wind_heading=15.0, particle_mass=0.0004, stiffness=40.0,
+                              wind_speed=8.0, wind_heading=15.0, density=0.4096, stiffness=40.0,
                               shear_stiffness=20.0, flex_stiffness=8.0, jitter=0.002),
                 build_cloth, default_dt=1e-3, default_integrator="symplectic_euler", **_CLOTH_SIZE),
     ScenePreset("cloth-fold", "a cloth dropped edge-first onto the ground, piling up in folds on "

@@ -10,7 +10,7 @@ from __future__ import annotations
 from dataclasses import replace
 from typing import Any, Callable
 
-from .cloth import KIND_STIFFNESS_PARAMS, kind_stiffness
+from .cloth import KIND_STIFFNESS_PARAMS, grid_particle_drag, kind_stiffness
 from .scene import Scene
 
 
@@ -61,6 +61,16 @@ def _set_sphere_speed(scene: Scene, p: dict) -> bool:
     return True
 
 
+def _set_drag(scene: Scene, p: dict) -> bool:
+    """The drag term's coefficient a particle (N s/m): ``drag``, or on the grid cloth
+    ``area_drag`` times each particle's share of the area."""
+    term = scene.system.term("drag") if hasattr(scene.system, "term") else None
+    if term is None or not ("drag" in p or "area_drag" in p):
+        return False
+    term.set(grid_particle_drag(p) if "area_drag" in p else p["drag"])
+    return True
+
+
 def _set_gain(scene: Scene, p: dict) -> bool:
     if scene.constraints is None:
         return False
@@ -75,7 +85,8 @@ LIVE_SETTERS: dict[str, Callable[[Scene, dict], bool]] = {
     "flex_stiffness": _set_spring_stiffness,
     "damping": _set_damping,
     "gravity": _term_setter("gravity", lambda t, p: t.set((0.0, p.get("buoyancy", 0.0) - p["gravity"], 0.0))),
-    "drag": _term_setter("drag", lambda t, p: t.set(p["drag"])),
+    "drag": _set_drag,
+    "area_drag": _set_drag,
     "wind": _term_setter("wind", lambda t, p: t.set(enabled=p["wind"])),
     "wind_speed": _term_setter("wind", lambda t, p: t.set(speed=p["wind_speed"])),
     "wind_heading": _term_setter("wind", lambda t, p: t.set(heading=p["wind_heading"])),
@@ -99,6 +110,8 @@ def applies_live(scene: Scene, name: str) -> bool:
     """Whether parameter ``name`` can change on ``scene`` while it runs."""
     if name not in LIVE_SETTERS:
         return False
+    if name in ("drag", "area_drag") and name not in scene.params:
+        return False  # the grid cloth's drag is area_drag, any other scene's drag
     if name in KIND_STIFFNESS_PARAMS:
         return scene.springs is not None
     if name == "damping":
@@ -109,5 +122,5 @@ def applies_live(scene: Scene, name: str) -> bool:
         return scene.constraints is not None
     if name == "sphere_speed":
         return scene.spheres is not None and scene.params.get("sphere_motion") in ("drop", "sweep")
-    term = {"gravity": "gravity", "drag": "drag"}.get(name, "wind")
+    term = {"gravity": "gravity", "drag": "drag", "area_drag": "drag"}.get(name, "wind")
     return hasattr(scene.system, "term") and scene.system.term(term) is not None

@@ -14,7 +14,7 @@ from .cloth_scenes import EXTRA_PARAM_NAMES, add_cloth_extras, cloth_params
 from .kinematic import TranslatePath
 from .mesh_import import ClothMesh
 from .params import Param
-from .preset import with_defaults
+from .preset import common_params, with_defaults
 
 
 def vertex_masses(x, triangles, density: float) -> np.ndarray:
@@ -196,10 +196,11 @@ MESH_CLOTH_PARAMS: tuple[Param, ...] = (
     Param("bending", True, "", "a flex spring across each interior edge, between the two vertices "
           "opposite it"),
     Param("flex_stiffness", 20.0, "N/m", "stiffness of the bending springs", minimum=0.0),
-    # drag and the dashpot act per particle and per spring: the grid's defaults (for 0.01 kg
-    # particles) would hold back vertices of a few grams per m^2 like honey, and make an
-    # explicit step unstable (c / m above 2 / h); these suit vertices of about 3e-5 kg
-    *with_defaults(cloth_params("jitter", "gravity", "drag", "damping", "tear", "tear_strain",
-                                "tear_flex_factor"), drag=2e-5, damping=1e-4),
+    # drag and the dashpot act per vertex and per spring here: the grid's defaults at 32 x 32
+    # (for 0.01 kg particles) would hold back vertices of a few grams per m^2 like honey, and
+    # make an explicit step unstable (c / m above 2 / h); these suit vertices of about 3e-5 kg
+    *cloth_params("jitter", "gravity"),
+    *(q for q in common_params(mass=1.0, drag=2e-5) if q.name == "drag"),
+    *with_defaults(cloth_params("damping", "tear", "tear_strain", "tear_flex_factor"), damping=1e-4),
     *cloth_params(*EXTRA_PARAM_NAMES),
 )

@@ -27,11 +27,12 @@ class ScenePreset:
         return next(p for p in self.params if p.name == name)
 
     def finish(self, builder: SceneBuilder, values: dict[str, Any], seed: int, *,
-               gravity: float | None = None) -> Scene:
+               gravity: float | None = None, drag: float | None = None) -> Scene:
         """Add gravity (``values["gravity"]`` unless ``gravity`` (m/s^2, pointing -y) says
-        otherwise) and drag from ``values`` and finalize."""
+        otherwise) and drag (``values["drag"]`` unless ``drag``, N s/m a particle, says
+        otherwise) and finalize."""
         builder.set_gravity(values["gravity"] if gravity is None else gravity)
-        builder.set_drag(values["drag"])
+        builder.set_drag(values["drag"] if drag is None else drag)
         return builder.finalize(name=self.name, params=values, default_dt=self.default_dt,
                                 default_integrator=self.default_integrator, seed=seed)
 
