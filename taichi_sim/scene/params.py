@@ -74,12 +74,25 @@ class Param:
         return value
 
 
+# Parameters a scene family replaced: old name -> (the new one, what changed), told to whoever
+# still sets the old name on a scene that has the new one.
+REPLACED = {
+    "particle_mass": ("density", "the grid cloth's mass is per area now: density (kg/m^2, 10.24 gives 0.01 kg a "
+                                 "particle at 32 x 32)"),
+    "drag": ("area_drag", "the grid cloth's drag is per area now: area_drag (N s/m^3, 5.12 gives 0.005 N s/m a "
+                          "particle at 32 x 32)"),
+}
+
+
 def resolve(params: tuple[Param, ...], scene: str, given: dict[str, Any]) -> dict[str, Any]:
     """Defaults overlaid with ``given`` (values checked); unknown names raise ConfigError."""
     by_name = {p.name: p for p in params}
     unknown = [k for k in given if k not in by_name]
     if unknown:
-        raise ConfigError(unknown_name(f"scene {scene!r} has no parameter", unknown[0], by_name))
+        name = unknown[0]
+        if name in REPLACED and REPLACED[name][0] in by_name:
+            raise ConfigError(f"scene {scene!r} has no parameter {name!r}: {REPLACED[name][1]}")
+        raise ConfigError(unknown_name(f"scene {scene!r} has no parameter", name, by_name))
     values = {p.name: p.default for p in params}
     for name, value in given.items():
         values[name] = by_name[name].parse(value) if isinstance(value, str) and by_name[name].kind is not str \
