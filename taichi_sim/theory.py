@@ -93,8 +93,6 @@ def horizon_limit(name, omega: float, t_end: float, growth: float = 2.0) -> floa
     return lo
 
 
-
-
 class _StiffnessOperator:
     """y = S p for S = W K W (module docstring), p and y of shape (n, 3), in numpy."""
 

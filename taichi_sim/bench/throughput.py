@@ -36,8 +36,8 @@ import tempfile
 import time
 from dataclasses import dataclass, replace
 
-from ..scene.cloth import per_particle
 from .common import memory_bytes
+from .throughput_worker import fixed_particles
 
 BYTES_PER_PARTICLE = 4096  # generous: state, scratch of the largest method, 6 springs each, incidence
 
@@ -155,7 +155,7 @@ def measure_cli(precision: str, n: int, dt: float, steps: int, repeats: int) -> 
     """Seconds per step through the command line: ``simulate`` with ``steps`` and with 10 steps,
     alternated ``repeats`` times; the difference of the medians over the difference of the step
     counts takes out start-up and saving."""
-    fixed = per_particle(n, n, mass=0.01, drag=0.005)  # the worker's cloth (fixed_particles)
+    fixed = fixed_particles(n)  # the cloth the worker times
     base = ["cloth", "--set", f"nx={n}", "--set", f"ny={n}", "--set", f"density={fixed['density']!r}",
             "--set", f"area_drag={fixed['area_drag']!r}", "--integrator", "symplectic_euler",
             "--dt", repr(dt), "--precision", precision]

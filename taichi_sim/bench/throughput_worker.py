@@ -135,11 +135,11 @@ class Timed:
                 "repeats": len(self.samples), "status": self.worst}
 
 
-
 def fixed_particles(n: int) -> dict:
     """The n x n cloth this study times: 0.01 kg and 0.005 N s/m a particle at every n (as every
     grid cloth had before its mass became per area), so a step it takes is stable at any n."""
     return {"nx": n, "ny": n, **per_particle(n, n, mass=0.01, drag=0.005)}
+
 
 def _error(exc: Exception) -> str:
     return f"{type(exc).__name__}: {exc}".strip().splitlines()[0][:300]

@@ -26,7 +26,8 @@ def spring_network(arrays: Mapping[str, np.ndarray]):
 
 
 def omega_max_bound(arrays: Mapping[str, np.ndarray]) -> float:
-    """Block-Gershgorin upper bound on omega_max (rad/s) of a particle scene (module docstring);
+    """Block-Gershgorin upper bound on omega_max (rad/s) of a particle scene (see
+    :mod:`taichi_sim.theory`);
     0 when no free particle is held by a spring."""
     ends, k, _, mass, free = spring_network(arrays)
     n = len(mass)
