@@ -80,7 +80,8 @@ def cmd_list(args) -> int:
     print("Scenes (set parameters with --set NAME=VALUE):")
     for preset in SCENES.values():
         print(f"\n  {preset.name}: {preset.description}")
-        print(f"    default integrator {preset.default_integrator}, default dt {preset.default_dt:g} s")
+        options = "".join(f", {k}={v}" for k, v in preset.default_options.items())
+        print(f"    default integrator {preset.default_integrator}{options}, default dt {preset.default_dt:g} s")
         for p in preset.params:
             default = str(p.default).lower() if isinstance(p.default, bool) else p.default
             unit = f" {p.unit}" if p.unit else ""
@@ -178,12 +179,14 @@ def cmd_simulate(args) -> int:
         print(f"taichi-sim: {result.message}", file=sys.stderr)
     for warning in result.warnings:
         print(f"taichi-sim: warning: {warning}", file=sys.stderr)
+    replaced = integrator.replaces_parts  # parts whose work the method did in its solve
     for part in scene.parts:
-        if part.warning():
+        if part.name not in replaced and part.warning():
             print(f"taichi-sim: warning: {part.warning()}", file=sys.stderr)
     if not args.quiet:
         rejected = f" ({result.rejected_steps} rejected)" if result.rejected_steps else ""
-        print(f"{scene.name}: {result.steps} steps{rejected} of {integrator_name} to t = {result.t:.6g} s, "
+        label = integrator_name + (f"({', '.join(f'{k}={v}' for k, v in options.items())})" if options else "")
+        print(f"{scene.name}: {result.steps} steps{rejected} of {label} to t = {result.t:.6g} s, "
               f"{result.f_evals} f-evals, {result.wall_time:.3f} s on {runtime.backend()}, "
               f"status {result.status.value} -> {path}")
         if exported:
@@ -196,7 +199,9 @@ def cmd_simulate(args) -> int:
         elif result.residual_note and integrator.equation is not None:
             print(f"{scene.name}: solver residual not measured: {result.residual_note}")
         for part in scene.parts:
-            if part.summary():
+            if part.name in replaced:
+                print(f"{scene.name}: {part.name}: done in {integrator_name}'s solve (the post-step stage was off)")
+            elif part.summary():
                 print(f"{scene.name}: {part.summary()}")
         if result.constraint_violation is not None and len(result.constraint_violation):
             print(f"{scene.name}: largest |C| over the constraints {float(result.constraint_violation.max()):.3g} m "

@@ -11,8 +11,9 @@ by hand. One call of :meth:`Stepper.step` is one integrator call and everything 
 2. observers' ``before_step`` (nothing else runs between them and the integrator);
 3. ``integrator.step``;
 4. a failed step ends the run here (:meth:`_step_failed`);
-5. an accepted step: the time, the scene's post-step events (``scene.after_step``; the
-   integrator forgets what it carries when they changed the system), the guard's work count
+5. an accepted step: the time, the scene's post-step events (``scene.after_step``, less the
+   parts the integrator ``replaces_parts`` in its own solve; the integrator forgets what it
+   carries when they changed the system), the guard's work count
    and, when due or asked for, its check (a failed check ends the run on the last good state);
 6. observers' ``after_step``.
 
@@ -166,6 +167,7 @@ class Stepper:
         if attach is not None:  # a method that takes the scene's contact into its solve (vbd)
             attach(self.scene)
         self.integrator = integrator
+        self._skip = frozenset(integrator.replaces_parts)  # parts the method's solve does itself
         # read once: an attribute of a Taichi data-oriented object costs about a microsecond
         self._integrate = integrator.step
         self.adaptive, self.implicit = integrator.adaptive, integrator.implicit
@@ -277,7 +279,7 @@ class Stepper:
         # The residual is the method's: measured before the post-step events move the state.
         if due and monitor.active and (check or monitor.within_budget()) and not self._converged(report.h):
             return report
-        if self._events(self.t, report.h):
+        if self._events(self.t, report.h, self._skip):
             self.integrator.reset()  # an event changed the system (e.g. tore springs)
         if due:
             self.check(report.h)

@@ -114,6 +114,10 @@ class Integrator(ABC):
     """Forces the method adds inside its own solve that the measured residual's model does not
     hold (e.g. ``vbd``'s in-solve contact), "" for none: such a run's residual is not measured
     rather than reported as a convergence figure it is not."""
+    replaces_parts: frozenset = frozenset()
+    """Names of the scene's post-step parts (``ScenePart.name``) whose work the method does
+    inside its own solve once bound to a scene (``attach_scene``), e.g. ``vbd``'s self-contact
+    taking over ``self_collision``: the Stepper does not run them after its steps."""
     tracks_solved_start = False
     """Whether the method, when ``solved_start`` is set to a State, copies into it the start of
     the last piece of a step it solved (a substep, a halving) and sets ``solved_h`` (s)."""

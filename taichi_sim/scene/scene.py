@@ -96,13 +96,16 @@ class Scene:
         """Total energy (J) of the current state, or None when the system defines none."""
         return self.system.energy(self.state)
 
-    def after_step(self, t: float, h: float) -> bool:
+    def after_step(self, t: float, h: float, skip: frozenset = frozenset()) -> bool:
         """Apply post-step events (collisions, tearing, emission) after an accepted step that
-        ended at time ``t`` (s) and was ``h`` (s) long. Returns whether an event changed the
+        ended at time ``t`` (s) and was ``h`` (s) long, except the parts named in ``skip``
+        (whose work the integrator did in its solve). Returns whether an event changed the
         system itself (not just the state), so integrators that carry data between steps must
         be reset."""
         changed = False
         for event in self.post_step:
+            if skip and getattr(event, "name", None) in skip:
+                continue
             changed |= bool(event(self.state, t, h))
         return changed
 

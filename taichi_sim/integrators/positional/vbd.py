@@ -7,6 +7,7 @@ import numpy as np
 import taichi as ti
 
 from ... import runtime
+from ...collide.self_contact import SelfCollision
 from ...errors import ConfigError
 from ...state import finite
 from ...systems.base import System
@@ -73,7 +74,11 @@ class VBD(VBDSprings, Integrator):
         contact: the scene's objects (plane, spheres, capsules, boxes) in the solve as contact
             energies (:class:`~.vbd_contact.SolveContact`), once :meth:`attach_scene` has
             been given the scene (the Stepper does); default True.
-        self_contact: the cloth against itself in the solve (default False).
+        self_contact: the cloth against itself in the solve. None (default): when the scene
+            has a post-step self-collision stage (``self_collision=1``), which the solve then
+            replaces (the Stepper skips the stage: :attr:`replaces_parts`). True: in the solve
+            on any scene, the scene's stage (if any) still run after each step as a fail-safe.
+            False: not in the solve (the scene's stage, if any, runs after each step).
         contact_radius: contact radius (m, > 0); None: the scene's ``thickness`` (0.005 m
             without one). With self_contact it must be below the rest mesh's smallest distance
             between non-adjacent parts.
@@ -106,7 +111,7 @@ class VBD(VBDSprings, Integrator):
 
     def __init__(self, system: System, *, iterations: int = 20, substeps: int = 1, warm_start: bool = True,
                  chebyshev_rho: float = 0.0, augmented: bool = False, penalty: float = 1e3,
-                 penalty_growth: float = 1e5, contact: bool = True, self_contact: bool = False,
+                 penalty_growth: float = 1e5, contact: bool = True, self_contact: bool | None = None,
                  contact_radius: float | None = None, contact_stiffness: float = 100.0,
                  bound_fraction: float = 0.4, friction_epsilon: float = 0.01, contact_refresh: int = 0):
         super().__init__(system)
@@ -121,11 +126,12 @@ class VBD(VBDSprings, Integrator):
         self.augmented = bool(augmented)
         self.penalty = positive_option("penalty", penalty)
         self.penalty_growth = positive_option("penalty_growth", penalty_growth, allow_zero=True)
-        for name, flag in (("contact", contact), ("self_contact", self_contact)):
+        for name, flag in (("contact", contact), ("self_contact", True if self_contact is None else self_contact)):
             if not isinstance(flag, (bool, np.bool_)):
                 raise ConfigError(f"{name} must be True or False, got {flag!r}")
         check_contact_options(contact_radius, contact_stiffness, bound_fraction, friction_epsilon, contact_refresh)
-        self.contact_options = dict(objects=bool(contact), self_contact=bool(self_contact), radius=contact_radius,
+        self.self_contact = None if self_contact is None else bool(self_contact)
+        self.contact_options = dict(objects=bool(contact), radius=contact_radius,
                                     stiffness=float(contact_stiffness), bound_fraction=float(bound_fraction),
                                     friction_epsilon=float(friction_epsilon), refresh=int(contact_refresh))
         self.contact: SolveContact | None = None  # set by attach_scene when the scene has contact
@@ -172,6 +178,10 @@ class VBD(VBDSprings, Integrator):
             return  # already bound to it (a launcher switching methods back)
         self._attached = scene
         options = dict(self.contact_options)
+        stage = any(part.name == SelfCollision.name for part in scene.parts)
+        options["self_contact"] = stage if self.self_contact is None else self.self_contact
+        # following the scene, the solve does the stage's work: the Stepper skips the stage
+        self.replaces_parts = frozenset({SelfCollision.name} if stage and self.self_contact is None else ())
         has_objects = options["objects"] and (
             scene.plane is not None or any(getattr(p, "shape_functions", False) for p in scene.parts))
         if not (has_objects or options["self_contact"]):

@@ -13,7 +13,7 @@ from ...collide.hash_grid import PrimitiveHash
 from ...collide.mesh_check import check_contact_mesh
 from ...errors import ConfigError
 
-CONTACTS_PER_VERTEX = 48  # contact pairs a vertex keeps between refreshes; more are counted, not kept
+CONTACTS_PER_VERTEX = 64  # contact pairs a vertex keeps between refreshes; more are counted, not kept
 PAIRS_PER_VERTEX = 16  # room in the pair list per vertex
 
 
