@@ -27,6 +27,7 @@ KEYMAP: dict[str, tuple[str, str]] = {
     "c": ("strain", "strain colour map on / off"),
     "t": ("trail", "show / hide trails"),
     "e": ("energy", "show / hide the energy plot"),
+    "x": ("contacts", "show / hide the contacts held in vbd's solve (magenta: the cloth on itself, green: on objects)"),
     "f": ("home", "frame the view (home)"),
     "Down": ("next_scene", "next scene"),
     "Up": ("previous_scene", "previous scene"),
@@ -62,7 +63,7 @@ def apply_key(key: str, session: Session, camera: "CameraControl") -> str | None
         session.step()
     elif action == "reset":
         session.reset()
-    elif action in ("mesh", "springs", "particles", "strain", "trail", "energy"):
+    elif action in ("mesh", "springs", "particles", "strain", "trail", "energy", "contacts"):
         setattr(options, action, not getattr(options, action))
     elif action == "help":
         session.show_help = not session.show_help

@@ -25,6 +25,7 @@ from ..render.chart import Rect
 from ..render.renderer import Renderer
 from ..render.vulkan import open_window, take_back_imgui_ini, watch_imgui_ini
 from ..scene import SCENES
+from .contacts_view import GREY, ContactsView
 from .curve_panel import CurvePanel
 from .display import display_problem
 from .energy import curves_of
@@ -102,6 +103,7 @@ class Launcher:
         self.editor = self.curve_panel.editor
         self.show_curves = bool(session.curves)
         self.energy_view = EnergyView(CHART_AREA, LEGEND)
+        self.contacts_view = ContactsView()  # gathers only while its toggle is on
         self._rebuild()
 
     def _rebuild(self) -> None:
@@ -267,8 +269,9 @@ class Launcher:
         if not self.control.user_moved:
             self.renderer.follow([r.last_good for r in self.session.runners])
         self._update_overlay()
+        self.contacts_view.update(self.session.runners, self.renderer, on=self.session.options.contacts)
         self.renderer.render([r.display for r in self.session.runners], self.session.options,
-                             overlay=self.energy_view.draw)
+                             overlay=self.energy_view.draw, extras=self.contacts_view.draw)
         self._panel()
         self._hud()
         if self.show_curves:
@@ -342,6 +345,10 @@ class Launcher:
             o.strain = g.checkbox("strain colours (c)", o.strain)
             o.trail = g.checkbox("trail (t)", o.trail)
             o.energy = g.checkbox("energy plot (e)", o.energy)
+            o.contacts = g.checkbox("contacts (x)", o.contacts)
+            note = self.contacts_view.panel_note()
+            for part in textwrap.wrap(note or "", self._panel_chars(), subsequent_indent="  "):
+                g.text(part, GREY)  # greyed, under the toggle: why it draws nothing
             s.show_help = g.checkbox("help (h)", s.show_help)
             self.show_curves = g.checkbox("curve editor", self.show_curves)
             g.text("")
@@ -423,6 +430,9 @@ class Launcher:
                 g.text("left to right: " + ", ".join(s.runners[k].name for k in order))
             for text, colour in self.energy_view.hud_lines():
                 g.text(text, colour)
+            for text, colour in self.contacts_view.notes:
+                for part in textwrap.wrap(text, width, subsequent_indent="  "):
+                    g.text(part, colour)
 
     def _curves(self) -> None:
         self.curve_panel.draw(self.renderer.canvas, self.gui, self._guard)

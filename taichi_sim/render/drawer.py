@@ -47,6 +47,8 @@ class DrawOptions:
         trail: the fading trail of a first-order system's points.
         energy: the energy plot under each panel (drawn by the launcher and ``record --energy``
             over the scenes: :mod:`taichi_sim.app.energy_view`).
+        contacts: the contacts a method's solve holds (the launcher's, drawn by
+            :mod:`taichi_sim.app.contacts_view`; ``vbd`` only).
     """
 
     mesh: bool = True
@@ -56,6 +58,7 @@ class DrawOptions:
     strain_scale: float = 0.1
     trail: bool = True
     energy: bool = True
+    contacts: bool = False
 
     @classmethod
     def for_visual(cls, visual: SceneVisual) -> "DrawOptions":

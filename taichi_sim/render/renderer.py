@@ -60,7 +60,7 @@ class Renderer:
         self.offsets = layout_offsets(self.visuals)
         self.drawers = [SceneDrawer(v, off) for v, off in zip(self.visuals, self.offsets)]
         self._last_options: Sequence[DrawOptions] | None = None  # of a frame not read yet
-        self._overlay = None  # of that frame
+        self._overlay = self._extras = None  # of that frame
         yaw, pitch = self.visuals[0].view
         self.camera = OrbitCamera(self.size[0] / self.size[1], yaw=math.radians(yaw),
                                   pitch=math.radians(pitch), inset=inset,
@@ -105,11 +105,13 @@ class Renderer:
                 for v, off in zip(self.visuals, self.offsets)]
 
     def render(self, sources: Sequence, options: DrawOptions | Sequence[DrawOptions], *,
-               overlay=None) -> list[int]:
+               overlay=None, extras=None) -> list[int]:
         """Draw one frame: ``sources[k]`` is scene k's position field or an (n, 3) array.
 
         ``options`` applies to every scene, or is one per scene. ``overlay`` (or None): called
         with the canvas after the scenes, to draw 2D over them (the energy plot, a legend).
+        ``extras`` (or None): called with the ``ti.ui`` scene after the scenes' geometry, to
+        add 3D geometry from its own staging fields (the contacts the launcher shows).
         Returns, per scene, how many particles were not drawable (non-finite or huge) and kept
         their previous position.
         Read the frame with :meth:`read_image` (offscreen) or ``window.show()`` (on screen).
@@ -120,7 +122,7 @@ class Renderer:
         with _quiet_taichi_warnings():  # GGUI's own staging kernels warn about f64 -> f32
             for drawer, opts in zip(self.drawers, options):
                 drawer.update(opts, self.camera.position)
-        self._overlay = overlay
+        self._overlay, self._extras = overlay, extras
         self._declare(options)
         self._last_options = options
         return held
@@ -137,6 +139,8 @@ class Renderer:
         with _quiet_taichi_warnings():
             for drawer, opts in zip(self.drawers, options):
                 drawer.draw(self.scene, opts)
+            if self._extras is not None:
+                self._extras(self.scene)
             self.canvas.set_background_color(BACKGROUND)
             self.canvas.scene(self.scene)
             if self._overlay is not None:

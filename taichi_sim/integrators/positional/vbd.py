@@ -222,6 +222,8 @@ class VBD(VBDSprings, Integrator):
 
     def reset(self) -> None:
         self._resume_time = None
+        if self.contact is not None:
+            self.contact.forget()  # found at positions a reset or a switch has left
         if self.has_multipliers:
             self.multiplier.fill(0)
 

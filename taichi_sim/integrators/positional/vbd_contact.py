@@ -15,6 +15,8 @@ from ...errors import ConfigError
 
 CONTACTS_PER_VERTEX = 64  # contact pairs a vertex keeps between refreshes; more are counted, not kept
 PAIRS_PER_VERTEX = 16  # room in the pair list per vertex
+SELF_CONTACT = 1  # flag of a vertex in a self-contact pair (SolveContact.mark_contacts)
+OBJECT_CONTACT = 2  # flag of a vertex within the contact radius of an object
 
 
 @ti.data_oriented
@@ -334,6 +336,74 @@ class SolveContact:
                 for i in range(self.system.particle_count):
                     total += delta[i]
                 self.shift[None] = total / self.system.particle_count
+
+    # -- what a viewer reads (the launcher's contacts toggle) ------------------------------------
+    # Read-only views of the pairs the last detection kept, for drawing and scripts: nothing
+    # here changes the solve.
+
+    def forget(self) -> None:
+        """Drop the pairs of the last detection (after a reset or a jump of the positions they
+        were found at, so a viewer does not show stale pairs). The solve loses nothing: every
+        substep detects again before it reads them."""
+        if self.self_contact:
+            self.pair_count[None] = 0
+            self.vertex_pair_count.fill(0)
+
+    def pair_total(self) -> int:
+        """Contact pairs the last detection kept (0 without self-contact or after
+        :meth:`forget`); :meth:`pair_segment` reads pairs 0 .. pair_total() - 1."""
+        if not self.self_contact:
+            return 0
+        return min(int(self.pair_count[None]), self.pair_capacity)
+
+    @ti.func
+    def mark_contacts(self, x, t, flags):
+        """Set flags[i] (an (n,) i32 field) for every vertex i: ``SELF_CONTACT`` when it is one
+        of the four vertices of a self-contact pair the last detection kept, ``OBJECT_CONTACT``
+        when it lies within the contact radius of an object in the solve at positions ``x``
+        ((n,) vec3 field, m) and time ``t`` (s); 0 otherwise. A ti.func to call at a kernel's
+        top level: its loops are that kernel's (one launch gathers and draws)."""
+        for i in range(self.system.particle_count):
+            touching = False
+            if ti.static(self.has_objects):
+                p = x[i]
+                if ti.static(self.has_plane):
+                    touching = (p - self.plane.point[None]).dot(self.plane.normal[None]) < self.radius
+                for collider in ti.static(self.obstacles):
+                    for c in range(collider.count):
+                        if collider.distance(c, p - collider.path.center(c, t)) < self.radius:
+                            touching = True
+            flags[i] = OBJECT_CONTACT if touching else 0
+        if ti.static(self.self_contact):
+            for s in range(ti.min(self.pair_count[None], self.pair_capacity)):
+                ids = self.pair_ids[s]
+                for k in ti.static(range(4)):
+                    ti.atomic_or(flags[ids[k]], SELF_CONTACT)
+
+    @ti.kernel
+    def contact_vertices(self, x: ti.template(), t: float, flags: ti.template()) -> ti.i32:
+        """Mark the vertices in contact (:meth:`mark_contacts`: flags[i] is a combination of
+        ``SELF_CONTACT`` and ``OBJECT_CONTACT``, (n,) i32 field) at positions ``x`` ((n,) vec3
+        field, m) and time ``t`` (s, where the objects are), and return how many are marked."""
+        self.mark_contacts(x, t, flags)
+        count = 0
+        for i in range(self.system.particle_count):
+            if flags[i] != 0:
+                count += 1
+        return count
+
+    @ti.func
+    def pair_segment(self, s, x):
+        """The closest points (m) of kept pair ``s`` at positions ``x``: (on the vertex or first
+        edge, on the triangle or second edge); vertex-triangle: the vertex and its closest point
+        on the triangle. Their distance is the pair's gap, which the solve keeps above zero."""
+        ids = self.pair_ids[s]
+        kind = self.pair_kind[s]
+        gap, w = self._pair_geometry(ids, kind, x)
+        near = x[ids[0]]
+        if kind == 1:
+            near = w[0] * x[ids[0]] + w[1] * x[ids[1]]
+        return near, near - gap
 
 
 def check_contact_options(radius, stiffness, bound_fraction, friction_epsilon, refresh) -> None:
