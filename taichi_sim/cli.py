@@ -80,8 +80,7 @@ def cmd_list(args) -> int:
     print("Scenes (set parameters with --set NAME=VALUE):")
     for preset in SCENES.values():
         print(f"\n  {preset.name}: {preset.description}")
-        options = "".join(f", {k}={v}" for k, v in preset.default_options.items())
-        print(f"    default integrator {preset.default_integrator}{options}, default dt {preset.default_dt:g} s")
+        print(f"    default integrator {preset.default_integrator}, default dt {preset.default_dt:g} s")
         for p in preset.params:
             default = str(p.default).lower() if isinstance(p.default, bool) else p.default
             unit = f" {p.unit}" if p.unit else ""

@@ -290,25 +290,10 @@ def apply_scene_file(args, command: str) -> SceneFile | None:
             for key in ("dt", "seed", "precision", "arch", "curves"):
                 if key in found.run and getattr(args, key, None) is None:
                     setattr(args, key, found.run[key])
-    _add_preset_options(args)
     for key, value in DEFAULTS.items():
         if getattr(args, key, None) is None:
             setattr(args, key, value)
     return found
-
-
-def _add_preset_options(args) -> None:
-    """The scene's options for its default integrator (``ScenePreset.default_options``) when
-    that integrator runs it, each unless the command line or the scene file gave it."""
-    from .scene import SCENES
-
-    preset = SCENES.get(args.scene)  # an unknown name is refused later, with suggestions
-    if preset is None or getattr(args, "side_by_side", None):
-        return
-    given = {name for name, _ in args.integrator_options}
-    args.integrator_options = [
-        (k, _option_text(v)) for k, v in preset.integrator_options(args.integrator or preset.default_integrator).items()
-        if k not in given and getattr(args, k, None) is None] + args.integrator_options
 
 
 def _param_text(value: Any) -> str:
@@ -345,9 +330,8 @@ def scene_file_text(preset) -> str:
         choices = f" (one of: {', '.join(p.choices)})" if p.choices else ""
         lines.append(f"{assignment:<{width}}  # {unit}{p.meaning}{choices}")
     lines += ["", "[integrator]", f"name = {_toml_value(preset.default_integrator)}"]
-    lines += [f"{k} = {_toml_value(v)}" for k, v in preset.default_options.items()]
     shown = [f"{k} = {_toml_value(v)}" for k, v in integrator_class(preset.default_integrator).options().items()
-             if isinstance(v, (bool, int, float, str)) and k not in preset.default_options]  # None: automatic
+             if isinstance(v, (bool, int, float, str))]  # None: chosen automatically
     if shown:
         lines.append(f"# its options, at their defaults: {', '.join(shown)}")
     lines += ["", "[run]", f"dt = {_toml_value(preset.default_dt)}  # [s] step size",

@@ -129,15 +129,6 @@ class Session:
             overrides = {"grab": True, **overrides}
         return resolve(preset.params, preset.name, overrides)
 
-    def _options(self, integrator: str) -> dict:
-        """Integrator name -> options for a panel of this scene: the scene's own for its default
-        integrator (``ScenePreset.default_options``), overridden by the session's."""
-        preset = scene_preset(self.scene_name)
-        options = {name: dict(opts) for name, opts in self.integrator_options.items()}
-        options[preset.default_integrator] = {**preset.integrator_options(preset.default_integrator),
-                                              **options.get(preset.default_integrator, {})}
-        return options
-
     def _build(self, integrators: Sequence[str], fallback: str | None = None) -> None:
         """Build one scene per integrator; an integrator that cannot step the scene is replaced
         by ``fallback``, or raises ConfigError without one.
@@ -158,7 +149,7 @@ class Session:
                 raise ConfigError(f"integrator {name!r} cannot step scene {self.scene_name!r} "
                                   f"(choose from {', '.join(allowed)})")
         if runners is None:
-            runners = self._built[key] = [Runner(s, name, self.dt, self._options(name))
+            runners = self._built[key] = [Runner(s, name, self.dt, self.integrator_options)
                                                 for s, name in zip(scenes, integrators)]
         else:
             for r, name in zip(runners, integrators):

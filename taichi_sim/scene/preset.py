@@ -1,5 +1,5 @@
 """ScenePreset: a named scene recipe with typed parameters."""
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from typing import Any, Callable
 
 from ..memory import Size
@@ -12,10 +12,7 @@ from .scene import Scene
 class ScenePreset:
     """A scene recipe: ``build(preset, values, seed)`` returns a Scene; ``size(values)`` says, from
     the parameters alone, how many particles, springs and triangles it will allocate, and
-    ``size_params`` which parameters decide that (named when a size is refused);
-    ``default_options`` are the default integrator's options for this scene (e.g. its
-    substeps), used by ``simulate``, ``demo`` and ``record`` whenever that integrator steps it
-    (named or not) unless the command line or a scene file sets them."""
+    ``size_params`` which parameters decide that (named when a size is refused)."""
 
     name: str
     description: str
@@ -25,12 +22,6 @@ class ScenePreset:
     default_integrator: str
     size: Callable[[dict[str, Any]], Size] = lambda values: Size(1, 0)
     size_params: tuple[str, ...] = ()
-    default_options: dict[str, Any] = field(default_factory=dict, hash=False, compare=False)
-
-    def integrator_options(self, integrator: str) -> dict[str, Any]:
-        """The options this scene gives ``integrator`` by default: :attr:`default_options` for
-        its default integrator, none for any other."""
-        return dict(self.default_options) if integrator == self.default_integrator else {}
 
     def param(self, name: str) -> Param:
         return next(p for p in self.params if p.name == name)

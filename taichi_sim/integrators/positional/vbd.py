@@ -16,6 +16,7 @@ from ..equation import FIXED_WORK, Equation
 from ..implicit.common import positive_int
 from .colouring import colour_vertices
 from .vbd_contact import SolveContact, check_contact_options
+from .vbd_energy import EnergyCap, closed_scene
 from .vbd_springs import VBDSprings, fraction_option, positive_option
 
 # Below this many particles plus springs (times spare threads) the colour loops run on one
@@ -26,7 +27,7 @@ SERIAL_WORK = 2_000_000
 
 
 @ti.data_oriented
-class VBD(VBDSprings, Integrator):
+class VBD(VBDSprings, EnergyCap, Integrator):
     """Vertex block descent (Chen, Liu, Yang & Yuksel 2024, "Vertex Block Descent").
 
     A step of h seconds (``substeps`` pieces of dt = h / substeps) minimises backward Euler's
@@ -87,6 +88,9 @@ class VBD(VBDSprings, Integrator):
             nearest object or contact partner, in (0, 0.5).
         friction_epsilon: the slip speed (m/s) below which friction is smoothed (IPC's eps_v).
         contact_refresh: sweeps between self-contact detections; 0 (default): once per substep.
+        energy_cap: on a closed scene (no wind, turbulence, moving object, kinematic pin or
+            emitter) without contact in the solve, shorten a substep that would end with more energy than it started with
+            toward its start until it does not (:mod:`.vbd_energy`); default True.
     """
 
     name = "vbd"
@@ -97,11 +101,11 @@ class VBD(VBDSprings, Integrator):
                         advice="raise --iterations or --substeps, or lower --dt")
     tracks_solved_start = True
     # No step-size limit: each sweep lowers the incremental potential at any step. An unconverged
-    # step may still gain energy (docs/vbd.md), which the residual's warning reports.
+    # step may still gain energy, which the energy cap takes back on closed scenes (vbd_energy).
     stability_constant = math.inf
     advice_note = ("no step-size limit; on stiff springs (k >= 1e6) its per-vertex sweeps leave the cloth "
-                   "lagging behind the exact step, and at k = 1e4 an unconverged step gained energy on a 64 x 64 "
-                   "cloth (docs/vbd.md): it is not yet accurate there")
+                   "lagging behind the exact step, and an unconverged step is damped by the energy cap "
+                   "(docs/vbd.md): it is not yet accurate there")
 
     @classmethod
     def scratch_bytes(cls, particles: int, springs: int, real_bytes: int, linear_solver: str = "cg") -> int:
@@ -113,7 +117,8 @@ class VBD(VBDSprings, Integrator):
                  chebyshev_rho: float = 0.0, augmented: bool = False, penalty: float = 1e3,
                  penalty_growth: float = 1e5, contact: bool = True, self_contact: bool | None = None,
                  contact_radius: float | None = None, contact_stiffness: float = 100.0,
-                 bound_fraction: float = 0.4, friction_epsilon: float = 0.01, contact_refresh: int = 0):
+                 bound_fraction: float = 0.4, friction_epsilon: float = 0.01, contact_refresh: int = 0,
+                 energy_cap: bool = True):
         super().__init__(system)
         self.iterations = positive_int("iterations", iterations)
         self.substeps = positive_int("substeps", substeps)
@@ -126,11 +131,15 @@ class VBD(VBDSprings, Integrator):
         self.augmented = bool(augmented)
         self.penalty = positive_option("penalty", penalty)
         self.penalty_growth = positive_option("penalty_growth", penalty_growth, allow_zero=True)
-        for name, flag in (("contact", contact), ("self_contact", True if self_contact is None else self_contact)):
+        for name, flag in (("contact", contact), ("self_contact", True if self_contact is None else self_contact),
+                           ("energy_cap", energy_cap)):
             if not isinstance(flag, (bool, np.bool_)):
                 raise ConfigError(f"{name} must be True or False, got {flag!r}")
         check_contact_options(contact_radius, contact_stiffness, bound_fraction, friction_epsilon, contact_refresh)
         self.self_contact = None if self_contact is None else bool(self_contact)
+        self.energy_cap = bool(energy_cap)
+        self.cap_active = False  # set by attach_scene on a closed scene (read by the kernels)
+        self.capped = ti.field(ti.i32, shape=())  # substeps the cap shortened
         self.contact_options = dict(objects=bool(contact), radius=contact_radius,
                                     stiffness=float(contact_stiffness), bound_fraction=float(bound_fraction),
                                     friction_epsilon=float(friction_epsilon), refresh=int(contact_refresh))
@@ -177,6 +186,10 @@ class VBD(VBDSprings, Integrator):
         if getattr(self, "_attached", None) is scene:
             return  # already bound to it (a launcher switching methods back)
         self._attached = scene
+        # Not with contact in the solve: its penalty energy is not in E, and a vertex pushed
+        # out of a contact would read as a gain (the folds measured never rose, docs/vbd.md).
+        self.cap_active = False
+        self._kernels = {}  # the kernels compile the cap or the contact terms in
         options = dict(self.contact_options)
         stage = any(part.name == SelfCollision.name for part in scene.parts)
         options["self_contact"] = stage if self.self_contact is None else self.self_contact
@@ -187,7 +200,7 @@ class VBD(VBDSprings, Integrator):
         if not (has_objects or options["self_contact"]):
             self.contact = None
             self.has_contact = self.has_self_contact = False
-            self._kernels = {}
+            self.cap_active = self.energy_cap and closed_scene(scene)
             return
         if options["radius"] is None:
             options["radius"] = float(scene.params.get("thickness", 0.005))
@@ -198,10 +211,20 @@ class VBD(VBDSprings, Integrator):
 
     def run_warning(self) -> str:
         """Contact pairs found but not kept (a vertex's list of CONTACTS_PER_VERTEX, or the
-        pair list, full): their repulsion was left out of the solve."""
+        pair list, full): their repulsion was left out of the solve; substeps the energy cap
+        shortened: they stopped short of the solved step."""
+        capped = int(self.capped[None])
+        lines = []
+        if capped:
+            lines.append(f"vbd: {capped} substep(s) would have ended with more energy than they started with and "
+                         "were shortened toward their start (energy_cap); many mean the sweeps stop short: raise "
+                         "--iterations or --substeps, or lower --dt")
         dropped = getattr(self.contact, "dropped_total", 0)  # (self-contact keeps lists; objects do not)
-        if not dropped:
-            return ""
+        if dropped:
+            lines.append(self._dropped_warning(dropped))
+        return "; ".join(lines)
+
+    def _dropped_warning(self, dropped: int) -> str:
         return (f"vbd: {dropped} contact pair(s) found but dropped from the solve (a vertex keeps "
                 f"{self.contact.per_vertex} between detections): the cloth may intersect itself (taichi-sim check "
                 "FILE.npz tells)")
@@ -330,7 +353,7 @@ class VBD(VBDSprings, Integrator):
                             omega = 4.0 / (4.0 - rho2 * omega)
                         for i in range(vbd.system.particle_count):
                             vbd._accelerate(i, dt, omega, sweep, t)
-            return vbd._end(y, dt)
+            return vbd._finish(y, dt)
 
         @ti.kernel
         def begin(dt: float, use_acceleration: ti.i32, previous_dt: float, t: float):
@@ -373,7 +396,7 @@ class VBD(VBDSprings, Integrator):
 
         @ti.kernel
         def end(dt: float) -> ti.i32:
-            return vbd._end(y, dt)
+            return vbd._finish(y, dt)
 
         return {"substep": substep, "begin": begin, "sweeps": sweeps, "sweep": sweep, "end": end}
 
@@ -504,6 +527,14 @@ class VBD(VBDSprings, Integrator):
                 self.point.v[i] = delta / dt
             self.earlier[i] = self.last[i]
             self.last[i] = delta
+
+    @ti.func
+    def _finish(self, y, dt):
+        """The energy cap where it is on (:mod:`.vbd_energy`), then the iterate into ``y``;
+        returns the particles left non-finite."""
+        if ti.static(self.cap_active):
+            self._cap_energy(y, dt)
+        return self._end(y, dt)
 
     @ti.func
     def _end(self, y, dt):

@@ -1,0 +1,49 @@
+"""vbd and the scene's post-step self-collision stage: by default its self-contact follows the
+scene, in the solve, and the Stepper skips the stage it replaces (``replaces_parts``)."""
+import pytest
+
+import taichi_sim as ts
+from taichi_sim.cli import main
+
+
+def _fold(n: int = 8):
+    return ts.build_scene("cloth-fold", {"nx": n, "ny": n})
+
+
+@pytest.mark.parametrize("self_contact, in_solve, stage_runs", [
+    (None, True, False),   # following the scene: the solve replaces the stage
+    (True, True, True),    # asked for: in the solve, the stage kept as a fail-safe
+    (False, False, True),  # off: the stage alone
+])
+def test_vbd_replaces_the_stage_only_when_it_follows_the_scene(f32, self_contact, in_solve, stage_runs):
+    scene = _fold()
+    options = {} if self_contact is None else {"self_contact": self_contact}
+    method = ts.create_integrator("vbd", scene.system, iterations=2, **options)
+    stepper = ts.Stepper(scene, method, 1 / 60)
+    stepper.step()
+    assert method.has_self_contact == in_solve
+    assert (scene.part("self_collision").t_end is not None) == stage_runs
+
+
+def test_the_stage_runs_again_once_another_method_steps_the_scene(f32):
+    scene = _fold()
+    stepper = ts.Stepper(scene, ts.create_integrator("vbd", scene.system, iterations=2), 1 / 60)
+    stepper.step()
+    assert scene.part("self_collision").t_end is None
+    stepper.set_integrator(ts.create_integrator("symplectic_euler", scene.system))
+    stepper.set_dt(1e-3)
+    stepper.step()
+    assert scene.part("self_collision").t_end == pytest.approx(stepper.t)
+
+
+def test_simulate_says_the_solve_did_the_stages_work_and_names_the_options(tmp_path, capsys):
+    assert main(["simulate", "cloth-fold", "--set", "nx=6", "--set", "ny=6", "--steps", "2", "--integrator", "vbd",
+                 "--dt", "0.0166666666666667", "--substeps", "2", "--option", "iterations=3",
+                 "--out", str(tmp_path / "a.npz")]) == 0
+    out = capsys.readouterr().out
+    assert "2 steps of vbd(substeps=2, iterations=3) to t = 0.0333333 s" in out
+    assert "cloth-fold: self_collision: done in vbd's solve" in out and "impact zones" not in out
+    assert main(["simulate", "cloth-fold", "--set", "nx=6", "--set", "ny=6", "--steps", "2",
+                 "--out", str(tmp_path / "b.npz")]) == 0
+    out = capsys.readouterr().out
+    assert "2 steps of symplectic_euler to" in out and "cloth-fold: self-contact:" in out
