@@ -19,7 +19,9 @@ import taichi as ti
 import taichi_sim as ts
 from taichi_sim.forces.springs.spectrum import omega_max_bound
 from taichi_sim.geometry import self_intersections
+from taichi_sim.integrators import parse_options
 from taichi_sim.scene.cloth_scenes import EXPLICIT_STEP_SHARE, round_down
+from taichi_sim.scene.params import resolve
 
 PACE_TIME = 0.5  # s: by then a free fold has collapsed (32 x 32, symplectic Euler at 1 ms: 0.04 m from 0.6)
 
@@ -90,13 +92,21 @@ def main() -> None:
     parser.add_argument("--contact-radius", type=float, default=None, help="the scene's thickness (m)")
     parser.add_argument("--jitter", type=float, default=None,
                         help="the scene's jitter (m); 128 x 128 needs 0.001: at 0.002 it starts tangled")
+    parser.add_argument("--option", action="append", default=[], metavar="NAME=VALUE",
+                        help="a vbd option, e.g. bound_fraction=0.49 or self_contact=0 (repeatable)")
+    parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                        help="a scene parameter, e.g. self_collision=0 (repeatable)")
     args = parser.parse_args()
     ts.init(arch="cpu", precision="f32")
     params = {} if args.contact_radius is None else {"thickness": args.contact_radius}
     if args.jitter is not None:
         params["jitter"] = args.jitter
-    rows = [run(args.n, args.t_end, "vbd", 1 / 60, {"iterations": args.iterations, "substeps": args.substeps},
-                params)]
+    options = parse_options("vbd", dict(text.split("=", 1) for text in args.option))
+    given = dict(text.split("=", 1) for text in args.set)
+    typed = resolve(ts.SCENES["cloth-fold"].params, "cloth-fold", given)
+    params.update({name: typed[name] for name in given})
+    rows = [run(args.n, args.t_end, "vbd", 1 / 60,
+                {"iterations": args.iterations, "substeps": args.substeps, **options}, params)]
     if args.base_t_end > 0:
         rows.append(run(args.n, args.base_t_end, "symplectic_euler", "explicit", {}, params))
     for row in rows:

@@ -78,7 +78,7 @@ class VBD(VBDSprings, EnergyCap, Integrator):
         self_contact: the cloth against itself in the solve. None (default): when the scene
             has a post-step self-collision stage (``self_collision=1``), which the solve then
             replaces (the Stepper skips the stage: :attr:`replaces_parts`). True: in the solve
-            on any scene, the scene's stage (if any) still run after each step as a fail-safe.
+            on any scene, the scene's stage (if any) still runs after each step as a fail-safe.
             False: not in the solve (the scene's stage, if any, runs after each step).
         contact_radius: contact radius (m, > 0); None: the scene's ``thickness`` (0.005 m
             without one). With self_contact it must be below the rest mesh's smallest distance
@@ -89,8 +89,9 @@ class VBD(VBDSprings, EnergyCap, Integrator):
         friction_epsilon: the slip speed (m/s) below which friction is smoothed (IPC's eps_v).
         contact_refresh: sweeps between self-contact detections; 0 (default): once per substep.
         energy_cap: on a closed scene (no wind, turbulence, moving object, kinematic pin or
-            emitter) without contact in the solve, shorten a substep that would end with more energy than it started with
-            toward its start until it does not (:mod:`.vbd_energy`); default True.
+            emitter) without contact in the solve, shorten a substep that would end with more
+            energy (J) than it started with toward its start until it does not
+            (:mod:`.vbd_energy`); default True.
     """
 
     name = "vbd"
