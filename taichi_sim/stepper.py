@@ -167,7 +167,7 @@ class Stepper:
         if attach is not None:  # a method that takes the scene's contact into its solve (vbd)
             attach(self.scene)
         self.integrator = integrator
-        self._skip = frozenset(integrator.replaces_parts)  # parts the method's solve does itself
+        self._skip = frozenset(getattr(integrator, "replaces_parts", ()))  # parts its solve does itself
         # read once: an attribute of a Taichi data-oriented object costs about a microsecond
         self._integrate = integrator.step
         self.adaptive, self.implicit = integrator.adaptive, integrator.implicit
