@@ -7,7 +7,6 @@ import numpy as np
 import taichi as ti
 
 from ... import runtime
-from ...collide.self_contact import SelfCollision
 from ...errors import ConfigError
 from ...state import finite
 from ...systems.base import System
@@ -16,7 +15,8 @@ from ..equation import FIXED_WORK, Equation
 from ..implicit.common import positive_int
 from .colouring import colour_vertices
 from .vbd_contact import SolveContact, check_contact_options
-from .vbd_energy import EnergyCap, closed_scene
+from .vbd_energy import EnergyCap
+from .vbd_scene import SceneAttachment
 from .vbd_springs import VBDSprings, fraction_option, positive_option
 
 # Below this many particles plus springs (times spare threads) the colour loops run on one
@@ -27,7 +27,7 @@ SERIAL_WORK = 2_000_000
 
 
 @ti.data_oriented
-class VBD(VBDSprings, EnergyCap, Integrator):
+class VBD(VBDSprings, EnergyCap, SceneAttachment, Integrator):
     """Vertex block descent (Chen, Liu, Yang & Yuksel 2024, "Vertex Block Descent").
 
     A step of h seconds (``substeps`` pieces of dt = h / substeps) minimises backward Euler's
@@ -180,64 +180,6 @@ class VBD(VBDSprings, EnergyCap, Integrator):
         self._resume_time: float | None = None  # when the last step ended (warm start continues it)
         self._last_dt = 0.0
         self.sweeps = 0  # sweeps run since construction (all substeps)
-
-    def attach_scene(self, scene) -> None:
-        """Put the scene's objects (and, with ``self_contact``, its mesh) in the solve. Raises
-        ConfigError for a contact radius the mesh cannot take or a start that intersects."""
-        if getattr(self, "_attached", None) is scene:
-            return  # already bound to it (a launcher switching methods back)
-        self._attached = scene
-        # Not with contact in the solve: its penalty energy is not in E, and a vertex pushed
-        # out of a contact would read as a gain (the folds measured never rose, docs/vbd.md).
-        self.cap_active = False
-        self._kernels = {}  # the kernels compile the cap or the contact terms in
-        options = dict(self.contact_options)
-        stage = any(part.name == SelfCollision.name for part in scene.parts)
-        options["self_contact"] = stage if self.self_contact is None else self.self_contact
-        # following the scene, the solve does the stage's work: the Stepper skips the stage
-        self.replaces_parts = frozenset({SelfCollision.name} if stage and self.self_contact is None else ())
-        has_objects = options["objects"] and (
-            scene.plane is not None or any(getattr(p, "shape_functions", False) for p in scene.parts))
-        if not (has_objects or options["self_contact"]):
-            self.contact = None
-            self.has_contact = self.has_self_contact = False
-            self.cap_active = self.energy_cap and closed_scene(scene)
-            return
-        if options["radius"] is None:
-            options["radius"] = float(scene.params.get("thickness", 0.005))
-        options["self_friction"] = float(scene.params.get("self_friction", 0.0))
-        self.contact = SolveContact(scene, self.delta, **options)
-        self.has_contact, self.has_self_contact = True, self.contact.self_contact
-        self._kernels = {}  # the kernels compile the contact terms in
-
-    def run_warning(self) -> str:
-        """Contact pairs found but not kept (a vertex's list of CONTACTS_PER_VERTEX, or the
-        pair list, full): their repulsion was left out of the solve; substeps the energy cap
-        shortened: they stopped short of the solved step."""
-        capped = int(self.capped[None])
-        lines = []
-        if capped:
-            lines.append(f"vbd: {capped} substep(s) would have ended with more energy than they started with and "
-                         "were shortened toward their start (energy_cap); many mean the sweeps stop short: raise "
-                         "--iterations or --substeps, or lower --dt")
-        dropped = getattr(self.contact, "dropped_total", 0)  # (self-contact keeps lists; objects do not)
-        if dropped:
-            lines.append(self._dropped_warning(dropped))
-        return "; ".join(lines)
-
-    def _dropped_warning(self, dropped: int) -> str:
-        return (f"vbd: {dropped} contact pair(s) found but dropped from the solve (a vertex keeps "
-                f"{self.contact.per_vertex} between detections): the cloth may intersect itself (taichi-sim check "
-                "FILE.npz tells)")
-
-    @property
-    def unmodelled_forces(self) -> str:
-        """The in-solve contact (once attached to a scene that has some): its penalty forces
-        are not in the residual's model, so a run with them does not measure one."""
-        if not self.has_contact:
-            return ""
-        return "self-contact and object contact" if self.has_self_contact and self.contact.has_objects \
-            else ("self-contact" if self.has_self_contact else "object contact")
 
     @property
     def colour_count(self) -> int:
