@@ -331,7 +331,7 @@ def cmd_record(args) -> int:
                                           ("--fps", args.fps), ("--size", args.size),
                                           ("--speed", args.speed), ("--curves", args.curves),
                                           ("--energy", args.energy is not None),
-                                          ("--strain", args.strain)) if given]
+                                          ("--strain", args.strain), ("--contacts", args.contacts)) if given]
         if extra:
             raise ConfigError(f"--showcase records its own scenes and settings; drop {', '.join(extra)}")
         try:
@@ -348,7 +348,7 @@ def cmd_record(args) -> int:
     clip = Clip(scene=spec["scene"], integrators=spec["integrators"], params=spec["params"],
                 dt=spec["dt"], integrator_options=spec["options"], seconds=args.seconds or 5.0, fps=args.fps or 30.0,
                 size=parse_size(args.size or "1280x720"), speed=args.speed or 1.0, seed=args.seed,
-                curves=spec["curves"], strain=args.strain,
+                curves=spec["curves"], strain=args.strain, contacts=args.contacts,
                 energy=bool(args.side_by_side) if args.energy is None else args.energy)
     check_clip(clip)
     check_output(args.out, clip.size, clip.fps)

@@ -208,6 +208,8 @@ def build_parser() -> argparse.ArgumentParser:
                           "panel (default: on with --side-by-side)")
     rec.add_argument("--strain", action="store_true",
                      help="colour the cloth by spring strain, with a colour bar")
+    rec.add_argument("--contacts", action="store_true",
+                     help="draw the contacts held in vbd's solve (as the launcher's x key does)")
     dest = rec.add_mutually_exclusive_group(required=True)
     dest.add_argument("--out", help="FILE.mp4, FILE.gif, or DIR/ for PNG frames")
     dest.add_argument("--showcase", metavar="DIR", nargs="?", const="media",

@@ -223,3 +223,22 @@ def test_the_command_line_guide_lists_every_key():
     firsts = [line.split("|")[1] for line in text.splitlines() if line.startswith("  | `")]
     listed = {key.strip("` ") for cell in firsts for key in cell.split("/")}
     assert {"space" if key == " " else key for key in KEYMAP} <= listed
+
+
+def test_record_draws_the_contacts_when_asked(own_windows, tmp_path, capsys):
+    """``record --contacts``: the same clip's last frame gains magenta pixels (the contacts) over
+    the one recorded without; a flag the showcase cannot take is refused."""
+    import imageio.v2 as imageio
+
+    from taichi_sim.cli import main
+
+    last = {}
+    for flag in ([], ["--contacts"]):
+        out = tmp_path / ("with" if flag else "without")
+        assert main(["record", "cloth-fold", "--integrator", "vbd", "--dt", str(H), *sum(
+            (["--set", f"{k}={v}"] for k, v in PARAMS.items() if k != "self_collision"), []),
+            "--seconds", "1.5", "--fps", "4", "--size", "240x180", *flag, "--out", f"{out}/", "--quiet"]) == 0
+        last[bool(flag)] = imageio.imread(sorted(out.iterdir())[-1])[..., :3]
+    assert (magenta(last[True]) & ~magenta(last[False])).sum() >= 3
+    assert main(["record", "--showcase", str(tmp_path / "s"), "--contacts"]) == 2
+    assert "drop --contacts" in capsys.readouterr().err

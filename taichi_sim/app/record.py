@@ -16,6 +16,7 @@ from ..render.overlay import WARNING, Label, burn
 from ..render.renderer import Renderer
 from ..render.video import MAX_SIDE, VideoWriter, check_output, save_png
 from ..render.vulkan import open_window, take_back_imgui_ini
+from .contacts_view import ContactsView
 from .energy import curves_of
 from .energy_view import EnergyView, panel_centres
 from .session import Session
@@ -44,6 +45,7 @@ class Clip:
             ``[integrator]`` table), used wherever that method runs.
         energy: plot each run's energy under its panel (scenes with an energy).
         strain: colour the cloth by spring strain, with a colour bar (scenes with a cloth).
+        contacts: draw the contacts each run's solve holds (``vbd``; the launcher's ``x``).
     """
 
     scene: str
@@ -61,6 +63,7 @@ class Clip:
     integrator_options: dict = field(default_factory=dict)
     energy: bool = False
     strain: bool = False
+    contacts: bool = False
 
     @property
     def frame_count(self) -> int:
@@ -140,6 +143,8 @@ def record(clip: Clip, out: str | Path, *, still: str | Path | None = None, stil
         session.set_curves(clip.curves)
     session.options.strain = clip.strain
     session.options.energy = clip.energy
+    session.options.contacts = clip.contacts
+    contacts = ContactsView()  # gathers nothing unless clip.contacts
     charts = clip.energy and bool(curves_of(session.runners[0].scene))  # the circle ODE has none
     view = EnergyView(CHART_AREA, LEGEND)
     strain_scale = (session.options.strain_scale if clip.strain and session.options.mesh
@@ -166,7 +171,9 @@ def record(clip: Clip, out: str | Path, *, still: str | Path | None = None, stil
                 renderer.follow([r.last_good for r in session.runners])
                 view.update(session.runners, panel_centres(renderer), energy=session.options.energy,
                             strain_scale=strain_scale)
-                renderer.render([r.display for r in session.runners], session.options, overlay=view.draw)
+                contacts.update(session.runners, renderer, on=clip.contacts)
+                renderer.render([r.display for r in session.runners], session.options, overlay=view.draw,
+                                extras=contacts.draw)
                 image = renderer.read_image()
                 frame = image if ss == 1 else np.asarray(
                     Image.fromarray(image).resize(clip.size, Image.Resampling.BOX))
