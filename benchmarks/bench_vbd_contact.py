@@ -37,7 +37,8 @@ def timed(fn, bucket: list):
     return wrapper
 
 
-def run(n: int, t_end: float, integrator: str | None, dt: float | None, options: dict, params: dict) -> dict:
+def run(n: int, t_end: float, integrator: str, dt: float | str, options: dict, params: dict) -> dict:
+    """One run of `cloth-fold` at n x n for t_end s; dt in s, or "explicit" for symplectic Euler's step."""
     scene = ts.build_scene("cloth-fold", {"nx": n, "ny": n, **params})
     name = integrator
     if dt == "explicit":  # symplectic Euler's step on a cloth preset: 1 ms, less on fine grids

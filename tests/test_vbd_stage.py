@@ -47,3 +47,30 @@ def test_simulate_says_the_solve_did_the_stages_work_and_names_the_options(tmp_p
                  "--out", str(tmp_path / "b.npz")]) == 0
     out = capsys.readouterr().out
     assert "2 steps of symplectic_euler to" in out and "cloth-fold: self-contact:" in out
+
+
+def test_without_a_stage_or_on_a_tearing_cloth_vbd_leaves_the_stage_be(f32):
+    plain = ts.build_scene("cloth", {"nx": 6, "ny": 6})
+    method = ts.create_integrator("vbd", plain.system, iterations=2)
+    ts.Stepper(plain, method, 1 / 60)
+    assert not method.has_self_contact and not method.replaces_parts
+    # the solve cannot take a cloth that tears; following the scene, the stage keeps it
+    torn = ts.build_scene("cloth", {"nx": 6, "ny": 6, "tear": True, "self_collision": True})
+    method = ts.create_integrator("vbd", torn.system, iterations=2)
+    stepper = ts.Stepper(torn, method, 1 / 60)
+    assert not method.has_self_contact and not method.replaces_parts
+    stepper.step()
+    assert stepper.failure is None and torn.part("self_collision").t_end is not None
+
+
+def test_a_refused_attach_leaves_nothing_half_bound(f32):
+    """Asked for on a tearing cloth, the solve's self-contact is refused, every time it is
+    tried (the launcher keeps a method whose switch failed), never silently dropped."""
+    from taichi_sim.errors import ConfigError
+
+    torn = ts.build_scene("cloth", {"nx": 6, "ny": 6, "tear": True, "self_collision": True})
+    method = ts.create_integrator("vbd", torn.system, iterations=2, self_contact=True)
+    for _ in range(2):
+        with pytest.raises(ConfigError, match="tearing"):
+            ts.Stepper(torn, method, 1 / 60)
+    assert method.contact is None and not method.replaces_parts

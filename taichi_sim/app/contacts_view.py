@@ -24,7 +24,7 @@ def unavailable(integrator) -> str | None:
     if not hasattr(integrator, "contact"):
         return f"{integrator.name} keeps no contacts (only vbd has contact in its solve)"
     return (f"{integrator.name} has no contact in its solve here: the scene has no objects (or "
-            "contact=0) and self_contact is off (--option self_contact=1)")
+            "contact=0) and no self-contact (--set self_collision=1 or --option self_contact=1)")
 
 
 class ContactsView:
@@ -58,6 +58,9 @@ class ContactsView:
             if why is not None:
                 self.notes.append((prefix + why, GREY))
                 self.reasons.append(why)
+                continue
+            if r.frozen:  # its state may be what the failed step left, not a drawable one
+                self.notes.append((prefix + "the run stopped: no contacts drawn", GREY))
                 continue
             contact = r.integrator.contact
             drawer = self.drawer_for(contact, visual.particle_count, RADIUS_SCALE * visual.particle_radius)

@@ -4,21 +4,21 @@ it started with.
 Backward Euler's exact step loses energy on a closed scene (convex potential: E1 + 1/2 |v1 -
 v0|_M^2 <= E0), but a step its sweeps stop short of need not: every sweep lowers the
 incremental potential G, and a point of lower G than the start can still hold more energy
-(docs/vbd.md measured up to +818 J on a 401 J cloth). The cap moves such a substep's end back
-along its own displacement, x = x0 + a (x - x0) and v = a (x - x0) / dt, to an a in [0, 1)
-where E(a) <= E0, found by bisection between a = 0 (staying put: E = U(x0) <= E0) and a = 1, so
-that a small excess costs a small shortening. Every point
-of that segment keeps the contact bounds of the substep (each vertex's displacement, less the
-common shift, scales by a), so no intersection can appear on the way.
+(docs/vbd.md). The cap moves such a substep's end back along its own displacement, x = x0 +
+a (x - x0) and v = a (x - x0) / dt, to an a in [0, 1) where E(a) <= E0, found by bisection
+between a = 0 (staying put: E = U(x0) <= E0) and a = 1, so that a small excess costs a small
+shortening.
 
-A scene is closed when nothing in it can add energy within a substep: no wind, no turbulence
-and no part that declares an energy source (a moving collider, kinematic pins, an emitter).
-Elsewhere the cap is off; so it is with contact in the solve (the contact penalty's energy is
-not in E: a vertex pushed out of a contact would read as a gain) and with ``energy_cap=False``.
+A scene is closed when nothing in it can add energy within a substep: no wind, no turbulence,
+no part that launches particles and no part that moves at a speed above zero (a moving
+collider, kinematic pins), as the guard counts them. Elsewhere the cap is off; so it is with
+contact in the solve (the contact penalty's energy is not in E: a vertex pushed out of a
+contact would read as a gain) and with ``energy_cap=False``.
 """
 import taichi as ti
 
 from ... import runtime
+from ...part import MovingSource
 
 CAP_BISECTIONS = 8  # the shortened substep's a is within 2^-8 of a point where E = E0
 CAP_TOLERANCE = 1e3  # machine epsilons of the energy's scale (sum of |U_i| and K_i): round-off
@@ -29,7 +29,8 @@ def closed_scene(scene) -> bool:
     system = scene.system
     if any(system.term(name) is not None for name in ("wind", "turbulence")):
         return False
-    return not any(part.energy_sources() for part in scene.parts)
+    sources = [source for part in scene.parts for source in part.energy_sources()]
+    return all(isinstance(source, MovingSource) and not source.speed > 0 for source in sources)
 
 
 class EnergyCap:
@@ -40,9 +41,35 @@ class EnergyCap:
         return CAP_TOLERANCE * runtime.machine_epsilon()
 
     @ti.func
+    def _energy_at(self, alpha, dt):
+        """E at x0 + alpha (x - x0), v = alpha (x - x0) / dt (J), the iterate ``point`` put there;
+        a top-level loop where called at a kernel's top level, else serial."""
+        e = ti.cast(0.0, self.delta.dtype)
+        for i in range(self.system.particle_count):
+            if self.system.free[i]:
+                self.point.x[i] = self.start_x[i] + alpha * self.delta[i]
+                self.point.v[i] = alpha * self.delta[i] / dt
+        for i in range(self.system.particle_count):
+            u, r = self.system.potential_and_dissipation_at(i, self.point)
+            e += u
+            if self.system.free[i]:
+                e += 0.5 * self.system.mass[i] * self.point.v[i].norm_sqr()
+        return e
+
+    @ti.func
     def _cap_energy(self, y, dt):
         """Shorten the substep toward its start ``y`` (still x0, v0) until its energy is at most
-        the start's; a top-level loop, then serial ones."""
+        the start's. Where the sweeps run on one thread (a small cloth on a CPU) so does this;
+        else E0 and E(1) are parallel loops and the bisection (rare) runs on one thread."""
+        if ti.static(self.serial):
+            ti.loop_config(serialize=True)
+            for _ in range(1):
+                self._cap_body(y, dt)
+        else:
+            self._cap_body(y, dt)
+
+    @ti.func
+    def _cap_body(self, y, dt):
         e0 = ti.cast(0.0, self.delta.dtype)
         scale = ti.cast(0.0, self.delta.dtype)
         for i in range(self.system.particle_count):
@@ -53,35 +80,17 @@ class EnergyCap:
             e0 += u0 + k0
             scale += ti.abs(u0) + k0
         bound = e0 + ti.static(self._cap_tolerance()) * scale
-        ti.loop_config(serialize=True)
-        for _ in range(1):
-            # E(1) first; above the bound, bisect [low, high] with E(low) <= bound < E(high):
-            # E(0) = U(x0) <= E0, so a point at the bound lies between (a crossing, to 2^-8).
+        e1 = self._energy_at(1.0, dt)
+        if e1 > bound:
+            # bisect [low, high] with E(low) <= bound < E(high); E(0) = U(x0) <= E0
             low = ti.cast(0.0, self.delta.dtype)
             high = ti.cast(1.0, self.delta.dtype)
-            alpha = high
-            shortened = 0
-            for attempt in range(CAP_BISECTIONS + 1):
-                e = ti.cast(0.0, self.delta.dtype)
-                for i in range(self.system.particle_count):
-                    if self.system.free[i]:
-                        self.point.x[i] = self.start_x[i] + alpha * self.delta[i]
-                        self.point.v[i] = alpha * self.delta[i] / dt
-                for i in range(self.system.particle_count):
-                    u1, r1 = self.system.potential_and_dissipation_at(i, self.point)
-                    e += u1
-                    if self.system.free[i]:
-                        e += 0.5 * self.system.mass[i] * self.point.v[i].norm_sqr()
-                if attempt == 0:
-                    if e <= bound:
-                        break  # the substep holds no more than its start: untouched
-                    shortened = 1
-                elif e <= bound:
+            for _ in range(CAP_BISECTIONS):
+                alpha = 0.5 * (low + high)
+                if self._energy_at(alpha, dt) <= bound:
                     low = alpha
                 else:
                     high = alpha
-                alpha = 0.5 * (low + high)
-            if shortened:
-                self.capped[None] += 1
-                for i in range(self.system.particle_count):
-                    self.delta[i] = low * self.delta[i]
+            self.capped[None] += 1
+            for i in range(self.system.particle_count):
+                self.delta[i] = low * self.delta[i]

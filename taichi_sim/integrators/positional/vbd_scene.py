@@ -13,32 +13,35 @@ class SceneAttachment:
 
     def attach_scene(self, scene) -> None:
         """Put the scene's objects (and, with ``self_contact``, its mesh) in the solve. Raises
-        ConfigError for a contact radius the mesh cannot take or a start that intersects."""
+        ConfigError for a contact radius the mesh cannot take or a start that intersects; the
+        method is then left unattached (a later attach tries again), never half-bound."""
         if getattr(self, "_attached", None) is scene:
             return  # already bound to it (a launcher switching methods back)
-        self._attached = scene
-        # Not with contact in the solve: its penalty energy is not in E, and a vertex pushed
-        # out of a contact would read as a gain (the folds measured never rose, docs/vbd.md).
-        self.cap_active = False
-        self._kernels = {}  # the kernels compile the cap or the contact terms in
+        self._attached = None
         options = dict(self.contact_options)
-        stage = any(part.name == SelfCollision.name for part in scene.parts)
-        options["self_contact"] = stage if self.self_contact is None else self.self_contact
-        # following the scene, the solve does the stage's work: the Stepper skips the stage
-        self.replaces_parts = frozenset({SelfCollision.name} if stage and self.self_contact is None else ())
+        mesh = scene.mesh
+        # Following the scene, the solve takes over its self-collision stage (the Stepper skips
+        # it), except on a cloth that tears: the solve cannot take one, the stage can.
+        follows = (self.self_contact is None and any(part.name == SelfCollision.name for part in scene.parts)
+                   and mesh is not None and not mesh.tearable)
+        options["self_contact"] = follows if self.self_contact is None else self.self_contact
         has_objects = options["objects"] and (
             scene.plane is not None or any(getattr(p, "shape_functions", False) for p in scene.parts))
-        if not (has_objects or options["self_contact"]):
-            self.contact = None
-            self.has_contact = self.has_self_contact = False
-            self.cap_active = self.energy_cap and closed_scene(scene)
-            return
-        if options["radius"] is None:
-            options["radius"] = float(scene.params.get("thickness", 0.005))
-        options["self_friction"] = float(scene.params.get("self_friction", 0.0))
-        self.contact = SolveContact(scene, self.delta, **options)
-        self.has_contact, self.has_self_contact = True, self.contact.self_contact
-        self._kernels = {}  # the kernels compile the contact terms in
+        contact = None
+        if has_objects or options["self_contact"]:
+            if options["radius"] is None:
+                options["radius"] = float(scene.params.get("thickness", 0.005))
+            options["self_friction"] = float(scene.params.get("self_friction", 0.0))
+            contact = SolveContact(scene, self.delta, **options)  # may raise: nothing bound yet
+        self.contact = contact
+        self.has_contact = contact is not None
+        self.has_self_contact = contact is not None and contact.self_contact
+        self.replaces_parts = frozenset({SelfCollision.name} if follows else ())
+        # Not with contact in the solve: its penalty energy is not in E, and a vertex pushed
+        # out of a contact would read as a gain (the folds measured never rose, docs/vbd.md).
+        self.cap_active = self.energy_cap and contact is None and closed_scene(scene)
+        self._kernels = {}  # the kernels compile the contact terms and the cap in
+        self._attached = scene
 
     def run_warning(self) -> str:
         """Contact pairs found but not kept (a vertex's list of CONTACTS_PER_VERTEX, or the
