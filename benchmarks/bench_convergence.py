@@ -16,14 +16,14 @@ import numpy as np
 
 import taichi_sim as ts
 from taichi_sim.errors import ConfigError
-from taichi_sim.scene.cloth import per_particle
+from taichi_sim.scene.cloth import fixed_particle_cloth
 
 METHODS = ("implicit_euler", "implicit_midpoint", "implicit_euler_linearised", "projective_dynamics", "xpbd")
 
 
 def final_positions(size, k, method, precision, steps, dt, **options):
     ts.init(arch="cpu", precision=precision)
-    scene = ts.build_scene("cloth", {"nx": size, "ny": size, "stiffness": k, **per_particle(size, size, mass=0.01, drag=0.005)})
+    scene = ts.build_scene("cloth", {"nx": size, "ny": size, "stiffness": k, **fixed_particle_cloth(size, size)})
     try:
         result = ts.run(scene, ts.create_integrator(method, scene.system, **options), dt=dt, steps=steps)
     except ConfigError as exc:

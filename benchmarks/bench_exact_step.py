@@ -27,7 +27,7 @@ import taichi as ti
 
 import taichi_sim as ts
 from taichi_sim.integrators.implicit import ImplicitStageMethod
-from taichi_sim.scene.cloth import per_particle
+from taichi_sim.scene.cloth import fixed_particle_cloth
 
 DT = 1 / 60
 VARIANTS = {"before": 1, "after": ImplicitStageMethod.coarsen_after}
@@ -85,7 +85,7 @@ def main() -> None:
           f"{'linear it/step':>16}{'pieces/step':>13}{'max |g|/|s|':>13}")
     for stiffness in (float(k) for k in args.stiffness.split(",")):
         scene = ts.build_scene("cloth", {"nx": args.size, "ny": args.size, "stiffness": stiffness,
-                                          **per_particle(args.size, args.size, mass=0.01, drag=0.005)})
+                                          **fixed_particle_cloth(args.size, args.size)})
         for name, coarsen_after in VARIANTS.items():
             r = run_variant(scene, coarsen_after, args)
             spread = f"({r['min']:.0f}-{r['max']:.0f})"

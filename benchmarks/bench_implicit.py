@@ -36,7 +36,7 @@ import numpy as np
 import taichi as ti
 
 import taichi_sim as ts
-from taichi_sim.scene.cloth import per_particle
+from taichi_sim.scene.cloth import fixed_particle_cloth
 
 N = 64
 STIFFNESS = 1e4  # N/m, structural, shear and flex alike (the default; --stiffness)
@@ -45,7 +45,7 @@ DT = 1 / 60  # s
 
 def cloth_params(stiffness: float = STIFFNESS, size: int = N) -> dict:
     return {"nx": size, "ny": size, "stiffness": stiffness, "shear_stiffness": stiffness, "flex_stiffness": stiffness,
-            **per_particle(size, size, mass=0.01, drag=0.005)}
+            **fixed_particle_cloth(size, size)}
 
 
 def init(precision: str, args) -> None:

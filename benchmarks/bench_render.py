@@ -16,7 +16,7 @@ from pathlib import Path
 import taichi_sim as ts
 from taichi_sim.app import Clip, Runner, record
 from taichi_sim.render import DrawOptions, Renderer, open_window, parse_size
-from taichi_sim.scene.cloth import per_particle
+from taichi_sim.scene.cloth import fixed_particle_cloth
 from taichi_sim.scene.visual import describe
 
 
@@ -27,7 +27,7 @@ def median_ms(samples: list[float]) -> float:
 def render_fps(size: tuple[int, int], grid: int, frames: int) -> dict:
     """Median cost of one offscreen frame of a moving cloth: drawing (staging copy, normals,
     GGUI) and reading the pixels back, with the simulation stepped outside the timings."""
-    scene = ts.build_scene("cloth", {"nx": grid, "ny": grid, **per_particle(grid, grid, mass=0.01, drag=0.005)})
+    scene = ts.build_scene("cloth", {"nx": grid, "ny": grid, **fixed_particle_cloth(grid, grid)})
     runner = Runner(scene, "symplectic_euler", 1e-3)
     window = open_window("bench", size)
     try:
@@ -62,7 +62,7 @@ def record_time(size: tuple[int, int], grid: int, seconds: float, fps: float) ->
         result = record(clip, Path(tmp) / "clip.mp4", progress=False)
         wall = time.perf_counter() - start
         size_mb = result.path.stat().st_size / 1e6
-    sim = Runner(ts.build_scene("cloth", {"nx": grid, "ny": grid, **per_particle(grid, grid, mass=0.01, drag=0.005)}), "symplectic_euler", 1e-3)
+    sim = Runner(ts.build_scene("cloth", {"nx": grid, "ny": grid, **fixed_particle_cloth(grid, grid)}), "symplectic_euler", 1e-3)
     sim.advance(1 / fps)  # compile
     t0 = time.perf_counter()
     for _ in range(result.frames - 1):

@@ -18,7 +18,7 @@ import time
 import taichi as ti
 
 import taichi_sim as ts
-from taichi_sim.scene.cloth import per_particle
+from taichi_sim.scene.cloth import fixed_particle_cloth
 
 METHODS = ("symplectic_euler", "rk4")
 
@@ -35,7 +35,7 @@ def main() -> None:
     for n in (int(s) for s in args.sizes.split(",")):
         runs = {}
         for name in METHODS:
-            scene = ts.build_scene("cloth", {"nx": n, "ny": n, **per_particle(n, n, mass=0.01, drag=0.005)})
+            scene = ts.build_scene("cloth", {"nx": n, "ny": n, **fixed_particle_cloth(n, n)})
             method = ts.create_integrator(name, scene.system)
             for _ in range(20):
                 method.step(scene.state, 0.0, 1e-5)

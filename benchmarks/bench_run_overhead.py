@@ -21,7 +21,7 @@ import taichi as ti
 
 import taichi_sim as ts
 from taichi_sim.guard import Guard
-from taichi_sim.scene.cloth import per_particle
+from taichi_sim.scene.cloth import fixed_particle_cloth
 
 
 def main() -> None:
@@ -38,7 +38,7 @@ def main() -> None:
           f"{args.steps} steps a round, {args.rounds} rounds")
     print(f"{'size':>5} {'bare us/step':>13} {'run() us/step':>14} {'run() / bare':>13}", flush=True)
     for n in (int(s) for s in args.sizes.split(",")):
-        scene = ts.build_scene("cloth", {"nx": n, "ny": n, **per_particle(n, n, mass=0.01, drag=0.005)})
+        scene = ts.build_scene("cloth", {"nx": n, "ny": n, **fixed_particle_cloth(n, n)})
         integrator = ts.create_integrator(args.integrator, scene.system)
         ts.run(scene, integrator, dt=args.dt, steps=200, progress=False)
         guard = Guard(scene)

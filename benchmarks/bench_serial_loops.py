@@ -26,7 +26,7 @@ import taichi_sim as ts
 from taichi_sim import runtime
 from taichi_sim.forces.springs import grid
 from taichi_sim.integrators.positional import xpbd
-from taichi_sim.scene.cloth import per_particle
+from taichi_sim.scene.cloth import fixed_particle_cloth
 
 STEP = {"symplectic_euler": 1e-5, "xpbd": 1 / 60}
 
@@ -41,7 +41,7 @@ def build(n: int, name: str, serial: bool, grid_pass: bool = False):
     else:
         runtime.SERIAL_WORK = xpbd.SERIAL_SPRINGS = 10 ** 12 if serial else 0
     try:
-        scene = ts.build_scene("cloth", {"nx": n, "ny": n, **per_particle(n, n, mass=0.01, drag=0.005)})
+        scene = ts.build_scene("cloth", {"nx": n, "ny": n, **fixed_particle_cloth(n, n)})
         integrator = ts.create_integrator(name, scene.system)
     finally:
         runtime.SERIAL_WORK, xpbd.SERIAL_SPRINGS, grid.SERIAL_PASS_F32_POINTS, grid.SERIAL_PASS_F64_POINTS = saved

@@ -23,7 +23,7 @@ import time
 import numpy as np
 
 import taichi_sim as ts
-from taichi_sim.scene.cloth import per_particle
+from taichi_sim.scene.cloth import fixed_particle_cloth
 
 DT = 1 / 60
 METHODS = ("vbd(iterations=10)", "vbd", "vbd(iterations=40)", "vbd(chebyshev_rho=0.9)",
@@ -57,7 +57,7 @@ def split_methods(text: str) -> list[str]:
 
 def cloth(size: int, k: float) -> dict:
     return {"nx": size, "ny": size, "stiffness": k, "shear_stiffness": k / 2, "flex_stiffness": k / 5,
-            **per_particle(size, size, mass=0.01, drag=0.005)}
+            **fixed_particle_cloth(size, size)}
 
 
 def reference(size: int, k: float, steps: int) -> np.ndarray:

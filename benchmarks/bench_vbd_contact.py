@@ -17,11 +17,9 @@ import time
 import taichi as ti
 
 import taichi_sim as ts
-from taichi_sim.forces.springs.spectrum import omega_max_bound
 from taichi_sim.geometry import self_intersections
 from taichi_sim.integrators import parse_options
-from taichi_sim.scene.cloth_scenes import EXPLICIT_STEP_SHARE, round_down
-from taichi_sim.scene.params import resolve
+from taichi_sim.scene.cloth_scenes import explicit_step
 
 PACE_TIME = 0.5  # s: by then a free fold has collapsed (32 x 32, symplectic Euler at 1 ms: 0.04 m from 0.6)
 
@@ -42,7 +40,7 @@ def run(n: int, t_end: float, integrator: str, dt: float | str, options: dict, p
     scene = ts.build_scene("cloth-fold", {"nx": n, "ny": n, **params})
     name = integrator
     if dt == "explicit":  # symplectic Euler's step on a cloth preset: 1 ms, less on fine grids
-        dt = min(1e-3, round_down(EXPLICIT_STEP_SHARE * 2.0 / omega_max_bound(scene.arrays)))
+        dt = explicit_step(scene.arrays, 1e-3)
     method = ts.create_integrator(name, scene.system, **options)
     steps, events, refresh = [], [], []
     method.step = timed(method.step, steps)
@@ -103,9 +101,7 @@ def main() -> None:
     if args.jitter is not None:
         params["jitter"] = args.jitter
     options = parse_options("vbd", dict(text.split("=", 1) for text in args.option))
-    given = dict(text.split("=", 1) for text in args.set)
-    typed = resolve(ts.SCENES["cloth-fold"].params, "cloth-fold", given)
-    params.update({name: typed[name] for name in given})
+    params.update(text.split("=", 1) for text in args.set)  # build_scene parses and checks them
     rows = [run(args.n, args.t_end, "vbd", 1 / 60,
                 {"iterations": args.iterations, "substeps": args.substeps, **options}, params)]
     if args.base_t_end > 0:

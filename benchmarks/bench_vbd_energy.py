@@ -15,7 +15,7 @@ import time
 import numpy as np
 
 import taichi_sim as ts
-from taichi_sim.scene.cloth import per_particle
+from taichi_sim.scene.cloth import FIXED_PARTICLE_MASS, per_particle
 
 
 def main() -> None:
@@ -28,7 +28,7 @@ def main() -> None:
     n = args.n
     scene = ts.build_scene("cloth", {"nx": n, "ny": n, "stiffness": 1.0, "shear_stiffness": 0.5,
                                      "flex_stiffness": 0.2, "damping": 0.0,
-                                     **per_particle(n, n, mass=0.01, drag=0.0)})
+                                     **per_particle(n, n, mass=FIXED_PARTICLE_MASS, drag=0.0)})
     base = scene.springs.arrays()["stiffness"]
     print(f"{n} x {n} conservative cloth, 1 s, vbd (20 sweeps, 1 substep), f64")
     print("| k (N/m) | h (s) | energy_cap | start (J) | highest above start (J) | end (J) | substeps shortened | wall (s) |")

@@ -19,7 +19,7 @@ import numpy as np
 import scipy.sparse as sparse
 
 import taichi_sim as ts
-from taichi_sim.scene.cloth import per_particle
+from taichi_sim.scene.cloth import fixed_particle_cloth
 
 DT = 1 / 60
 
@@ -82,7 +82,7 @@ def main() -> None:
     ts.init(arch="cpu", precision="f64")
     for stiffness in (float(k) for k in args.stiffness.split(",")):
         scene = ts.build_scene("cloth", {"nx": args.size, "ny": args.size, "stiffness": stiffness,
-                                          **per_particle(args.size, args.size, mass=0.01, drag=0.005)})
+                                          **fixed_particle_cloth(args.size, args.size)})
         integrator = ts.create_integrator("implicit_euler", scene.system)
         stage = integrator._stage
         original = stage.solve

@@ -16,7 +16,7 @@ import time
 
 import taichi_sim as ts
 from taichi_sim.integrators.implicit import common
-from taichi_sim.scene.cloth import per_particle
+from taichi_sim.scene.cloth import fixed_particle_cloth
 
 DT = 1 / 60
 
@@ -61,7 +61,7 @@ def main() -> None:
     args = parser.parse_args()
     ts.init(arch="cpu", precision="f64")
     scene = ts.build_scene("cloth", {"nx": args.size, "ny": args.size, "stiffness": args.stiffness,
-                                      **per_particle(args.size, args.size, mass=0.01, drag=0.005)})
+                                      **fixed_particle_cloth(args.size, args.size)})
     for label, options in (("forcing", {}), ("exact", {"cg_tolerance": 1e-10, "cg_max_iterations": 20000})):
         _, wall = run(scene, args.steps, True, label, **options)
         print(f"  {label}: {wall:.1f} s")

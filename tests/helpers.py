@@ -4,7 +4,7 @@ import math
 import numpy as np
 
 import taichi_sim as ts
-from taichi_sim.scene.cloth import per_particle
+from taichi_sim.scene.cloth import fixed_particle_cloth
 
 
 def spring_exact(scene, t):
@@ -102,9 +102,9 @@ class OffscreenWindows:
 
 def cloth(n: int, k: float, **extra) -> dict:
     """Parameters of an n x n cloth with structural stiffness k (N/m; shear k/2, flex k/5) and
-    the tests' particles: 0.01 kg and 0.005 N s/m each at any n (per_particle)."""
+    the tests' particles: 0.01 kg and 0.005 N s/m each at any n (fixed_particle_cloth)."""
     return {"nx": n, "ny": n, "stiffness": k, "shear_stiffness": k / 2, "flex_stiffness": k / 5,
-            **per_particle(n, n, mass=0.01, drag=0.005), **extra}
+            **fixed_particle_cloth(n, n), **extra}
 
 
 def swinging(scene) -> None:

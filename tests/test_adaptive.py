@@ -10,7 +10,7 @@ import taichi_sim as ts
 from taichi_sim.cli import main
 from taichi_sim.integrators import INTEGRATORS
 from taichi_sim.integrators.tableau import DORMAND_PRINCE, FEHLBERG, ButcherTableau
-from taichi_sim.scene.cloth import per_particle
+from taichi_sim.scene.cloth import fixed_particle_cloth
 
 PAIRS = {"rk45": DORMAND_PRINCE, "rkf45": FEHLBERG}
 # Tolerances so loose that every step is accepted: the pair then steps like a fixed-step method
@@ -244,7 +244,7 @@ def test_a_stiff_problem_stops_early_with_advice(f64, name, rtol):
     # a minute and returned energy x 9e6 as "ok". Steps bounded by stability, not by rtol (Hairer's
     # estimate of h |lambda| at the stability boundary), stop the run within a few thousand steps.
     stiff = {"nx": 2, "ny": 2, "stiffness": 1e8, "shear_stiffness": 1e8, "flex_stiffness": 1e8,
-             **per_particle(2, 2, mass=0.01, drag=0.005)}
+             **fixed_particle_cloth(2, 2)}
     scene = ts.build_scene("cloth", stiff)
     result = ts.run(scene, ts.create_integrator(name, scene.system, rtol=rtol), dt=None, t_end=1.0,
                     energy_every=0, progress=False)

@@ -17,7 +17,7 @@ from taichi_sim.bench.throughput import check_targets, summarize
 from taichi_sim.bench.workprec import QUICK_PROBLEMS, Problem, run_work_precision
 from taichi_sim.cli import main
 from taichi_sim.integrators import INTEGRATORS
-from taichi_sim.scene.cloth import per_particle
+from taichi_sim.scene.cloth import fixed_particle_cloth
 
 EXPLICIT = ["euler", "trapezoid", "midpoint", "rk4", "symplectic_euler"]
 
@@ -200,7 +200,7 @@ def test_advise_checks_its_recommendation_against_a_reference_run(f64):
     stable step (about 1 m off), fails it, and passes XPBD, which is then recommended."""
     from taichi_sim.bench.advise import check, recommend, scene_omegas, stability_table
 
-    scene = ts.build_scene("cloth-stiff", {"nx": 8, "ny": 8, **per_particle(8, 8, mass=0.01, drag=0.005)})
+    scene = ts.build_scene("cloth-stiff", {"nx": 8, "ny": 8, **fixed_particle_cloth(8, 8)})
     table = stability_table(scene, scene_omegas(scene), 0.5)
     rows = recommend(scene, table, 0.01, 0.5, ["projective_dynamics", "xpbd"])
     assert [r["integrator"] for r in rows] == ["projective_dynamics", "xpbd"]

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import taichi_sim as ts
-from taichi_sim.scene.cloth import per_particle
+from taichi_sim.scene.cloth import fixed_particle_cloth
 from taichi_sim.scene.live import LIVE_SETTERS, applies_live
 from taichi_sim.theory import omega_max_bound
 
@@ -20,11 +20,11 @@ def test_a_finer_grid_weighs_and_drags_as_the_coarser_one(f64):
 
 def test_the_default_32_by_32_cloth_keeps_its_particles(f64):
     """The defaults give the 32 x 32 cloth the 0.01 kg and 0.005 N s/m a particle it always had
-    (so its figures hold), and per_particle builds that cloth of fixed particles at any size."""
+    (so its figures hold), and fixed_particle_cloth builds that cloth of fixed particles at any size."""
     scene = ts.build_scene("cloth", {})
     np.testing.assert_allclose(scene.arrays["mass"], 0.01, rtol=1e-12)
     assert float(scene.arrays["drag"]) == pytest.approx(0.005, rel=1e-12)
-    old = ts.build_scene("cloth", {"nx": 64, "ny": 40, **per_particle(64, 40, mass=0.01, drag=0.005)})
+    old = ts.build_scene("cloth", {"nx": 64, "ny": 40, **fixed_particle_cloth(64, 40)})
     np.testing.assert_allclose(old.arrays["mass"], 0.01, rtol=1e-12)
     assert float(old.arrays["drag"]) == pytest.approx(0.005, rel=1e-12)
     assert ts.build_scene("cloth", {"nx": 64, "ny": 64}).arrays["mass"].sum() == pytest.approx(10.24, rel=1e-12)

@@ -16,10 +16,10 @@ from taichi_sim.convergence import (
 from taichi_sim.errors import ConfigError
 from taichi_sim.integrators import Status
 from taichi_sim.integrators.equation import EXACT, FIXED_WORK, Equation
-from taichi_sim.scene.cloth import per_particle
+from taichi_sim.scene.cloth import fixed_particle_cloth
 
 BACKWARD_EULER = Equation("backward_euler", EXACT)
-STIFF_CLOTH = {"nx": 8, "ny": 8, "stiffness": 1e6, **per_particle(8, 8, mass=0.01, drag=0.005)}
+STIFF_CLOTH = {"nx": 8, "ny": 8, "stiffness": 1e6, **fixed_particle_cloth(8, 8)}
 
 
 def cloth(**params):

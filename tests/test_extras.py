@@ -8,7 +8,7 @@ from helpers import step_checked
 import taichi_sim as ts
 from taichi_sim.cli import main
 from taichi_sim.scene import cloth as topo
-from taichi_sim.scene.cloth import per_particle
+from taichi_sim.scene.cloth import fixed_particle_cloth
 
 
 def step_and_check(scene, integrator_name, dt, steps, check):
@@ -240,7 +240,7 @@ def test_wind_force_is_zero_edge_on_and_scales_with_area(f64):
 # --- grab ----------------------------------------------------------------------------------
 
 def test_grab_picks_along_a_ray_and_pulls(f64):
-    scene = ts.build_scene("cloth", {"nx": 8, "ny": 8, "grab": True, "pin": "corners", **per_particle(8, 8, mass=0.01, drag=0.005)})
+    scene = ts.build_scene("cloth", {"nx": 8, "ny": 8, "grab": True, "pin": "corners", **fixed_particle_cloth(8, 8)})
     x0 = scene.state.to_numpy()[0]
     target_id = topo.grid_index(8, 8)[3, 2]
     eye = x0[target_id] + np.array([0.0, 2.0, 0.0])

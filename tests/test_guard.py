@@ -7,7 +7,7 @@ import pytest
 import taichi_sim as ts
 from taichi_sim.errors import ConfigError
 from taichi_sim.guard import MAX_STRAIN, Guard, GuardLimits, injectable_energy, scene_facts
-from taichi_sim.scene.cloth import per_particle
+from taichi_sim.scene.cloth import fixed_particle_cloth
 
 
 @pytest.mark.parametrize("field, value", [
@@ -71,7 +71,7 @@ def test_a_tighter_limit_trips_sooner(f64):
 
 
 def test_each_bound_names_what_grew(f64):
-    scene = ts.build_scene("cloth", {"nx": 5, "ny": 5, **per_particle(5, 5, mass=0.01, drag=0.005)})
+    scene = ts.build_scene("cloth", {"nx": 5, "ny": 5, **fixed_particle_cloth(5, 5)})
     x0, v0 = scene.state.to_numpy()
     guard = Guard(scene)
     assert guard.check(0.0, 0) is None
@@ -147,9 +147,9 @@ def test_springs_stretched_past_the_strain_limit_by_their_own_weight_are_not_a_b
 
 
 def test_energy_sources_widen_the_energy_bound(f64):
-    calm = ts.build_scene("cloth", {"nx": 8, "ny": 8, **per_particle(8, 8, mass=0.01, drag=0.005)})
+    calm = ts.build_scene("cloth", {"nx": 8, "ny": 8, **fixed_particle_cloth(8, 8)})
     windy = ts.build_scene("cloth", {"nx": 8, "ny": 8, "wind": True, "wind_speed": 10.0, "wind_gust": 0.5,
-                                     **per_particle(8, 8, mass=0.01, drag=0.005)})
+                                     **fixed_particle_cloth(8, 8)})
     assert injectable_energy(calm, scene_facts(calm), 1.0) == {}
     sources = injectable_energy(windy, scene_facts(windy), 1.0)
     mass = 64 * 0.01 - 2 * 0.01  # two pinned corners

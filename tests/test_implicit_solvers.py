@@ -11,7 +11,7 @@ import taichi_sim as ts
 from taichi_sim.forces import ForceTerm
 from taichi_sim.integrators import Status, create_integrator
 from taichi_sim.integrators.implicit.common import FORCING_CEILING, LINEARISED_CG_TOLERANCE, forcing_tolerance
-from taichi_sim.scene.cloth import per_particle
+from taichi_sim.scene.cloth import fixed_particle_cloth
 
 LINEARISED = "implicit_euler_linearised"
 STIFF_CLOTH = {"nx": 12, "ny": 12, "stiffness": 1e8, "shear_stiffness": 1e8, "flex_stiffness": 1e8}
@@ -480,7 +480,7 @@ def test_ssor_and_jacobi_reach_the_same_step_within_their_tolerances(precision):
     ts.init(arch="cpu", precision=precision)
     h = 1 / 60
     params = {"nx": 16, "ny": 16, "jitter": 0.01, "stiffness": 1e4, "shear_stiffness": 1e4, "flex_stiffness": 1e4,
-              **per_particle(16, 16, mass=0.01, drag=0.005)}
+              **fixed_particle_cloth(16, 16)}
     changes, reports = {}, {}
     for preconditioner in ("jacobi", "ssor"):
         scene = ts.build_scene("cloth", params, seed=3)

@@ -91,7 +91,7 @@ def test_the_view_stages_the_marked_vertices_and_each_pairs_closest_points(sessi
     offset = np.array([0.5, -0.25, 0.125])
     view = ContactsView()
     view.update(session.runners, fake_renderer(runner, offset), on=True)
-    assert view.available and len(view.shown) == 1
+    assert len(view.shown) == 1
     drawer = view.shown[0]
     x = runner.scene.state.to_numpy()[0]
     ids, kinds = pairs_of(contact)
@@ -156,7 +156,7 @@ def test_a_method_without_contacts_says_so_and_nothing_is_gathered_while_off(ses
     session.set_integrator(0, "symplectic_euler")
     try:
         view.update(session.runners, fake_renderer(runner, (0, 0, 0)), on=True)
-        assert not view.available and not view.shown
+        assert not view.shown
         assert "symplectic_euler keeps no contacts (only vbd" in view.notes[0][0]
         assert view.panel_note().startswith("nothing to show: symplectic_euler keeps no contacts")
     finally:

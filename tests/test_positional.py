@@ -12,7 +12,7 @@ from taichi_sim.guard import GuardLimits
 from taichi_sim.integrators import create_integrator
 from taichi_sim.integrators.positional.colouring import colour_springs
 from taichi_sim.integrators.positional.global_matrix import GlobalMatrix
-from taichi_sim.scene.cloth import per_particle
+from taichi_sim.scene.cloth import fixed_particle_cloth
 
 POSITIONAL = ["xpbd", "projective_dynamics"]
 UNDAMPED = {"damping": 0.0, "area_drag": 0.0}  # a cloth (its drag is per area)
@@ -171,7 +171,7 @@ def test_tearing_with_both(f64, name):
 
 @pytest.mark.parametrize("name", POSITIONAL)
 def test_grab_pulls_with_both(f64, name):
-    scene = ts.build_scene("cloth", {"nx": 8, "ny": 8, "grab": True, **per_particle(8, 8, mass=0.01, drag=0.005)})
+    scene = ts.build_scene("cloth", {"nx": 8, "ny": 8, "grab": True, **fixed_particle_cloth(8, 8)})
     integrator = create_integrator(name, scene.system)
     particle = 60
     target = scene.x0[particle] + np.array([0.0, 0.3, 0.2])

@@ -68,11 +68,6 @@ class ContactsView:
             self.shown.append(drawer)
             self.notes.append((prefix + summary(drawer), SELF))
 
-    @property
-    def available(self) -> bool:
-        """Whether some panel of the last :meth:`update` had contacts to show."""
-        return bool(self.shown)
-
     def panel_note(self) -> str | None:
         """The control panel's greyed line under the toggle when it is on and no panel has
         contacts to show (why), else None."""

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..scene.cloth import KIND_RATIOS, kind_stiffness, per_particle
+from ..scene.cloth import KIND_RATIOS, fixed_particle_cloth, kind_stiffness
 
 AUDIT_ENERGY_GROWTH = 100.0
 AUDIT_REACH = 1000.0
@@ -41,12 +41,12 @@ AUDIT_STRAIN = 100.0
 SCENES = {
     "spring": ("spring", {}),
     "pendulum": ("pendulum", {"particle_count": 10}),
-    "cloth": ("cloth", {"nx": 6, "ny": 6, **per_particle(6, 6, 0.01, 0.005)}),
+    "cloth": ("cloth", {"nx": 6, "ny": 6, **fixed_particle_cloth(6, 6)}),
 }
 QUICK_SCENES = {
     "spring": ("spring", {}),
     "pendulum": ("pendulum", {"particle_count": 4}),
-    "cloth": ("cloth", {"nx": 3, "ny": 3, **per_particle(3, 3, 0.01, 0.005)}),
+    "cloth": ("cloth", {"nx": 3, "ny": 3, **fixed_particle_cloth(3, 3)}),
 }
 STIFFNESSES = (1.0, 1e4, 1e8)
 STEP_SIZES = (1e-6, 1 / 60, 1.0)

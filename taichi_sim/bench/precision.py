@@ -15,7 +15,7 @@ import math
 
 import numpy as np
 
-from ..scene.cloth import per_particle
+from ..scene.cloth import fixed_particle_cloth
 
 STUDY_VERSION = 1
 DISAGREE = 1e-3  # relative to the cloth's size: a millimetre on a metre of cloth
@@ -37,7 +37,7 @@ def study():
 def cloth_params(k: float) -> dict:
     # 0.01 kg and 0.005 N s/m a particle, the study's cloth since before the grid's mass became per area
     return {"nx": SIZE, "ny": SIZE, "stiffness": k, "shear_stiffness": k / 2, "flex_stiffness": k / 5,
-            **per_particle(SIZE, SIZE, mass=0.01, drag=0.005)}
+            **fixed_particle_cloth(SIZE, SIZE)}
 
 
 def plan_cases(integrators: list[str], scenes: list[str], t_end: float):

@@ -56,7 +56,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..scene.cloth import KIND_RATIOS, kind_stiffness, per_particle
+from ..scene.cloth import FIXED_PARTICLE_MASS, KIND_RATIOS, kind_stiffness, per_particle
 from ..theory import horizon_limit, omega_max_bound, omega_max_eigsh, omega_max_power, stability_constant
 
 
@@ -81,7 +81,7 @@ SYSTEMS = {
     "chain": StabilitySystem("chain", "pendulum", {**UNDAMPED, "particle_count": 5, "particle_mass": 0.1},
                              (10.0, 100.0, 1e3, 1e4, 1e5), noise=1e-6,
                              description="5-particle chain, top pinned, perturbed"),
-    "cloth": StabilitySystem("cloth", "cloth", {**CLOTH_UNDAMPED, "nx": 6, "ny": 6, **per_particle(6, 6, 0.01)},
+    "cloth": StabilitySystem("cloth", "cloth", {**CLOTH_UNDAMPED, "nx": 6, "ny": 6, **per_particle(6, 6, FIXED_PARTICLE_MASS)},
                              (10.0, 100.0, 1e3, 1e4),
                              kind_factors=KIND_RATIOS, noise=1e-6,
                              description="6x6 cloth, corners pinned, perturbed"),
@@ -92,7 +92,7 @@ QUICK_SYSTEMS = {
                                   description=SYSTEMS["oscillator"].description),
     "chain": StabilitySystem("chain", "pendulum", {**UNDAMPED, "particle_count": 3, "particle_mass": 0.1},
                              (1e3,), noise=1e-6, description="3-particle chain, top pinned, perturbed"),
-    "cloth": StabilitySystem("cloth", "cloth", {**CLOTH_UNDAMPED, "nx": 3, "ny": 3, **per_particle(3, 3, 0.01)},
+    "cloth": StabilitySystem("cloth", "cloth", {**CLOTH_UNDAMPED, "nx": 3, "ny": 3, **per_particle(3, 3, FIXED_PARTICLE_MASS)},
                              (100.0,),
                              kind_factors=KIND_RATIOS, noise=1e-6,
                              description="3x3 cloth, corners pinned, perturbed"),

@@ -17,7 +17,7 @@ import time
 
 import numpy as np
 
-from ..scene.cloth import per_particle, swept_stiffness
+from ..scene.cloth import fixed_particle_cloth, swept_stiffness
 
 METHODS: tuple[tuple[str, dict], ...] = (
     ("implicit_euler", {}),
@@ -45,7 +45,7 @@ def cloth_params(size: int, k: float, conservative: bool = False) -> dict:
     """A size x size cloth with structural stiffness k (N/m; shear k/2, flex k/5, the cloth
     family's ratios) and 0.01 kg, 0.005 N s/m a particle at every size (the study's cloth since
     before the grid's mass became per area); ``conservative``: no dashpots, no drag."""
-    params = {"nx": size, "ny": size, **swept_stiffness(k), **per_particle(size, size, mass=0.01, drag=0.005)}
+    params = {"nx": size, "ny": size, **swept_stiffness(k), **fixed_particle_cloth(size, size)}
     if conservative:
         params.update(damping=0.0, area_drag=0.0)
     return params

@@ -27,7 +27,7 @@ import time
 
 from taichi_sim.bench.protocol import emit, serve
 
-from ..scene.cloth import per_particle
+from ..scene.cloth import fixed_particle_cloth
 
 # name, extra parameters (or a function of the grid side n that gives them): the same cloth
 # with one feature switched on (or off)
@@ -138,7 +138,7 @@ class Timed:
 def fixed_particles(n: int) -> dict:
     """The n x n cloth this study times: 0.01 kg and 0.005 N s/m a particle at every n (as every
     grid cloth had before its mass became per area), so a step it takes is stable at any n."""
-    return {"nx": n, "ny": n, **per_particle(n, n, mass=0.01, drag=0.005)}
+    return {"nx": n, "ny": n, **fixed_particle_cloth(n, n)}
 
 
 def _error(exc: Exception) -> str:

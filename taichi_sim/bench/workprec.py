@@ -37,7 +37,7 @@ from typing import Any
 
 import numpy as np
 
-from ..scene.cloth import per_particle
+from ..scene.cloth import fixed_particle_cloth
 from .common import fit_slope
 
 FIT_CEILING = 0.1  # errors above this fraction of the scene's size are pre-asymptotic
@@ -71,7 +71,7 @@ PROBLEMS = {
     "simple": Problem("simple", {}, 2 * math.pi, 16, 6, FULL_RTOLS),
     "spring": Problem("spring", {}, 1.0, 16, 6, FULL_RTOLS),
     "pendulum": Problem("pendulum", {"particle_count": 5}, 0.5, 40, 6, FULL_RTOLS),
-    "cloth": Problem("cloth", {"nx": 6, "ny": 6, **per_particle(6, 6, mass=0.01, drag=0.005)}, 0.2, 64, 6,
+    "cloth": Problem("cloth", {"nx": 6, "ny": 6, **fixed_particle_cloth(6, 6)}, 0.2, 64, 6,
                      FULL_RTOLS),
 }
 QUICK_RTOLS = (1e-4, 1e-6, 1e-8)
@@ -79,7 +79,7 @@ QUICK_PROBLEMS = {
     "simple": Problem("simple", {}, 2 * math.pi, 16, 3, QUICK_RTOLS),
     "spring": Problem("spring", {}, 1.0, 25, 4, QUICK_RTOLS),
     "pendulum": Problem("pendulum", {"particle_count": 3}, 0.2, 32, 3, QUICK_RTOLS),
-    "cloth": Problem("cloth", {"nx": 3, "ny": 3, **per_particle(3, 3, mass=0.01, drag=0.005)}, 0.1, 32, 3,
+    "cloth": Problem("cloth", {"nx": 3, "ny": 3, **fixed_particle_cloth(3, 3)}, 0.1, 32, 3,
                      QUICK_RTOLS),
 }
 

@@ -104,6 +104,16 @@ def per_particle(nx: int, ny: int, mass: float, drag: float = 0.0, size: float =
     """The grid cloth parameters (``density``, ``area_drag``) that give each particle of an
     nx x ny cloth of side ``size`` (m) this ``mass`` (kg) and ``drag`` (N s/m): the way to build
     a cloth of fixed particles (a study defined on them, or a figure taken before the grid's mass
-    became an area density: 0.01 kg and 0.005 N s/m at every size)."""
+    became an area density: :func:`fixed_particle_cloth`)."""
     area = size * size / (nx * ny)
     return {"density": mass / area, "area_drag": drag / area}
+
+
+FIXED_PARTICLE_MASS = 0.01  # kg: a grid cloth's particle at every size before the mass became per area
+FIXED_PARTICLE_DRAG = 0.005  # N s/m: its drag then
+
+
+def fixed_particle_cloth(nx: int, ny: int) -> dict[str, float]:
+    """:func:`per_particle` of FIXED_PARTICLE_MASS and FIXED_PARTICLE_DRAG: the nx x ny cloth of
+    the studies and figures defined on fixed particles (the 32 x 32 default's at every size)."""
+    return per_particle(nx, ny, FIXED_PARTICLE_MASS, FIXED_PARTICLE_DRAG)

@@ -18,10 +18,10 @@ from .scene import Scene
 
 PIN_MODES = ("corners", "edge", "pole", "sides", "border", "none")
 
-# kg/m^2: 0.01 kg a particle on the default 1 m^2 cloth of 32 x 32 (the mass every grid cloth had
-# per particle before its mass became an area density)
-GRID_DENSITY = 10.24
-GRID_AREA_DRAG = 5.12  # N s/m^3: 0.005 N s/m a particle there, as before
+# The default 1 m^2 cloth of 32 x 32 keeps the particles every grid cloth had before its mass
+# became an area density: kg/m^2 and N s/m^3 (10.24 and 5.12)
+GRID_DENSITY = topo.FIXED_PARTICLE_MASS * 32 * 32
+GRID_AREA_DRAG = topo.FIXED_PARTICLE_DRAG * 32 * 32
 # Presets whose default method is conditionally stable: their default step stays below this
 # share of 2 / omega_max's bound at any resolution (a finer grid's particles are lighter)
 EXPLICIT_DEFAULTS = ("symplectic_euler",)
@@ -50,7 +50,7 @@ CLOTH_PARAMS: tuple[Param, ...] = (
           "shared equally by its particles", minimum=0.0, exclusive=True),
     Param("area_drag", GRID_AREA_DRAG, "N s/m^3", "viscous drag per m^2 of cloth: each particle feels "
           "-area_drag x its share of the area x v (the same decay at any nx, ny)", minimum=0.0),
-    *(q for q in common_params(mass=0.01, drag=0.005, damping=0.05) if q.name not in ("particle_mass", "drag")),
+    *(q for q in common_params(mass=topo.FIXED_PARTICLE_MASS, drag=topo.FIXED_PARTICLE_DRAG, damping=0.05) if q.name not in ("particle_mass", "drag")),
     # wind
     Param("wind", False, "", "aerodynamic gusting wind on the cloth triangles"),
     Param("wind_speed", 6.0, "m/s", "mean wind speed", minimum=0.0),
@@ -247,10 +247,17 @@ def build_cloth(preset: ScenePreset, p: dict[str, Any], seed: int) -> Scene:
     scene = preset.finish(b, p, seed, drag=topo.grid_particle_drag(p))
     if preset.default_integrator in EXPLICIT_DEFAULTS:
         # a finer grid has lighter particles and a shorter stable step (2 / omega_max ~ 1 / n)
-        omega = omega_max_bound(scene.arrays)
-        if omega > 0 and scene.default_dt > EXPLICIT_STEP_SHARE * 2.0 / omega:
-            scene.default_dt = round_down(EXPLICIT_STEP_SHARE * 2.0 / omega)
+        scene.default_dt = explicit_step(scene.arrays, scene.default_dt)
     return scene
+
+
+def explicit_step(arrays, dt: float) -> float:
+    """``dt`` (s), or EXPLICIT_STEP_SHARE of the explicit stable step 2 / omega_max (the
+    Gershgorin bound of the scene's ``arrays``), rounded down, where that is shorter."""
+    omega = omega_max_bound(arrays)
+    if omega > 0 and dt > EXPLICIT_STEP_SHARE * 2.0 / omega:
+        return round_down(EXPLICIT_STEP_SHARE * 2.0 / omega)
+    return dt
 
 
 def round_down(value: float, digits: int = 2) -> float:
@@ -310,6 +317,7 @@ def cloth_size(p: dict[str, Any]) -> Size:
 
 
 _CLOTH_SIZE = dict(size=cloth_size, size_params=("nx", "ny"))
+
 CLOTH_SCENES = (
     ScenePreset("cloth", "an nx x ny cloth of structural, shear and flex springs, starting flat; "
                 "--set wind/sphere/plane/tear/grab=1 add the extras", CLOTH_PARAMS, build_cloth,
@@ -322,8 +330,8 @@ CLOTH_SCENES = (
                 with_defaults(CLOTH_PARAMS, pin="none", sphere=True, plane=True, sphere_friction=1.0,
                               sphere_spin=10.0, sphere_x=0.15, plane_friction=0.3, restitution=0.0,
                               self_collision=True),
-                # Not vbd: at 1/60 s steps the sphere hardly drags the cloth round under vbd (at
-                # 1/240 s it does, as under symplectic Euler), docs/vbd.md.
+                # Not vbd: its self-contact bounds hold back the folds as the sphere drags the
+                # cloth round (docs/vbd.md, "The fold's pace").
                 build_cloth, default_dt=1e-3, default_integrator="symplectic_euler", **_CLOTH_SIZE),
     ScenePreset("cloth-tear", "a cloth held at two sides, torn by a sphere dropping through it",
                 with_defaults(CLOTH_PARAMS, pin="sides", sphere=True, sphere_y=1.5, sphere_radius=0.2,
@@ -341,9 +349,8 @@ CLOTH_SCENES = (
                 with_defaults(CLOTH_PARAMS, orientation="vertical", pin="none", height=1.1, plane=True,
                               plane_friction=0.6, restitution=0.0, self_collision=True, jitter=0.002,
                               flex_stiffness=20.0),
-                # Not vbd, although its contact in the solve is faster: its displacement bounds
-                # slow the collapse (mean height at 0.5 s 0.34 m at 32 x 32 against 0.04 m here;
-                # 0.09 m with 4 substeps), docs/vbd.md.
+                # Not vbd, although its contact in the solve is faster: its self-contact bounds
+                # slow the collapse several times over (docs/vbd.md, "The fold's pace").
                 build_cloth, default_dt=1e-3, default_integrator="symplectic_euler", **_CLOTH_SIZE),
     # Not vbd: the twist's pins are moved between steps, outside the solve's displacement
     # bounds, and wring the cloth past what its in-solve contact holds (docs/vbd.md).
