@@ -1,18 +1,25 @@
+import os
+
 import numpy as np
 import pytest
 
 import taichi_sim as ts
 
+# The arch of the f64 / f32 fixtures: the CPU, as CI runs; TAICHI_SIM_TEST_ARCH=gpu runs the
+# tests that take them on a GPU (docs/throughput.md, "On a GPU"). Tests that init on their own
+# stay on the CPU.
+TEST_ARCH = os.environ.get("TAICHI_SIM_TEST_ARCH", "cpu")
+
 
 @pytest.fixture
 def f64():
-    """Fresh Taichi runtime on the CPU in f64 (fields from earlier tests are freed)."""
-    ts.init(arch="cpu", precision="f64")
+    """Fresh Taichi runtime in f64 (fields from earlier tests are freed), on TEST_ARCH."""
+    ts.init(arch=TEST_ARCH, precision="f64")
 
 
 @pytest.fixture
 def f32():
-    ts.init(arch="cpu", precision="f32")
+    ts.init(arch=TEST_ARCH, precision="f32")
 
 
 @pytest.fixture
@@ -22,9 +29,16 @@ def rng():
 
 def pytest_configure(config):
     config.addinivalue_line("markers", "long: takes tens of seconds; scheduled first")
+    config.addinivalue_line("markers", "cpu_only: tests something the CPU backend alone has (skipped on "
+                            "TAICHI_SIM_TEST_ARCH=gpu)")
 
 
 def pytest_collection_modifyitems(config, items):
     """The long tests first: with one worker per core (pytest-xdist), a long test that starts
     last keeps the whole run waiting for it while the other worker idles."""
     items.sort(key=lambda item: item.get_closest_marker("long") is None)
+    if TEST_ARCH != "cpu":
+        skip = pytest.mark.skip(reason=f"CPU backend only (TAICHI_SIM_TEST_ARCH={TEST_ARCH})")
+        for item in items:
+            if item.get_closest_marker("cpu_only") is not None:
+                item.add_marker(skip)

@@ -14,7 +14,8 @@ from taichi_sim.integrators.positional.colouring import colour_springs
 from taichi_sim.integrators.positional.global_matrix import GlobalMatrix
 from taichi_sim.scene.cloth import fixed_particle_cloth
 
-POSITIONAL = ["xpbd", "projective_dynamics"]
+# projective_dynamics refuses other backends (its kernels share the global solve's arrays)
+POSITIONAL = ["xpbd", pytest.param("projective_dynamics", marks=pytest.mark.cpu_only)]
 UNDAMPED = {"damping": 0.0, "area_drag": 0.0}  # a cloth (its drag is per area)
 
 
@@ -61,6 +62,7 @@ def test_the_global_matrix_solves_three_axes_at_once_and_refuses_what_is_not_spd
     assert not matrix.factorise() and not matrix.factorised
 
 
+@pytest.mark.cpu_only
 def test_projective_dynamics_converges_to_the_exact_backward_euler_step(f64):
     """Every local/global iteration lowers the same objective whose minimiser is backward Euler:
     iterated to a tight tolerance PD gives implicit_euler's step to 1e-9 m (8 x 8 cloth, the
@@ -97,7 +99,8 @@ def test_xpbd_converges_near_backward_euler_and_holds_stiff_constraints(f64):
     assert x[:, 1].min() < scene.x0[:, 1].min() - 0.05  # it did fall and swing
 
 
-@pytest.mark.parametrize("name, options", [("xpbd", {"substeps": 100}), ("projective_dynamics", {})])
+@pytest.mark.parametrize("name, options", [("xpbd", {"substeps": 100}),
+                                           pytest.param("projective_dynamics", {}, marks=pytest.mark.cpu_only)])
 def test_energy_never_rises_on_a_conservative_chain_at_k_1e8(f64, name, options):
     """A 10-particle chain of k = 1e8 N/m springs at h = 1/60 s for 2 s (every step checked)."""
     scene = ts.build_scene("pendulum", {"particle_count": 10, "stiffness": 1e8, "damping": 0.0, "drag": 0.0})
