@@ -156,6 +156,12 @@ def cmd_simulate(args) -> int:
 
     runtime.init(arch=args.arch, precision=args.precision)
     scene = build_scene(args.scene, params, seed=args.seed)
+    if args.dt is None and not adaptive and scene.default_dt < dt:
+        # a fine cloth's particles are light: its stable step is shorter than the preset's
+        print(f"taichi-sim: the default step {dt:g} s is past this scene's stable step: using its "
+              f"{scene.default_dt:g} s (give --dt to choose)", file=sys.stderr)
+        dt = scene.default_dt
+        _check_step_count(args.steps, dt, args.t_end, planned_steps)
     if adaptive and scene.post_step and "max_step" not in options:
         options["max_step"] = 10 * preset.default_dt  # events act only between steps
     integrator = create_integrator(integrator_name, scene.system, **options)

@@ -25,9 +25,15 @@ W = M^-1/2 (zero on pinned particles), so:
 * :func:`omega_max_power`: power iteration on S; its Rayleigh quotient rises to the sharp value
   from below.
 
-Gravity and drag add no stiffness; dashpots, drag and wind damp (they shift eigenvalues off the
-imaginary axis) and are left out: the limits are those of the undamped network. The circle ODE
-(``simple``) has omega = 1.
+Gravity and drag add no stiffness. Dashpots and drag damp: on x'' = -omega^2 x - gamma x' an
+explicit method's stable region is bounded along the negative real axis too, so strong damping
+(a fine grid's light particles under the same dashpots) shortens the limit. Where an integrator
+states its limit on the damped oscillator (``damped_limit``: symplectic Euler in closed form, the
+explicit Runge-Kutta methods from their stability polynomial) the prediction takes gamma_max,
+the largest eigenvalue of M^-1 D for the dashpots' and drag's damping matrix D, with omega_max
+(:func:`damped_step_limit`): by power iteration in ``advise`` and the messages
+(:func:`scene_damping_rate`), the Gershgorin bound (:func:`damping_rate_bound`) for a scene's
+default step. Wind is left out. The circle ODE (``simple``) has omega = 1.
 """
 from __future__ import annotations
 
@@ -36,7 +42,7 @@ from typing import Mapping
 
 import numpy as np
 
-from .forces.springs.spectrum import omega_max_bound, spring_network  # noqa: F401 (theory's API)
+from .forces.springs.spectrum import damping_rate_bound, omega_max_bound, spring_network  # noqa: F401 (theory's API)
 
 
 def method_class(method):
@@ -57,17 +63,36 @@ def stability_constant(method) -> float | None:
     return method_class(method).stability_constant
 
 
-def predicted_limit(name, omega_max: float | None) -> float | None:
+def predicted_limit(name, omega_max: float | None, gamma_max: float = 0.0) -> float | None:
     """The largest stable step (s) of integrator ``name`` (a name or class) for a system whose fastest mode is ``omega_max``
-    (rad/s): C / omega_max; inf when unconditional or when nothing oscillates; 0 when the
-    method is never stable on the imaginary axis; None when not applicable (adaptive, unknown
-    omega)."""
+    (rad/s), damped at rates up to ``gamma_max`` (1/s): C / omega_max undamped
+    (:func:`damped_step_limit` with damping); inf when unconditional or when nothing
+    oscillates or damps; 0 when the method is never stable on the imaginary axis; None when not
+    applicable (adaptive, unknown omega)."""
     c = stability_constant(name)
     if c is None or omega_max is None or not math.isfinite(omega_max):
         return None
-    if math.isinf(c) or omega_max <= 0:
+    if math.isinf(c):
         return math.inf
-    return c / omega_max
+    if c == 0.0:
+        return 0.0 if omega_max > 0 else math.inf
+    return damped_step_limit(name, omega_max, gamma_max)
+
+
+def damped_step_limit(name, omega: float, gamma: float) -> float:
+    """The largest stable step (s) of a method with 0 < C < inf for modes up to ``omega``
+    (rad/s) damped at rates up to ``gamma`` (1/s): its ``damped_limit``, the least over damping
+    rates 0, gamma / 4, gamma / 2 and gamma (damping can widen a Runge-Kutta method's limit,
+    and a mode may have any damping up to the bound), or C / omega when it states none. Takes
+    omega_max and gamma_max together, as one mode, which no mode exceeds in either."""
+    cls = method_class(name)
+    undamped = cls.stability_constant / omega if omega > 0 else math.inf
+    if gamma <= 0:
+        return undamped
+    limits = [cls.damped_limit(omega, g) for g in (0.0, 0.25 * gamma, 0.5 * gamma, gamma)]
+    if any(limit is None for limit in limits):
+        return undamped
+    return min(limits)
 
 
 def horizon_limit(name, omega: float, t_end: float, growth: float = 2.0) -> float | None:
@@ -206,19 +231,76 @@ def stability_warning(scene, integrator_name, dt: float | None, *, power_iterati
     if dt is None or c is None or c == 0.0 or math.isinf(c):
         return None
     bound = scene_omega_max(scene, "bound")
-    if not bound or dt <= c / bound:
+    if not bound or dt <= damped_step_limit(integrator_name, bound, scene_damping_rate(scene)):
         return None
     omega = _omega_power(scene, power_iterations)
-    if not omega or dt <= c / omega:
+    if not omega:
         return None
-    return (f"dt = {dt:g} s exceeds the predicted stable step {c / omega:.3g} s of "
-            f"{method_class(integrator_name).name} here (C / omega_max = {c:.3g} / {omega:.4g} rad/s; "
+    gamma = scene_damping_rate(scene, "power" if _iterated(scene) else "bound", power_iterations)
+    limit = damped_step_limit(integrator_name, omega, gamma)
+    if dt <= limit:
+        return None
+    bounds = "" if _iterated(scene) else ", Gershgorin bounds"
+    return (f"dt = {dt:g} s exceeds the predicted stable step {limit:.3g} s of "
+            f"{method_class(integrator_name).name} here ({_limit_terms(c, omega, gamma, limit)}{bounds}; "
             "see taichi-sim advise); expect divergence")
 
 
+def scene_damping_rate(scene, method: str = "bound", power_iterations: int = 200) -> float:
+    """gamma_max (1/s) of a built particle scene's dashpots and drag (0 for others): the
+    Gershgorin ``"bound"``, or by ``"power"`` iteration on W D W (the dashpots as springs of
+    stiffness c_s at their current length, so only their axial part acts), plus the largest
+    drag / m, at the initial positions. The bound sums the |c_s| of springs pointing every way,
+    about twice the sharp value on a grid cloth."""
+    if is_circle(scene) or not scene.system.second_order:
+        return 0.0
+    arrays = scene.arrays
+    try:
+        if method == "bound":
+            return damping_rate_bound(arrays)
+        if "spring_damping" not in arrays or "springs" not in arrays or len(arrays["springs"]) == 0:
+            dashpots = 0.0
+        else:
+            ends = np.asarray(arrays["springs"], int).reshape(-1, 2)
+            x = np.asarray(scene.x0, float).reshape(-1, 3)
+            length = np.linalg.norm(x[ends[:, 0]] - x[ends[:, 1]], axis=1)
+            as_springs = dict(arrays, stiffness=np.broadcast_to(np.asarray(arrays["spring_damping"], float),
+                                                                (len(ends),)), rest_length=length)
+            root, _ = omega_max_power(as_springs, x, max_iterations=power_iterations, tol=1e-8)
+            dashpots = root * root
+        mass = np.asarray(arrays["mass"], float)
+        free = ~np.asarray(arrays["pinned"], bool)
+        drag = np.broadcast_to(np.asarray(arrays.get("drag", 0.0), float), mass.shape) / mass
+        return float(dashpots + (drag[free].max() if free.any() else 0.0))
+    except (KeyError, ValueError):
+        return 0.0
+
+
+def _limit_terms(c: float, omega: float, gamma: float, limit: float) -> str:
+    """How a predicted limit came about, for a message."""
+    undamped = c / omega
+    if limit < undamped * (1 - 1e-9):
+        return (f"C / omega_max = {c:.3g} / {omega:.4g} rad/s = {undamped:.3g} s undamped, shortened by "
+                f"dashpots and drag damping at up to {gamma:.4g} /s")
+    return f"C / omega_max = {c:.3g} / {omega:.4g} rad/s"
+
+
+# Above this many particles a message's prediction takes the Gershgorin bounds: power
+# iteration there takes minutes (a 1024 x 1024 cloth's failure message waited over two), and a
+# message must not hold up the run or the failure it explains.
+POWER_PARTICLES = 100_000
+
+
+def _iterated(scene) -> bool:
+    return scene.system.particle_count <= POWER_PARTICLES
+
+
 def _omega_power(scene, power_iterations: int) -> float | None:
-    """omega_max (rad/s) by power iteration at the initial positions, or None when there is none
-    (a prediction must never hide the run or the failure it explains)."""
+    """omega_max (rad/s) by power iteration at the initial positions (the Gershgorin bound above
+    POWER_PARTICLES), or None when there is none (a prediction must never hide the run or the
+    failure it explains)."""
+    if not _iterated(scene):
+        return scene_omega_max(scene, "bound") or None
     try:
         omega = scene_omega_max(scene, "power", max_iterations=power_iterations, tol=1e-8)
     except Exception:
@@ -246,6 +328,8 @@ def stable_step_advice(scene, name, *, power_iterations: int = 200) -> str:
         name = method_class(name).name
         return (f"{name} grows at every step on undamped oscillations (no stable step); predicted "
                 f"stable steps here (omega_max = {omega:.4g} rad/s): {steps}")
+    gamma = scene_damping_rate(scene, "power" if _iterated(scene) else "bound", power_iterations)
+    limit = damped_step_limit(name, omega, gamma)
+    terms = _limit_terms(c, omega, gamma, limit) + ("" if _iterated(scene) else ", Gershgorin bounds")
     name = method_class(name).name
-    return (f"predicted stable step of {name} here: {c / omega:.3g} s (C / omega_max = {c:.3g} / "
-            f"{omega:.4g} rad/s; see taichi-sim advise)")
+    return f"predicted stable step of {name} here: {limit:.3g} s ({terms}; see taichi-sim advise)"

@@ -4,9 +4,10 @@ import numpy as np
 import pytest
 
 import taichi_sim as ts
+from taichi_sim.integrators.symplectic import SymplecticEuler
 from taichi_sim.scene.cloth import fixed_particle_cloth
 from taichi_sim.scene.live import LIVE_SETTERS, applies_live
-from taichi_sim.theory import omega_max_bound
+from taichi_sim.theory import damping_rate_bound, omega_max_bound
 
 
 def test_a_finer_grid_weighs_and_drags_as_the_coarser_one(f64):
@@ -32,10 +33,12 @@ def test_the_default_32_by_32_cloth_keeps_its_particles(f64):
 
 def test_an_explicit_preset_shortens_its_default_step_on_a_fine_grid(f64):
     """1 ms on the default grid; on a 128 x 128 one (particles 16 times lighter than at 32 x 32)
-    below 2 / omega_max, where 1 ms diverges; a preset with an implicit default keeps its step."""
+    below symplectic Euler's limit (2 / omega_max, shortened by the dashpots' damping), where 1 ms
+    diverges; a preset with an implicit default keeps its step."""
     assert ts.build_scene("cloth", {}).default_dt == 1e-3
     fine = ts.build_scene("cloth", {"nx": 128, "ny": 128})
-    limit = 2.0 / omega_max_bound(fine.arrays)
+    limit = SymplecticEuler.damped_limit(omega_max_bound(fine.arrays), damping_rate_bound(fine.arrays))
+    assert limit < 2.0 / omega_max_bound(fine.arrays)
     assert 0.8 * limit < fine.default_dt <= 0.9 * limit < 1e-3
     assert ts.run(fine, "symplectic_euler", dt=fine.default_dt, t_end=0.3, energy_every=0).status.value == "ok"
     fine.reset()

@@ -106,6 +106,9 @@ class Session:
         self.pending: dict[str, Any] = {}
         self.dt = float(dt if dt is not None else preset.default_dt)
         self._check_dt(self.dt)
+        # without a step of its own the session takes each built scene's default: a fine cloth's
+        # stable step is shorter than its preset's (explicit_step)
+        self.follow_default_dt = dt is None
         self.substeps = self._check_substeps(substeps)
         self.real_time = self.interactive
         self.pacer = Pacer()
@@ -141,6 +144,8 @@ class Session:
         runners = self._built.get(key)
         scenes = [r.scene for r in runners] if runners is not None else \
             [build_scene(self.scene_name, self.params, seed=self.seed) for _ in integrators]
+        if self.follow_default_dt:
+            self.dt = float(scenes[0].default_dt)
         allowed = compatible_integrators(scenes[0], self.plugins)
         if fallback is not None:
             integrators = [n if n in allowed else fallback for n in integrators]
@@ -204,6 +209,7 @@ class Session:
         self.pending = {}
         self.curves = {}  # curves belong to a scene's parameters
         self.dt = preset.default_dt
+        self.follow_default_dt = True
         self._build(old, fallback=preset.default_integrator)
         self.pacer.reset()
 
@@ -318,6 +324,7 @@ class Session:
     def set_dt(self, dt: float) -> None:
         """Step size (s) of every panel from the next step on."""
         self.dt = self._check_dt(dt)
+        self.follow_default_dt = False
         for r in self.runners:
             r.set_dt(self.dt)
         self.pacer.reset()

@@ -3,7 +3,9 @@ target error, the cheapest (integrator, step) expected to meet it.
 
 Stability: h_max = C / omega_max (:mod:`.theory`), with omega_max from power iteration on the
 scene's linearised stiffness at its initial positions (the sharp value; the Gershgorin bound,
-which ``simulate`` uses for its warning, is shown too). Explicit Euler, trapezoid and midpoint
+which ``simulate`` uses for its warning, is shown too); for symplectic Euler and the explicit
+Runge-Kutta methods shortened by the dashpots' and drag's damping rate gamma_max (power
+iteration too) where that is strong enough to matter (:func:`~taichi_sim.theory.damped_step_limit`). Explicit Euler, trapezoid and midpoint
 have no limit on an undamped oscillation (they grow at every step); for them the table gives
 the step at which the fastest mode's energy doubles over the run (``--t-end``).
 
@@ -30,7 +32,14 @@ import time
 
 import numpy as np
 
-from ..theory import horizon_limit, omega_max_bound, omega_max_power, stability_constant
+from ..theory import (
+    damped_step_limit,
+    horizon_limit,
+    omega_max_bound,
+    omega_max_power,
+    scene_damping_rate,
+    stability_constant,
+)
 
 PILOT_STEPS = 200
 PILOT_ROUNDS = 3
@@ -57,6 +66,8 @@ def scene_omegas(scene, *, power_iterations: int = 300) -> dict:
     arrays = scene.arrays
     omega, info = omega_max_power(arrays, scene.x0, max_iterations=power_iterations, tol=1e-10)
     return {"omega_max": omega, "omega_bound": omega_max_bound(arrays),
+            "gamma_max": scene_damping_rate(scene, "power", power_iterations),
+            "gamma_bound": scene_damping_rate(scene),
             "method": f"power iteration ({info['iterations']} iterations, last relative change "
                       f"{info['change']:.1g})"}
 
@@ -90,7 +101,9 @@ def stability_table(scene, omegas: dict, t_end: float, names=None) -> list[dict]
                        note=f"grows at every step; energy of the fastest mode doubles over {t_end:g} s "
                             f"above h = {reach:.3g} s")
         else:
-            row.update(limit=row["C"] / omega, limit_bound=row["C"] / bound)
+            # with the dashpots' and drag's damping where the method states its damped limit
+            row.update(limit=damped_step_limit(cls, omega, omegas.get("gamma_max", 0.0)),
+                       limit_bound=damped_step_limit(cls, bound, omegas.get("gamma_bound", 0.0)))
         rows.append(row)
     return rows
 

@@ -165,7 +165,9 @@ def advise_main(args) -> int:
                             list(INTEGRATORS) + [n for n in integrators or () if n not in INTEGRATORS])
     springs = scene.features.get("springs", 0)
     print(f"{scene.name}: {scene.particle_count} particles, {springs} springs; omega_max = "
-          f"{_fmt(omegas['omega_max'])} rad/s ({omegas['method']}), Gershgorin bound {_fmt(omegas['omega_bound'])} rad/s")
+          f"{_fmt(omegas['omega_max'])} rad/s ({omegas['method']}), Gershgorin bound {_fmt(omegas['omega_bound'])} rad/s"
+          + (f"; damping rate gamma_max = {_fmt(omegas['gamma_max'])} /s (bound {_fmt(omegas['gamma_bound'])} /s)"
+             if omegas.get("gamma_max") else ""))
     print(common.format_table(
         ["integrator", "order", "f-evals/step", "C", "max stable step (s)", "with the bound (s)", "note"],
         [[r["integrator"], r["order"], r["evals_per_step"] if r["evals_per_step"] is not None else "varies",

@@ -150,6 +150,15 @@ class Integrator(ABC):
         return None
 
     @classmethod
+    def damped_limit(cls, omega: float, gamma: float) -> float | None:
+        """The largest stable step (s) on the damped oscillator x'' = -omega^2 x - gamma x'
+        (omega in rad/s, gamma in 1/s; with gamma = 0 it is C / omega); None when the method
+        does not say (then C / omega, the undamped limit, is all that is predicted). An
+        explicit method's limit shrinks with the damping: its stable region is bounded along
+        the negative real axis too."""
+        return None
+
+    @classmethod
     def options(cls) -> dict:
         """The method's options: keyword-only arguments of ``__init__`` and their defaults."""
         return {p.name: p.default for p in inspect.signature(cls.__init__).parameters.values()

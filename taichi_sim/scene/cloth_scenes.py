@@ -6,7 +6,8 @@ from typing import Any
 import numpy as np
 
 from ..errors import ConfigError
-from ..forces.springs.spectrum import omega_max_bound
+from ..forces.springs.spectrum import damping_rate_bound, omega_max_bound
+from ..integrators.symplectic import SymplecticEuler
 from ..memory import Size
 from . import cloth as topo
 from .builder import SceneBuilder
@@ -252,12 +253,15 @@ def build_cloth(preset: ScenePreset, p: dict[str, Any], seed: int) -> Scene:
 
 
 def explicit_step(arrays, dt: float) -> float:
-    """``dt`` (s), or EXPLICIT_STEP_SHARE of the explicit stable step 2 / omega_max (the
-    Gershgorin bound of the scene's ``arrays``), rounded down, where that is shorter."""
-    omega = omega_max_bound(arrays)
-    if omega > 0 and dt > EXPLICIT_STEP_SHARE * 2.0 / omega:
-        return round_down(EXPLICIT_STEP_SHARE * 2.0 / omega)
-    return dt
+    """``dt`` (s), or EXPLICIT_STEP_SHARE of symplectic Euler's stable step, rounded down, where
+    that is shorter: 2 / omega_max undamped, less where dashpots and drag damp strongly (a fine
+    grid's light particles), from the Gershgorin bounds of the scene's ``arrays``
+    (:meth:`SymplecticEuler.damped_limit`)."""
+    omega, gamma = omega_max_bound(arrays), damping_rate_bound(arrays)
+    if omega <= 0 and gamma <= 0:
+        return dt
+    limit = EXPLICIT_STEP_SHARE * SymplecticEuler.damped_limit(omega, gamma)
+    return round_down(limit) if dt > limit else dt
 
 
 def round_down(value: float, digits: int = 2) -> float:

@@ -1,0 +1,102 @@
+"""Explicit steps are limited by damping too: the damped-oscillator limits of symplectic Euler
+and the Runge-Kutta methods, the predictions that use them, and the default steps that follow."""
+import math
+
+import numpy as np
+import pytest
+
+import taichi_sim as ts
+from taichi_sim import theory
+from taichi_sim.app.session import Session
+from taichi_sim.cli import main
+from taichi_sim.integrators import integrator_class
+from taichi_sim.theory import damped_step_limit, stable_step_advice
+
+OMEGA, GAMMA = 500.0, 3000.0  # rad/s, 1/s: damping strong enough to set the limit
+
+
+def symplectic_growth(h, omega, gamma, steps=4000):
+    """|x| + |v| / omega after ``steps`` steps of symplectic Euler from (1, 0)."""
+    x, v = 1.0, 0.0
+    for _ in range(steps):
+        v += h * (-omega * omega * x - gamma * v)
+        x += h * v
+    return abs(x) + abs(v) / omega
+
+
+def rk_growth(name, h, omega, gamma, steps=4000):
+    """|y| after ``steps`` of the method's stability polynomial applied to the 2 x 2 system."""
+    poly = integrator_class(name).tableau.stability_polynomial()
+    a = np.array([[0.0, 1.0], [-omega * omega, -gamma]])
+    step = sum(c * np.linalg.matrix_power(h * a, k) for k, c in enumerate(poly))
+    y = np.linalg.matrix_power(step, steps) @ np.array([1.0, 0.0])
+    return abs(y[0]) + abs(y[1]) / omega
+
+
+@pytest.mark.parametrize("omega, gamma", [(OMEGA, GAMMA), (OMEGA, 10.0), (0.0, GAMMA), (OMEGA, 0.0)])
+def test_symplectic_euler_is_stable_just_below_its_damped_limit_and_not_above(omega, gamma):
+    limit = integrator_class("symplectic_euler").damped_limit(omega, gamma)
+    if gamma == 0:
+        assert limit == pytest.approx(2.0 / omega)
+    assert symplectic_growth(0.99 * limit, max(omega, 1e-9), gamma) < 100.0  # bounded (eccentric near the limit)
+    assert not symplectic_growth(1.02 * limit, max(omega, 1e-9), gamma) < 1e3  # (or overflowed)
+
+
+@pytest.mark.parametrize("name", ["rk4"])
+def test_rk4_is_stable_just_below_its_damped_limit_and_not_above(name):
+    cls = integrator_class(name)
+    assert cls.damped_limit(OMEGA, 0.0) == pytest.approx(cls.stability_constant / OMEGA, rel=1e-6)
+    limit = cls.damped_limit(OMEGA, GAMMA)
+    assert limit < 0.5 * cls.stability_constant / OMEGA  # the damping sets it here
+    assert rk_growth(name, 0.99 * limit, OMEGA, GAMMA) < 100.0
+    assert not rk_growth(name, 1.02 * limit, OMEGA, GAMMA) < 1e3
+
+
+def test_without_a_stated_damped_limit_the_undamped_one_stands():
+    assert integrator_class("implicit_euler").damped_limit(OMEGA, GAMMA) is None
+    assert damped_step_limit("symplectic_euler", OMEGA, 0.0) == pytest.approx(2.0 / OMEGA)
+    # the least over damping rates up to the bound: never above the undamped limit
+    assert damped_step_limit("rk4", OMEGA, 50.0) <= integrator_class("rk4").stability_constant / OMEGA * (1 + 1e-9)
+
+
+def test_a_strongly_damped_cloth_gets_a_step_that_runs_and_an_advice_that_brackets_it(f32, tmp_path, capsys):
+    # 12 dashpots of 5 N s/m on 10 g particles: gamma_max about 5000 /s, which limits
+    # symplectic Euler to about 0.39 ms where the springs alone allow 3.7 ms
+    scene = ts.build_scene("cloth", {"damping": 5.0})
+    assert scene.default_dt < 3.9e-4
+    advice = stable_step_advice(scene, "symplectic_euler")
+    predicted = float(advice.split("here: ")[1].split(" s")[0])
+    assert 3.5e-4 < predicted < 4.1e-4, advice  # measured: 0.39 ms runs, 0.41 ms diverges
+    assert "dashpots" in advice
+    ts.init(arch="cpu", precision="f32")
+    assert main(["simulate", "cloth", "--set", "damping=5", "--t-end", "0.1", "--quiet",
+                 "--out", str(tmp_path / "damped.npz")]) == 0
+    assert "using its" in capsys.readouterr().err
+    ts.init(arch="cpu", precision="f32")
+    assert main(["simulate", "cloth", "--set", "damping=5", "--dt", "0.00044", "--t-end", "0.1", "--quiet",
+                 "--out", str(tmp_path / "past.npz")]) != 0
+    assert "exceeds the predicted stable step" in capsys.readouterr().err
+
+
+def test_the_launcher_takes_a_fine_cloths_own_default_step(f32):
+    session = Session("cloth", ["symplectic_euler"], params={"nx": 96, "ny": 96})
+    assert session.dt == session.runners[0].scene.default_dt < 1e-3
+    session.set_dt(2e-4)
+    assert not session.follow_default_dt
+    assert math.isclose(session.dt, 2e-4)
+
+
+def test_a_large_scenes_messages_take_the_bounds_without_iterating(f32, monkeypatch):
+    scene = ts.build_scene("cloth", {"damping": 5.0})  # 1024 particles
+    monkeypatch.setattr(theory, "POWER_PARTICLES", 1000)
+
+    def no_iteration(*args, **kwargs):
+        raise AssertionError("power iteration on a scene above POWER_PARTICLES")
+
+    monkeypatch.setattr(theory, "omega_max_power", no_iteration)
+    advice = stable_step_advice(scene, "symplectic_euler")
+    predicted = float(advice.split("here: ")[1].split(" s")[0])
+    bound = integrator_class("symplectic_euler").damped_limit(theory.omega_max_bound(scene.arrays),
+                                                              theory.damping_rate_bound(scene.arrays))
+    assert "Gershgorin bounds" in advice and predicted == pytest.approx(bound, rel=2e-3)
+    assert "Gershgorin bounds" in theory.stability_warning(scene, "symplectic_euler", 1e-3)
