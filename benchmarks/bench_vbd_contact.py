@@ -12,6 +12,7 @@ medians over the steps after the first two (compiling). Timings depend on the ma
 """
 import argparse
 import statistics
+import sys
 import time
 
 import taichi as ti
@@ -59,6 +60,9 @@ def run(n: int, t_end: float, integrator: str, dt: float | str, options: dict, p
         stepper.step()
         if stepper.failure is not None:
             return {"name": name, "failure": stepper.failure.message, "steps": k}
+        if (k + 1) % 60 == 0:  # a run cut short still says how far it got
+            print(f"  {name}: {k + 1} of {count} steps, {time.perf_counter() - wall:.1f} s (checks "
+                  f"{check_time:.1f} s), {bad_frames} intersecting", file=sys.stderr, flush=True)
         top = max(top, scene.energy())
         start = time.perf_counter()
         x = scene.state.to_numpy()[0]
@@ -95,8 +99,9 @@ def main() -> None:
                         help="a vbd option, e.g. bound_fraction=0.49 or self_contact=0 (repeatable)")
     parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                         help="a scene parameter, e.g. self_collision=0 (repeatable)")
+    parser.add_argument("--arch", choices=("cpu", "gpu"), default="cpu")
     args = parser.parse_args()
-    ts.init(arch="cpu", precision="f32")
+    ts.init(arch=args.arch, precision="f32")
     params = {} if args.contact_radius is None else {"thickness": args.contact_radius}
     if args.jitter is not None:
         params["jitter"] = args.jitter
@@ -120,7 +125,7 @@ def main() -> None:
               f"| {r['refresh_ms']:.3g} | {r['solve_ms']:.3g} | {r['events_ms']:.3g} | {r['bad_frames']} of {r['steps']} "
               f"| {r['energy_max']:.4g} / {r['energy0']:.4g} "
               f"| {'-' if r['height'] is None else format(r['height'], '.3f')} |")
-    print("load average:", open("/proc/loadavg").read().split()[:3])
+    print("load average:", open("/proc/loadavg").read().split()[:3], "backend:", ts.runtime.backend())
 
 
 if __name__ == "__main__":
