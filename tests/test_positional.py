@@ -250,3 +250,14 @@ def test_bench_stiff_cloth_writes_its_study(tmp_path, capsys):
     assert len(details["damping"]) == 3 and details["references"]["10000.0"]["method"] == "symplectic_euler"
     assert (tmp_path / "stiff-cloth.png").stat().st_size > 0
     assert main(["bench", "stiff-cloth", "--size", "1", "--out", str(tmp_path)]) == 2
+
+
+@pytest.mark.long
+def test_a_fine_stiff_cloth_that_xpbd_leaves_unsolved_is_told_to_raise_iterations(tmp_path, capsys):
+    """cloth-stiff at 96 x 96: xpbd's 20 iterations a step leave the springs unsolved, the
+    corners stretch past 100 % and the guard stops the run; with 40 it runs (measured
+    2026-11-27). The failure names the fix, not only a step size."""
+    args = ["simulate", "cloth-stiff", "--set", "nx=96", "--set", "ny=96", "--t-end", "0.3", "--quiet"]
+    assert main([*args, "--out", str(tmp_path / "a.npz")]) != 0
+    assert "raise --iterations" in capsys.readouterr().err
+    assert main([*args, "--iterations", "40", "--out", str(tmp_path / "b.npz")]) == 0
