@@ -93,7 +93,7 @@ def main() -> None:
     backend = str(ti.lang.impl.current_cfg().arch)
     reference = None
     if args.reference is not None:
-        ref_path = next(args.reference.glob("arch-*.npz"))
+        ref_path = args.reference / "arch-cpu.npz"
         reference = dict(np.load(ref_path))
     rows, positions = [], {}
     meta = {"arch": args.arch, "backend": backend, "machine": platform.processor() or platform.machine(),

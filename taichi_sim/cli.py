@@ -115,7 +115,7 @@ def cmd_simulate(args) -> int:
     from .scene import build_scene, scene_preset
     from .scene.params import resolve
     from .scene.presets import check_scene_memory
-    from .theory import stability_warning
+    from .theory import stability_warning, step_limited
 
     preset = scene_preset(args.scene)
     if args.steps is None and args.t_end is None:
@@ -156,12 +156,15 @@ def cmd_simulate(args) -> int:
 
     runtime.init(arch=args.arch, precision=args.precision)
     scene = build_scene(args.scene, params, seed=args.seed)
-    if args.dt is None and not adaptive and scene.default_dt < dt:
-        # a fine cloth's particles are light: its stable step is shorter than the preset's
-        print(f"taichi-sim: the default step {dt:g} s is past this scene's stable step: using its "
-              f"{scene.default_dt:g} s (give --dt to choose)", file=sys.stderr)
+    if args.dt is None and not adaptive and scene.default_dt < dt and step_limited(integrator_name):
+        # a fine cloth's particles are light: its explicit stable step is shorter than the preset's
+        print(f"taichi-sim: the default step {dt:g} s is past this scene's stable step for an explicit "
+              f"method: using its {scene.default_dt:g} s (give --dt to choose)", file=sys.stderr)
         dt = scene.default_dt
         _check_step_count(args.steps, dt, args.t_end, planned_steps)
+        if args.save_every:
+            _check_history_memory(preset, resolve(preset.params, preset.name, params), args.save_every,
+                                  args.steps if args.steps is not None else planned_steps(dt, args.t_end))
     if adaptive and scene.post_step and "max_step" not in options:
         options["max_step"] = 10 * preset.default_dt  # events act only between steps
     integrator = create_integrator(integrator_name, scene.system, **options)

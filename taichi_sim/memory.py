@@ -29,10 +29,16 @@ MAX_INDEX = 2**31 - 1
 # mass and flags. A spring: numpy ends, kinds, rest lengths and their temporaries; Taichi's
 # ends, gather lists, rest length, stiffness, damping, tearing, and the force buffer of a
 # whole-system evaluation (3 reals; the grid stencil's slots hold 3 parameters and 3 force
-# components instead). A triangle: numpy and Taichi
-# vertex ids and the per-particle incidence lists.
+# components instead). A triangle: numpy and Taichi vertex ids and the per-particle
+# incidence lists.
 _PARTICLE_FIXED, _PARTICLE_REALS = 200, 14
 _SPRING_FIXED, _SPRING_REALS = 230, 10
+# The power iteration that sharpens a scene's default step or a message's prediction runs on
+# scenes of at most POWER_PARTICLES particles (above, minutes: the Gershgorin bounds instead);
+# on top of the build's numpy peak it adds about 130 bytes a spring (its own peak is about
+# 210: spectrum.explicit_default_step at 64 x 64 and 128 x 128, 2026-11-27).
+POWER_PARTICLES = 100_000
+_POWER_SPRING = 130
 _TRIANGLE_FIXED, _TRIANGLE_REALS = 80, 2
 
 
@@ -53,7 +59,8 @@ def estimate_bytes(size: Size, *, precision: str = "f64", integrators: tuple = (
     callers name them: this module sits below the integrators."""
     r = 4 if precision == "f32" else 8
     n, s, t = size.particles, size.springs, size.triangles
-    total = copies * (n * (_PARTICLE_FIXED + _PARTICLE_REALS * r) + s * (_SPRING_FIXED + _SPRING_REALS * r)
+    spring = _SPRING_FIXED + _SPRING_REALS * r + (_POWER_SPRING if n <= POWER_PARTICLES else 0)
+    total = copies * (n * (_PARTICLE_FIXED + _PARTICLE_REALS * r) + s * spring
                       + t * (_TRIANGLE_FIXED + _TRIANGLE_REALS * r))
     for method in integrators:
         total += method.scratch_bytes(n, s, r, linear_solver)

@@ -42,7 +42,16 @@ from typing import Mapping
 
 import numpy as np
 
-from .forces.springs.spectrum import damping_rate_bound, omega_max_bound, spring_network  # noqa: F401 (theory's API)
+from .forces.springs.spectrum import (  # noqa: F401 (theory's API)
+    StiffnessOperator,
+    damping_rate_bound,
+    damping_rate_power,
+    explicit_default_step,
+    omega_max_bound,
+    omega_max_power,
+    spring_network,
+)
+from .memory import POWER_PARTICLES
 
 
 def method_class(method):
@@ -79,20 +88,32 @@ def predicted_limit(name, omega_max: float | None, gamma_max: float = 0.0) -> fl
     return damped_step_limit(name, omega_max, gamma_max)
 
 
+def step_limited(name) -> bool:
+    """Whether integrator ``name`` has a finite, positive stable step (0 < C < inf): the
+    explicit methods a scene's default step is made for (not the implicit, positional or
+    adaptive ones, nor those that grow at every step)."""
+    c = stability_constant(name)
+    return c is not None and 0.0 < c < math.inf
+
+
 def damped_step_limit(name, omega: float, gamma: float) -> float:
     """The largest stable step (s) of a method with 0 < C < inf for modes up to ``omega``
-    (rad/s) damped at rates up to ``gamma`` (1/s): its ``damped_limit``, the least over damping
-    rates 0, gamma / 4, gamma / 2 and gamma (damping can widen a Runge-Kutta method's limit,
-    and a mode may have any damping up to the bound), or C / omega when it states none. Takes
-    omega_max and gamma_max together, as one mode, which no mode exceeds in either."""
+    (rad/s) damped at rates up to ``gamma`` (1/s): the least of its ``damped_limit`` over a
+    5 x 5 grid of (omega', gamma') in [0, omega] x [0, gamma], or C / omega when it states none.
+    A mode may have any stiffness and damping up to the bounds, and a Runge-Kutta method's limit
+    does not shrink with both: damping widens it near the imaginary axis, and a slow, strongly
+    damped mode (drag damps every mode alike) is limited near 2.785 / gamma for RK4, below what
+    the fastest mode with that damping allows. Symplectic Euler's shrinks with both, so for it
+    the grid's least is the corner (omega, gamma)."""
     cls = method_class(name)
     undamped = cls.stability_constant / omega if omega > 0 else math.inf
     if gamma <= 0:
         return undamped
-    limits = [cls.damped_limit(omega, g) for g in (0.0, 0.25 * gamma, 0.5 * gamma, gamma)]
+    shares = (0.0, 0.25, 0.5, 0.75, 1.0)
+    limits = [cls.damped_limit(a * omega, b * gamma) for a in shares for b in shares if a or b]
     if any(limit is None for limit in limits):
         return undamped
-    return min(limits)
+    return min(undamped, *limits)
 
 
 def horizon_limit(name, omega: float, t_end: float, growth: float = 2.0) -> float | None:
@@ -118,67 +139,6 @@ def horizon_limit(name, omega: float, t_end: float, growth: float = 2.0) -> floa
     return lo
 
 
-class _StiffnessOperator:
-    """y = S p for S = W K W (module docstring), p and y of shape (n, 3), in numpy."""
-
-    def __init__(self, arrays: Mapping[str, np.ndarray], x: np.ndarray):
-        ends, k, rest, mass, free = spring_network(arrays)
-        x = np.asarray(x, float).reshape(len(mass), 3)
-        d = x[ends[:, 0]] - x[ends[:, 1]]
-        length = np.linalg.norm(d, axis=1)
-        live = length > 0  # a zero-length spring exerts no force: no stiffness
-        ends, k, rest, d, length = ends[live], k[live], rest[live], d[live], length[live]
-        self.u = d / length[:, None]
-        tau = np.maximum(1.0 - rest / length, 0.0)
-        # B_s w = k (tau w + (1 - tau) u (u . w)): no 3x3 blocks stored
-        self.k_tau, self.k_axial = k * tau, k * (1.0 - tau)
-        self.i, self.j = ends[:, 0], ends[:, 1]
-        self.weight = np.where(free, 1.0 / np.sqrt(mass), 0.0)
-        self.n = len(mass)
-        self.free = free
-
-    def __call__(self, p: np.ndarray) -> np.ndarray:
-        q = p * self.weight[:, None]
-        w = q[self.i] - q[self.j]
-        force = self.k_tau[:, None] * w + (self.k_axial * np.einsum("sa,sa->s", self.u, w))[:, None] * self.u
-        out = np.empty_like(q)
-        for c in range(3):
-            out[:, c] = np.bincount(self.i, force[:, c], self.n) - np.bincount(self.j, force[:, c], self.n)
-        return out * self.weight[:, None]
-
-
-def omega_max_power(arrays: Mapping[str, np.ndarray], x: np.ndarray, *, tol: float = 1e-12,
-                    max_iterations: int = 3000, seed: int = 0) -> tuple[float, dict]:
-    """omega_max (rad/s) by power iteration on S linearised at positions ``x`` ((n, 3), m).
-
-    Stops when the Rayleigh quotient changes by less than ``tol`` (relative) over 10 iterations,
-    or after ``max_iterations``. Returns (omega, info) with info = {"iterations", "change"}
-    (the last relative change of the eigenvalue estimate). The estimate never exceeds the true
-    value: an unconverged one predicts a slightly optimistic (too large) step.
-    """
-    op = _StiffnessOperator(arrays, x)
-    if len(op.i) == 0 or not op.free.any():
-        return 0.0, {"iterations": 0, "change": 0.0}
-    rng = np.random.default_rng(seed)
-    p = rng.standard_normal((op.n, 3)) * op.free[:, None]
-    p /= np.linalg.norm(p)
-    history = []
-    lam, change, it = 0.0, math.inf, 0
-    for it in range(1, max_iterations + 1):
-        y = op(p)
-        lam = float(np.vdot(p, y))  # Rayleigh quotient (|p| = 1)
-        norm = float(np.linalg.norm(y))
-        if norm == 0.0:
-            break
-        p = y / norm
-        history.append(lam)
-        if len(history) > 10:
-            change = abs(history[-1] - history[-11]) / max(abs(history[-1]), 1e-300)
-            if change < tol:
-                break
-    return math.sqrt(max(lam, 0.0)), {"iterations": it, "change": change}
-
-
 def omega_max_eigsh(arrays: Mapping[str, np.ndarray], x: np.ndarray) -> float | None:
     """omega_max by scipy's Lanczos (``eigsh``) on the same operator: an independent check of
     :func:`omega_max_power`; None without scipy."""
@@ -186,7 +146,7 @@ def omega_max_eigsh(arrays: Mapping[str, np.ndarray], x: np.ndarray) -> float | 
         from scipy.sparse.linalg import LinearOperator, eigsh
     except ImportError:
         return None
-    op = _StiffnessOperator(arrays, x)
+    op = StiffnessOperator(arrays, x)
     if len(op.i) == 0 or not op.free.any():
         return 0.0
     size = 3 * op.n
@@ -248,30 +208,16 @@ def stability_warning(scene, integrator_name, dt: float | None, *, power_iterati
 
 def scene_damping_rate(scene, method: str = "bound", power_iterations: int = 200) -> float:
     """gamma_max (1/s) of a built particle scene's dashpots and drag (0 for others): the
-    Gershgorin ``"bound"``, or by ``"power"`` iteration on W D W (the dashpots as springs of
-    stiffness c_s at their current length, so only their axial part acts), plus the largest
-    drag / m, at the initial positions. The bound sums the |c_s| of springs pointing every way,
-    about twice the sharp value on a grid cloth."""
+    Gershgorin ``"bound"``, or by ``"power"`` iteration (:func:`damping_rate_power`) at the
+    initial positions. The bound sums the |c_s| of springs pointing every way, about twice the
+    sharp value on a grid cloth."""
     if is_circle(scene) or not scene.system.second_order:
         return 0.0
     arrays = scene.arrays
     try:
         if method == "bound":
             return damping_rate_bound(arrays)
-        if "spring_damping" not in arrays or "springs" not in arrays or len(arrays["springs"]) == 0:
-            dashpots = 0.0
-        else:
-            ends = np.asarray(arrays["springs"], int).reshape(-1, 2)
-            x = np.asarray(scene.x0, float).reshape(-1, 3)
-            length = np.linalg.norm(x[ends[:, 0]] - x[ends[:, 1]], axis=1)
-            as_springs = dict(arrays, stiffness=np.broadcast_to(np.asarray(arrays["spring_damping"], float),
-                                                                (len(ends),)), rest_length=length)
-            root, _ = omega_max_power(as_springs, x, max_iterations=power_iterations, tol=1e-8)
-            dashpots = root * root
-        mass = np.asarray(arrays["mass"], float)
-        free = ~np.asarray(arrays["pinned"], bool)
-        drag = np.broadcast_to(np.asarray(arrays.get("drag", 0.0), float), mass.shape) / mass
-        return float(dashpots + (drag[free].max() if free.any() else 0.0))
+        return damping_rate_power(arrays, scene.x0, power_iterations)
     except (KeyError, ValueError):
         return 0.0
 
@@ -285,10 +231,9 @@ def _limit_terms(c: float, omega: float, gamma: float, limit: float) -> str:
     return f"C / omega_max = {c:.3g} / {omega:.4g} rad/s"
 
 
-# Above this many particles a message's prediction takes the Gershgorin bounds: power
-# iteration there takes minutes (a 1024 x 1024 cloth's failure message waited over two), and a
-# message must not hold up the run or the failure it explains.
-POWER_PARTICLES = 100_000
+# Above POWER_PARTICLES a message's prediction takes the Gershgorin bounds: power iteration
+# there takes minutes (a 1024 x 1024 cloth's failure message waited over two), and a message
+# must not hold up the run or the failure it explains.
 
 
 def _iterated(scene) -> bool:
@@ -324,7 +269,8 @@ def stable_step_advice(scene, name, *, power_iterations: int = 200) -> str:
         return ""
     if c == 0.0:
         others = [m for m in ("symplectic_euler", "rk4") if scene.system.second_order or m == "rk4"]
-        steps = ", ".join(f"{m} {stability_constant(m) / omega:.3g} s" for m in others)
+        gamma = scene_damping_rate(scene, "power" if _iterated(scene) else "bound", power_iterations)
+        steps = ", ".join(f"{m} {damped_step_limit(m, omega, gamma):.3g} s" for m in others)
         name = method_class(name).name
         return (f"{name} grows at every step on undamped oscillations (no stable step); predicted "
                 f"stable steps here (omega_max = {omega:.4g} rad/s): {steps}")

@@ -55,8 +55,14 @@ def test_rk4_is_stable_just_below_its_damped_limit_and_not_above(name):
 def test_without_a_stated_damped_limit_the_undamped_one_stands():
     assert integrator_class("implicit_euler").damped_limit(OMEGA, GAMMA) is None
     assert damped_step_limit("symplectic_euler", OMEGA, 0.0) == pytest.approx(2.0 / OMEGA)
-    # the least over damping rates up to the bound: never above the undamped limit
-    assert damped_step_limit("rk4", OMEGA, 50.0) <= integrator_class("rk4").stability_constant / OMEGA * (1 + 1e-9)
+    # A slow mode damped as hard as the fastest (drag damps every mode alike) limits RK4 at its
+    # real-axis reach, 2.785 / gamma, below what the fastest mode with that damping allows.
+    rk4 = integrator_class("rk4")
+    assert damped_step_limit("rk4", OMEGA, GAMMA) < rk4.damped_limit(OMEGA, GAMMA)
+    assert damped_step_limit("rk4", OMEGA, GAMMA) == pytest.approx(2.7853 / GAMMA, rel=1e-3)
+    # symplectic Euler's limit shrinks with both: its corner is its least
+    assert damped_step_limit("symplectic_euler", OMEGA, GAMMA) == pytest.approx(
+        integrator_class("symplectic_euler").damped_limit(OMEGA, GAMMA))
 
 
 def test_a_strongly_damped_cloth_gets_a_step_that_runs_and_an_advice_that_brackets_it(f32, tmp_path, capsys):
@@ -78,12 +84,23 @@ def test_a_strongly_damped_cloth_gets_a_step_that_runs_and_an_advice_that_bracke
     assert "exceeds the predicted stable step" in capsys.readouterr().err
 
 
-def test_the_launcher_takes_a_fine_cloths_own_default_step(f32):
+def test_the_launcher_takes_a_fine_cloths_own_default_step_for_explicit_methods_only(f32):
     session = Session("cloth", ["symplectic_euler"], params={"nx": 96, "ny": 96})
     assert session.dt == session.runners[0].scene.default_dt < 1e-3
     session.set_dt(2e-4)
     assert not session.follow_default_dt
     assert math.isclose(session.dt, 2e-4)
+    session.select_scene("cloth")  # back to the preset's defaults: 32 x 32 runs its 1 ms
+    assert session.follow_default_dt and session.dt == 1e-3
+    implicit = Session("cloth", ["implicit_euler"], params={"nx": 96, "ny": 96})
+    assert implicit.dt == 1e-3  # no stable step to keep: the preset's
+
+
+def test_simulate_keeps_the_presets_step_for_an_implicit_method(tmp_path, capsys):
+    assert main(["simulate", "cloth", "--set", "nx=96", "--set", "ny=96", "--integrator", "implicit_euler",
+                 "--steps", "1", "--quiet", "--out", str(tmp_path / "i.npz")]) == 0
+    assert "past this scene's stable step" not in capsys.readouterr().err
+    assert float(np.load(tmp_path / "i.npz")["dt"]) == 1e-3
 
 
 def test_a_large_scenes_messages_take_the_bounds_without_iterating(f32, monkeypatch):

@@ -21,6 +21,7 @@ from ..scene.params import Param, resolve
 from ..scene.scene import Scene
 from ..scene.visual import describe
 from ..stepper import check_dt
+from ..theory import step_limited
 from .pacing import Pacer, factor_text
 from .runner import Runner
 
@@ -144,8 +145,9 @@ class Session:
         runners = self._built.get(key)
         scenes = [r.scene for r in runners] if runners is not None else \
             [build_scene(self.scene_name, self.params, seed=self.seed) for _ in integrators]
-        if self.follow_default_dt:
-            self.dt = float(scenes[0].default_dt)
+        if self.follow_default_dt:  # the scene's explicit stable step where a panel needs one
+            preset_dt = scene_preset(self.scene_name).default_dt
+            self.dt = float(scenes[0].default_dt if any(step_limited(n) for n in integrators) else preset_dt)
         allowed = compatible_integrators(scenes[0], self.plugins)
         if fallback is not None:
             integrators = [n if n in allowed else fallback for n in integrators]

@@ -1,9 +1,8 @@
 """Symplectic (semi-implicit) Euler: v first, then x with the new v."""
 
-import math
-
 import taichi as ti
 
+from ..forces.springs.spectrum import symplectic_euler_limit
 from ..state import State, finite
 from ..systems.base import System
 from .base import Integrator, Status, StepReport
@@ -33,13 +32,8 @@ class SymplecticEuler(Integrator):
 
     @classmethod
     def damped_limit(cls, omega: float, gamma: float) -> float:
-        """On x'' = -omega^2 x - gamma x' a step maps (x, v) by a matrix with trace
-        2 - h gamma - h^2 omega^2 and determinant 1 - h gamma; both roots lie in the unit disc
-        (Jury) while h^2 omega^2 + 2 h gamma < 4, i.e. h < 4 / (gamma + sqrt(gamma^2 + 4 omega^2)):
-        2 / omega undamped, 2 / gamma for pure damping."""
-        if omega <= 0 and gamma <= 0:
-            return math.inf
-        return 4.0 / (gamma + math.sqrt(gamma * gamma + 4.0 * omega * omega))
+        """4 / (gamma + sqrt(gamma^2 + 4 omega^2)) (:func:`~taichi_sim.forces.springs.spectrum.symplectic_euler_limit`)."""
+        return symplectic_euler_limit(omega, gamma)
 
     def __init__(self, system: System):
         super().__init__(system)

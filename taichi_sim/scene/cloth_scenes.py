@@ -6,8 +6,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import ConfigError
-from ..forces.springs.spectrum import damping_rate_bound, omega_max_bound
-from ..integrators.symplectic import SymplecticEuler
+from ..forces.springs.spectrum import explicit_default_step
 from ..memory import Size
 from . import cloth as topo
 from .builder import SceneBuilder
@@ -248,26 +247,16 @@ def build_cloth(preset: ScenePreset, p: dict[str, Any], seed: int) -> Scene:
     scene = preset.finish(b, p, seed, drag=topo.grid_particle_drag(p))
     if preset.default_integrator in EXPLICIT_DEFAULTS:
         # a finer grid has lighter particles and a shorter stable step (2 / omega_max ~ 1 / n)
-        scene.default_dt = explicit_step(scene.arrays, scene.default_dt)
+        scene.default_dt = explicit_step(scene.arrays, scene.default_dt, scene.x0)
     return scene
 
 
-def explicit_step(arrays, dt: float) -> float:
+def explicit_step(arrays, dt: float, x=None) -> float:
     """``dt`` (s), or EXPLICIT_STEP_SHARE of symplectic Euler's stable step, rounded down, where
     that is shorter: 2 / omega_max undamped, less where dashpots and drag damp strongly (a fine
-    grid's light particles), from the Gershgorin bounds of the scene's ``arrays``
-    (:meth:`SymplecticEuler.damped_limit`)."""
-    omega, gamma = omega_max_bound(arrays), damping_rate_bound(arrays)
-    if omega <= 0 and gamma <= 0:
-        return dt
-    limit = EXPLICIT_STEP_SHARE * SymplecticEuler.damped_limit(omega, gamma)
-    return round_down(limit) if dt > limit else dt
-
-
-def round_down(value: float, digits: int = 2) -> float:
-    """``value`` (> 0) rounded down to ``digits`` significant digits (5.457e-4 -> 5.4e-4)."""
-    scale = 10.0 ** (math.floor(math.log10(value)) - digits + 1)
-    return float(f"{math.floor(value / scale) * scale:.{digits}g}")
+    grid's light particles); from the scene's ``arrays`` and, where the cheap bounds call ``dt``
+    too long, power iteration at positions ``x`` (:func:`~taichi_sim.forces.springs.spectrum.explicit_default_step`)."""
+    return explicit_default_step(arrays, x, dt, EXPLICIT_STEP_SHARE)
 
 
 def add_cloth_extras(b: SceneBuilder, p: dict[str, Any], seed: int, grab_mass: float) -> None:
