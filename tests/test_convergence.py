@@ -79,6 +79,7 @@ def test_implicit_euler_that_stops_early_is_not_converged(f64):
     assert result.status is Status.OK
 
 
+@pytest.mark.cpu_only  # projective_dynamics
 def test_projective_dynamics_with_few_iterations_warns_and_with_many_does_not(f64):
     # At k = 1e2 N/m local/global iterations converge (1000: 1e-10); at k = 1e6 they crawl
     # (1000 iterations still leave 0.5-0.7 of the forces unbalanced: docs/implicit.md).

@@ -38,6 +38,7 @@ def set_stiffness(scene, k: float) -> None:
 
 
 @pytest.mark.parametrize("scene_name", ["pendulum", "cloth"])
+@pytest.mark.cpu_only  # the direct solver
 def test_backward_euler_energy_never_rises(f64, scene_name):
     # Gravity and springs only (a conservative scene), released from rest: h^2 k / m spans 3 to
     # 1e10, far past any explicit limit. Each step may only lower the energy; the allowance is
@@ -68,6 +69,7 @@ def test_iterates_that_raise_the_energy_are_not_accepted(f64):
     assert np.max(np.diff(trace)) <= 1e-10 * (np.abs(trace).max() + 1.0)
 
 
+@pytest.mark.cpu_only  # the direct solver
 def test_a_step_newton_cannot_solve_is_split(f64):
     # A 10-particle chain of k = 1e8 N/m released horizontally, h = 1 s: Newton cannot swing the
     # near-rigid chain down in one step within 50 iterations, so the step is taken in pieces. With

@@ -17,6 +17,7 @@ LINEARISED = "implicit_euler_linearised"
 STIFF_CLOTH = {"nx": 12, "ny": 12, "stiffness": 1e8, "shear_stiffness": 1e8, "flex_stiffness": 1e8}
 
 
+@pytest.mark.cpu_only  # the direct solver
 def test_direct_and_cg_agree_to_their_tolerances(f64):
     # One step from rest: the step solves A dv = b with b = h f0 (zero on pinned particles) and
     # A - M positive semi-definite, so |A^-1| <= 1/min(m). Two solutions with relative residuals
@@ -40,6 +41,7 @@ def test_direct_and_cg_agree_to_their_tolerances(f64):
     assert np.linalg.norm(velocities["cg"] - velocities["direct"]) <= bound
 
 
+@pytest.mark.cpu_only  # the direct solver
 def test_direct_solver_analyses_once_per_pattern_and_factorises_every_solve(f64):
     scene = ts.build_scene("cloth", {"nx": 8, "ny": 8})
     integrator = create_integrator(LINEARISED, scene.system, linear_solver="direct")
@@ -57,6 +59,7 @@ def test_direct_solver_analyses_once_per_pattern_and_factorises_every_solve(f64)
     assert (stats.analyze_count, stats.factorize_count) == (3, 7)
 
 
+@pytest.mark.cpu_only  # the direct solver
 def test_tearing_triggers_a_new_analysis_and_the_solve_stays_exact(f64):
     scene = ts.build_scene("cloth", {"nx": 8, "ny": 8, "tear": True, "tear_strain": 0.01, "stiffness": 50.0})
     springs = scene.system.term("springs")
@@ -71,6 +74,7 @@ def test_tearing_triggers_a_new_analysis_and_the_solve_stays_exact(f64):
     assert integrator.stats.analyze_count == len(versions) > 1
 
 
+@pytest.mark.cpu_only  # the direct solver
 def test_newton_keeps_one_analysis_over_many_steps_and_matches_cg(f64):
     # Exact backward Euler: several factorisations per step, one analysis for the whole run.
     params = {"nx": 8, "ny": 8, "stiffness": 1e4, "shear_stiffness": 1e4, "flex_stiffness": 1e4}

@@ -102,7 +102,8 @@ def test_bad_parameters_are_named(f64):
 
 
 @pytest.mark.long
-@pytest.mark.parametrize("integrator", ["implicit_euler", "projective_dynamics"])
+@pytest.mark.parametrize("integrator", ["implicit_euler",
+                                        pytest.param("projective_dynamics", marks=pytest.mark.cpu_only)])
 def test_a_32_cloth_folds_300_frames_at_one_step_a_frame_without_intersecting(f32, integrator):
     # frame-sized steps (h = 1/60 s) move vertices by centimetres, several times the thickness:
     # only the continuous detection and the impact zones keep this clean (the contact rounds alone

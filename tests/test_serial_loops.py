@@ -27,7 +27,7 @@ def test_the_choice_depends_on_the_backend_the_threads_and_the_size(monkeypatch)
 
 @pytest.mark.parametrize("integrator,wind", [
     ("symplectic_euler", True), ("symplectic_euler", False), ("rk4", True), ("rk4", False),
-    ("euler", False), ("xpbd", True), ("projective_dynamics", True)])
+    ("euler", False), ("xpbd", True), pytest.param("projective_dynamics", True, marks=pytest.mark.cpu_only)])
 def test_serial_and_parallel_loops_give_the_same_trajectory_bit_for_bit(f64, monkeypatch, integrator, wind):
     """No loop that runs serial for small systems reduces into a shared value or reads what
     another iteration writes, so the order of its iterations cannot change a bit; nor do the
