@@ -25,10 +25,8 @@ import numpy as np
 import taichi as ti
 
 import taichi_sim as ts
-from taichi_sim.scene.cloth_scenes import explicit_step
 
-# name, scene, parameters, integrator, options, dt (s, or "explicit": 1e-4 s or 0.9 of the stable
-# step where that is less), steps per batch, contact (chaotic)
+# name, scene, parameters, integrator, options, dt (s), steps per batch, contact (chaotic)
 CASES = [
     ("symplectic 256", "cloth", {"nx": 256, "ny": 256}, "symplectic_euler", {}, 1e-4, 200, False),
     ("symplectic 512", "cloth", {"nx": 512, "ny": 512}, "symplectic_euler", {}, 1e-4, 100, False),
@@ -48,8 +46,6 @@ CASES = [
 def run_case(case, repeats: int) -> tuple[dict, np.ndarray]:
     name, scene_name, params, integrator, options, dt, batch, contact = case
     scene = ts.build_scene(scene_name, dict(params))
-    if dt == "explicit":
-        dt = explicit_step(scene.arrays, 1e-4)
     method = ts.create_integrator(integrator, scene.system, **options)
     stepper = ts.Stepper(scene, method, dt)
     start = time.perf_counter()

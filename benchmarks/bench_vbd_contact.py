@@ -20,7 +20,6 @@ import taichi as ti
 import taichi_sim as ts
 from taichi_sim.geometry import self_intersections
 from taichi_sim.integrators import parse_options
-from taichi_sim.scene.cloth_scenes import explicit_step
 
 PACE_TIME = 0.5  # s: by then a free fold has collapsed (32 x 32, symplectic Euler at 1 ms: 0.04 m from 0.6)
 
@@ -37,11 +36,12 @@ def timed(fn, bucket: list):
 
 
 def run(n: int, t_end: float, integrator: str, dt: float | str, options: dict, params: dict) -> dict:
-    """One run of `cloth-fold` at n x n for t_end s; dt in s, or "explicit" for symplectic Euler's step."""
+    """One run of `cloth-fold` at n x n for t_end s; dt in s, or "default" for the scene's (symplectic
+    Euler's: 1 ms, less on fine grids)."""
     scene = ts.build_scene("cloth-fold", {"nx": n, "ny": n, **params})
     name = integrator
-    if dt == "explicit":  # symplectic Euler's step on a cloth preset: 1 ms, less on fine grids
-        dt = explicit_step(scene.arrays, 1e-3)
+    if dt == "default":
+        dt = scene.default_dt
     method = ts.create_integrator(name, scene.system, **options)
     steps, events, refresh = [], [], []
     method.step = timed(method.step, steps)
@@ -110,7 +110,7 @@ def main() -> None:
     rows = [run(args.n, args.t_end, "vbd", 1 / 60,
                 {"iterations": args.iterations, "substeps": args.substeps, **options}, params)]
     if args.base_t_end > 0:
-        rows.append(run(args.n, args.base_t_end, "symplectic_euler", "explicit", {}, params))
+        rows.append(run(args.n, args.base_t_end, "symplectic_euler", "default", {}, params))
     for row in rows:
         print(row)
     print()

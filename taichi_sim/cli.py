@@ -136,23 +136,28 @@ def cmd_simulate(args) -> int:
     adaptive = check_options(integrator_name, options).adaptive
     dt = args.dt if args.dt is not None or adaptive else preset.default_dt
     check_run_args(dt, args.steps, args.t_end, adaptive=adaptive)
-    _check_step_count(args.steps, dt, args.t_end, planned_steps)
     if args.energy_every is not None and args.energy_every < 0:
         raise ConfigError(f"--energy-every must be >= 0, got {args.energy_every}")
     if args.save_every is not None and args.save_every < 1:
         raise ConfigError(f"--save-every must be >= 1, got {args.save_every}")
     check_max_residual(args.max_residual)
     params = scene_assignments(args.assignments)
+    resolved = resolve(preset.params, preset.name, params)
+
+    def check_planned(dt):
+        """The step count and the saved frames' memory at step ``dt`` (s; None: adaptive)."""
+        _check_step_count(args.steps, dt, args.t_end, planned_steps)
+        if args.save_every:
+            _check_history_memory(preset, resolved, args.save_every,
+                                  args.steps if args.steps is not None else
+                                  (planned_steps(dt, args.t_end) if dt is not None else None))
+
+    check_planned(dt)
     limits = GuardLimits() if args.max_energy_growth is None else GuardLimits(energy_growth=args.max_energy_growth)
     io.check_output_path(args.out)
-    check_scene_memory(preset, resolve(preset.params, preset.name, params), precision=args.precision,
-                       integrators=(integrator_class(integrator_name),),
+    check_scene_memory(preset, resolved, precision=args.precision, integrators=(integrator_class(integrator_name),),
                        linear_solver=options.get("linear_solver") or "cg")
     curves = _load_curves(args, preset)
-    if args.save_every:
-        _check_history_memory(preset, resolve(preset.params, preset.name, params), args.save_every,
-                              args.steps if args.steps is not None else
-                              (planned_steps(dt, args.t_end) if dt is not None else None))
 
     runtime.init(arch=args.arch, precision=args.precision)
     scene = build_scene(args.scene, params, seed=args.seed)
@@ -161,10 +166,7 @@ def cmd_simulate(args) -> int:
         print(f"taichi-sim: the default step {dt:g} s is past this scene's stable step for an explicit "
               f"method: using its {scene.default_dt:g} s (give --dt to choose)", file=sys.stderr)
         dt = scene.default_dt
-        _check_step_count(args.steps, dt, args.t_end, planned_steps)
-        if args.save_every:
-            _check_history_memory(preset, resolve(preset.params, preset.name, params), args.save_every,
-                                  args.steps if args.steps is not None else planned_steps(dt, args.t_end))
+        check_planned(dt)
     if adaptive and scene.post_step and "max_step" not in options:
         options["max_step"] = 10 * preset.default_dt  # events act only between steps
     integrator = create_integrator(integrator_name, scene.system, **options)

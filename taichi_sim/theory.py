@@ -32,8 +32,8 @@ states its limit on the damped oscillator (``damped_limit``: symplectic Euler in
 explicit Runge-Kutta methods from their stability polynomial) the prediction takes gamma_max,
 the largest eigenvalue of M^-1 D for the dashpots' and drag's damping matrix D, with omega_max
 (:func:`damped_step_limit`): by power iteration in ``advise`` and the messages
-(:func:`scene_damping_rate`), the Gershgorin bound (:func:`damping_rate_bound`) for a scene's
-default step. Wind is left out. The circle ODE (``simple``) has omega = 1.
+(:func:`scene_damping_rate`); a cloth preset's default step takes the Gershgorin bounds and,
+where they call it too long, power iteration (:func:`explicit_default_step`). Wind is left out. The circle ODE (``simple``) has omega = 1.
 """
 from __future__ import annotations
 
@@ -196,13 +196,12 @@ def stability_warning(scene, integrator_name, dt: float | None, *, power_iterati
     omega = _omega_power(scene, power_iterations)
     if not omega:
         return None
-    gamma = scene_damping_rate(scene, "power" if _iterated(scene) else "bound", power_iterations)
+    gamma = _gamma(scene, power_iterations)
     limit = damped_step_limit(integrator_name, omega, gamma)
     if dt <= limit:
         return None
-    bounds = "" if _iterated(scene) else ", Gershgorin bounds"
     return (f"dt = {dt:g} s exceeds the predicted stable step {limit:.3g} s of "
-            f"{method_class(integrator_name).name} here ({_limit_terms(c, omega, gamma, limit)}{bounds}; "
+            f"{method_class(integrator_name).name} here ({_limit_terms(scene, c, omega, gamma, limit)}; "
             "see taichi-sim advise); expect divergence")
 
 
@@ -222,22 +221,26 @@ def scene_damping_rate(scene, method: str = "bound", power_iterations: int = 200
         return 0.0
 
 
-def _limit_terms(c: float, omega: float, gamma: float, limit: float) -> str:
+def _limit_terms(scene, c: float, omega: float, gamma: float, limit: float) -> str:
     """How a predicted limit came about, for a message."""
     undamped = c / omega
+    terms = f"C / omega_max = {c:.3g} / {omega:.4g} rad/s"
     if limit < undamped * (1 - 1e-9):
-        return (f"C / omega_max = {c:.3g} / {omega:.4g} rad/s = {undamped:.3g} s undamped, shortened by "
-                f"dashpots and drag damping at up to {gamma:.4g} /s")
-    return f"C / omega_max = {c:.3g} / {omega:.4g} rad/s"
-
-
-# Above POWER_PARTICLES a message's prediction takes the Gershgorin bounds: power iteration
-# there takes minutes (a 1024 x 1024 cloth's failure message waited over two), and a message
-# must not hold up the run or the failure it explains.
+        terms += (f" = {undamped:.3g} s undamped, shortened by dashpots and drag damping at up to "
+                  f"{gamma:.4g} /s")
+    return terms if _iterated(scene) else terms + ", Gershgorin bounds"
 
 
 def _iterated(scene) -> bool:
+    """Whether a message's prediction may take power iteration: at most POWER_PARTICLES
+    particles. Above, it takes minutes (a 1024 x 1024 cloth's failure message waited over two),
+    and a message must not hold up the run or the failure it explains: the Gershgorin bounds."""
     return scene.system.particle_count <= POWER_PARTICLES
+
+
+def _gamma(scene, power_iterations: int) -> float:
+    """gamma_max (1/s) for a message: power iteration, or the bound above POWER_PARTICLES."""
+    return scene_damping_rate(scene, "power" if _iterated(scene) else "bound", power_iterations)
 
 
 def _omega_power(scene, power_iterations: int) -> float | None:
@@ -269,13 +272,13 @@ def stable_step_advice(scene, name, *, power_iterations: int = 200) -> str:
         return ""
     if c == 0.0:
         others = [m for m in ("symplectic_euler", "rk4") if scene.system.second_order or m == "rk4"]
-        gamma = scene_damping_rate(scene, "power" if _iterated(scene) else "bound", power_iterations)
+        gamma = _gamma(scene, power_iterations)
         steps = ", ".join(f"{m} {damped_step_limit(m, omega, gamma):.3g} s" for m in others)
         name = method_class(name).name
         return (f"{name} grows at every step on undamped oscillations (no stable step); predicted "
                 f"stable steps here (omega_max = {omega:.4g} rad/s): {steps}")
-    gamma = scene_damping_rate(scene, "power" if _iterated(scene) else "bound", power_iterations)
+    gamma = _gamma(scene, power_iterations)
     limit = damped_step_limit(name, omega, gamma)
-    terms = _limit_terms(c, omega, gamma, limit) + ("" if _iterated(scene) else ", Gershgorin bounds")
     name = method_class(name).name
-    return f"predicted stable step of {name} here: {limit:.3g} s ({terms}; see taichi-sim advise)"
+    return (f"predicted stable step of {name} here: {limit:.3g} s "
+            f"({_limit_terms(scene, c, omega, gamma, limit)}; see taichi-sim advise)")

@@ -117,3 +117,22 @@ def test_a_large_scenes_messages_take_the_bounds_without_iterating(f32, monkeypa
                                                               theory.damping_rate_bound(scene.arrays))
     assert "Gershgorin bounds" in advice and predicted == pytest.approx(bound, rel=2e-3)
     assert "Gershgorin bounds" in theory.stability_warning(scene, "symplectic_euler", 1e-3)
+
+
+@pytest.mark.parametrize("name", ["rk4", "symplectic_euler"])
+def test_the_integrator_itself_runs_below_its_damped_limit_and_diverges_above(f64, name):
+    """The method's damped_limit against its own step on a strongly damped spring, one axial mode
+    (omega = 100 rad/s, gamma = 300 /s: the damping sets the limit), not against the formula it
+    came from. (A prediction for a scene takes the least over all modes the bounds allow, which
+    here is the undamped transverse mode's and a pure-damping one's: more cautious still.)"""
+    params = {"stiffness": 1e4, "particle_mass": 1.0, "damping": 300.0, "gravity": 0.0}
+    scene = ts.build_scene("spring", params)
+    omega = theory.scene_omega_max(scene, "power", max_iterations=2000, tol=1e-12)
+    gamma = theory.scene_damping_rate(scene, "power", 2000)
+    assert omega == pytest.approx(100.0) and gamma == pytest.approx(300.0)
+    limit = integrator_class(name).damped_limit(omega, gamma)
+    assert limit < 0.5 * integrator_class(name).stability_constant / omega
+    assert damped_step_limit(name, omega, gamma) <= limit
+    assert ts.run(scene, name, dt=0.97 * limit, t_end=4.0, energy_every=0).status.value == "ok"
+    scene = ts.build_scene("spring", params)
+    assert ts.run(scene, name, dt=1.05 * limit, t_end=4.0, energy_every=0).status.value == "diverged"

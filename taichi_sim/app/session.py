@@ -108,7 +108,7 @@ class Session:
         self.dt = float(dt if dt is not None else preset.default_dt)
         self._check_dt(self.dt)
         # without a step of its own the session takes each built scene's default: a fine cloth's
-        # stable step is shorter than its preset's (explicit_step)
+        # explicit stable step is shorter than its preset's (see _build)
         self.follow_default_dt = dt is None
         self.substeps = self._check_substeps(substeps)
         self.real_time = self.interactive

@@ -23,7 +23,8 @@ PIN_MODES = ("corners", "edge", "pole", "sides", "border", "none")
 GRID_DENSITY = topo.FIXED_PARTICLE_MASS * 32 * 32
 GRID_AREA_DRAG = topo.FIXED_PARTICLE_DRAG * 32 * 32
 # Presets whose default method is conditionally stable: their default step stays below this
-# share of 2 / omega_max's bound at any resolution (a finer grid's particles are lighter)
+# share of symplectic Euler's stable step at any resolution (a finer grid's particles are
+# lighter: spectrum.explicit_default_step)
 EXPLICIT_DEFAULTS = ("symplectic_euler",)
 EXPLICIT_STEP_SHARE = 0.9
 
@@ -246,17 +247,10 @@ def build_cloth(preset: ScenePreset, p: dict[str, Any], seed: int) -> Scene:
     add_cloth_extras(b, p, seed, mass)
     scene = preset.finish(b, p, seed, drag=topo.grid_particle_drag(p))
     if preset.default_integrator in EXPLICIT_DEFAULTS:
-        # a finer grid has lighter particles and a shorter stable step (2 / omega_max ~ 1 / n)
-        scene.default_dt = explicit_step(scene.arrays, scene.default_dt, scene.x0)
+        # a finer grid has lighter particles and a shorter stable step (omega_max ~ n, the
+        # dashpots' gamma_max ~ n^2)
+        scene.default_dt = explicit_default_step(scene.arrays, scene.x0, scene.default_dt, EXPLICIT_STEP_SHARE)
     return scene
-
-
-def explicit_step(arrays, dt: float, x=None) -> float:
-    """``dt`` (s), or EXPLICIT_STEP_SHARE of symplectic Euler's stable step, rounded down, where
-    that is shorter: 2 / omega_max undamped, less where dashpots and drag damp strongly (a fine
-    grid's light particles); from the scene's ``arrays`` and, where the cheap bounds call ``dt``
-    too long, power iteration at positions ``x`` (:func:`~taichi_sim.forces.springs.spectrum.explicit_default_step`)."""
-    return explicit_default_step(arrays, x, dt, EXPLICIT_STEP_SHARE)
 
 
 def add_cloth_extras(b: SceneBuilder, p: dict[str, Any], seed: int, grab_mass: float) -> None:
