@@ -16,6 +16,7 @@ os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "0")  # keep stdout for our 
 import numpy as np  # noqa: E402
 import taichi as ti  # noqa: E402
 
+from . import frontend_cache
 from .errors import ConfigError
 
 ARCHS = ("cpu", "gpu")
@@ -64,6 +65,7 @@ def init(arch: str = "cpu", precision: str = "f64", *, debug: bool = False,
                   log_level=ti.WARN, kernel_profiler=kernel_profiler)
     if cpu_max_num_threads is not None:
         kwargs["cpu_max_num_threads"] = int(cpu_max_num_threads)
+    frontend_cache.install()
     log = ""
     with contextlib.redirect_stdout(io.StringIO()):  # ti.init prints "Starting on arch=..."
         if arch == "gpu":

@@ -16,7 +16,7 @@ LAYERS = (
     ("stepping a state", {"integrators"}),
     ("what is simulated", {"scene", "forces", "systems", "state", "mesh", "memory"}),
     ("between steps", {"collide"}),
-    ("foundations", {"runtime", "errors", "loops", "atomic", "geometry", "part"}),
+    ("foundations", {"runtime", "frontend_cache", "errors", "loops", "atomic", "geometry", "part"}),
 )
 #: ``import taichi_sim`` gives the public face, which hands on run() and the Stepper.
 FACE_LAYER = "running a scene"

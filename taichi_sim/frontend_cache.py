@@ -1,0 +1,92 @@
+"""Remember two things Taichi's kernel frontend recomputes on every compile.
+
+Taichi 1.7 turns a kernel's Python source into its IR on every compile: once per kernel and
+template instance, again after every ``ti.init``, and once per call site for every ``ti.func``
+it inlines. Two steps of that work depend on the source alone, yet are repeated each time:
+
+- ``getsourcelines`` of each kernel and function (``inspect`` tokenises the whole definition),
+- the source-position text attached to every IR statement (``get_pos_info``: a few lines of the
+  source with a ``^^^`` marker under the node, wrapped by ``textwrap`` for error messages).
+
+The second alone was 40 % of a compile's time in a profile of an ``implicit_euler`` cloth step.
+:func:`install` wraps both in a dictionary keyed by what determines them (the function's code
+object; the node's file, position and enclosing function), so every answer is the one Taichi
+would have computed, and a kernel compiled again (a new scene, a new ``ts.init``, the next test)
+skips them. Nothing else of Taichi changes. It installs only on the Taichi release it was
+written against (1.7) and only where the functions it wraps exist; anywhere else it does
+nothing and compiles take their usual time.
+"""
+from __future__ import annotations
+
+import taichi as ti
+
+_INSTALLED = {"done": False}
+ORIGINALS: dict = {}
+"""Taichi's own functions, by name, once :func:`install` has wrapped them (for tests that
+compare the answers)."""
+
+
+def installed() -> bool:
+    """Whether :func:`install` wrapped Taichi's frontend in this process."""
+    return _INSTALLED["done"]
+
+
+def install() -> bool:
+    """Wrap Taichi's source lookup and position text in caches (once per process); returns
+    whether they are installed. Safe to call repeatedly."""
+    if _INSTALLED["done"]:
+        return True
+    if tuple(ti.__version__[:2]) != (1, 7):
+        return False
+    try:
+        from taichi.lang import kernel_impl
+        from taichi.lang.ast import ast_transformer_utils, checkers
+        context = ast_transformer_utils.ASTTransformerContext
+        lookups = (kernel_impl.getsourcelines, checkers.getsourcelines, context.get_pos_info)
+    except (ImportError, AttributeError):
+        return False
+    ORIGINALS.update(getsourcelines=lookups[0], get_pos_info=lookups[2])
+    source_lines = _remember_source_lines(lookups[0])
+    kernel_impl.getsourcelines = source_lines
+    checkers.getsourcelines = source_lines
+    context.get_pos_info = _remember_position_text(lookups[2])
+    _INSTALLED["done"] = True
+    return True
+
+
+def _remember_source_lines(getsourcelines):
+    """``getsourcelines(obj)`` answered once per code object: a function's source lines and
+    first line number are those of its code (closures made by one factory share them). Callers
+    copy the list before changing it (``kernel_impl._get_tree_and_ctx``) or read one number
+    (``checkers``)."""
+    known: dict = {}
+
+    def remembered(obj):
+        code = getattr(obj, "__code__", None)
+        if code is None:
+            return getsourcelines(obj)
+        answer = known.get(code)
+        if answer is None:
+            answer = known[code] = getsourcelines(obj)
+        return answer
+
+    return remembered
+
+
+def _remember_position_text(get_pos_info):
+    """``get_pos_info(context, node)`` answered once per source position: the text is built
+    from the file's name, the node's line and columns (shifted by the function's first line
+    and indent), the node's kind, and the enclosing function's name and source lines; the key
+    holds each of them except the source lines, which are fixed by the file and position."""
+    known: dict = {}
+
+    def remembered(context, node):
+        key = (context.file, context.lineno_offset, context.indent, context.func.func.__name__,
+               type(node), node.lineno, node.col_offset, getattr(node, "end_lineno", None),
+               getattr(node, "end_col_offset", None))
+        text = known.get(key)
+        if text is None:
+            text = known[key] = get_pos_info(context, node)
+        return text
+
+    return remembered
