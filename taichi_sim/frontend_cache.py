@@ -10,11 +10,12 @@ it inlines. Two steps of that work depend on the source alone, yet are repeated 
 
 The second alone was 40 % of a compile's time in a profile of an ``implicit_euler`` cloth step.
 :func:`install` wraps both in a dictionary keyed by what determines them (the function's code
-object; the node's file, position and enclosing function), so every answer is the one Taichi
-would have computed, and a kernel compiled again (a new scene, a new ``ts.init``, the next test)
-skips them. Nothing else of Taichi changes. It installs only on the Taichi release it was
-written against (1.7) and only where the functions it wraps exist; anywhere else it does
-nothing and compiles take their usual time.
+object, by identity; the node's position in it), so every answer is the one Taichi would have
+computed, also after a module is reloaded from an edited file, and a kernel compiled again (a
+new scene, a new ``ts.init``, the next test) skips them. Entries last as long as the process,
+one per code object and source position compiled. Nothing else of Taichi changes. It installs
+only on the Taichi release it was written against (1.7) and only where the functions it wraps
+exist; anywhere else it does nothing and compiles take their usual time.
 """
 from __future__ import annotations
 
@@ -56,37 +57,43 @@ def install() -> bool:
 
 def _remember_source_lines(getsourcelines):
     """``getsourcelines(obj)`` answered once per code object: a function's source lines and
-    first line number are those of its code (closures made by one factory share them). Callers
-    copy the list before changing it (``kernel_impl._get_tree_and_ctx``) or read one number
-    (``checkers``)."""
+    first line number are those of its code (closures made by one factory share it). The key
+    is the code object itself, by identity: equal code objects can come from different source
+    (code equality ignores the file name, comments and local annotations, which Taichi reads
+    from the source), and a reloaded module makes new ones. Each entry keeps its code object
+    alive, so its id is not reused. Callers copy the list before changing it
+    (``kernel_impl._get_tree_and_ctx``) or read one number (``checkers``)."""
     known: dict = {}
 
     def remembered(obj):
         code = getattr(obj, "__code__", None)
         if code is None:
             return getsourcelines(obj)
-        answer = known.get(code)
-        if answer is None:
-            answer = known[code] = getsourcelines(obj)
-        return answer
+        entry = known.get(id(code))
+        if entry is None or entry[0] is not code:
+            entry = known[id(code)] = (code, getsourcelines(obj))
+        return entry[1]
 
     return remembered
 
 
 def _remember_position_text(get_pos_info):
     """``get_pos_info(context, node)`` answered once per source position: the text is built
-    from the file's name, the node's line and columns (shifted by the function's first line
-    and indent), the node's kind, and the enclosing function's name and source lines; the key
-    holds each of them except the source lines, which are fixed by the file and position."""
+    from the enclosing function's source (its file, lines, first line and indent: fixed by its
+    code object, the key's first part, by identity as above), the function's name, the node's
+    kind and the node's lines and columns."""
     known: dict = {}
 
     def remembered(context, node):
-        key = (context.file, context.lineno_offset, context.indent, context.func.func.__name__,
-               type(node), node.lineno, node.col_offset, getattr(node, "end_lineno", None),
-               getattr(node, "end_col_offset", None))
-        text = known.get(key)
-        if text is None:
-            text = known[key] = get_pos_info(context, node)
-        return text
+        function = context.func.func
+        code = getattr(function, "__code__", None)
+        if code is None:
+            return get_pos_info(context, node)
+        key = (id(code), function.__name__, type(node), node.lineno, node.col_offset,
+               getattr(node, "end_lineno", None), getattr(node, "end_col_offset", None))
+        entry = known.get(key)
+        if entry is None or entry[0] is not code:
+            entry = known[key] = (code, get_pos_info(context, node))
+        return entry[1]
 
     return remembered

@@ -1,5 +1,11 @@
 """The frontend caches (taichi_sim/frontend_cache.py) give Taichi exactly the answers it would
 have computed itself, on the package's own kernels compiled twice."""
+import importlib
+import os
+import sys
+import time
+
+import pytest
 from taichi.lang.ast import ast_transformer_utils
 
 import taichi_sim as ts
@@ -29,22 +35,36 @@ def test_every_cached_answer_is_the_one_taichi_computes(monkeypatch):
     assert checked[0] > 1000 and not wrong, wrong[:1]
 
 
-def test_source_lines_are_taichis_for_every_kernel():
+def _write_module(folder, name, annotation, missing):
+    path = folder / f"{name}.py"
+    path.write_text("import taichi as ti\n\n\n@ti.kernel\ndef value() -> ti.f32:\n"
+                    f"    a: {annotation} = 0.7\n    return a\n\n\n"
+                    f"@ti.kernel\ndef broken():\n    x = {missing}\n")
+    # a later modification time than the cached bytecode's, whatever the clock's resolution
+    stamp = time.time() + 10 * (1 + len(list(folder.iterdir())))
+    os.utime(path, (stamp, stamp))
+    return path
+
+
+def test_kernels_with_equal_code_but_other_source_compile_their_own_source(tmp_path, monkeypatch):
+    """Code objects compare equal when only a local annotation (which Taichi reads from the
+    source) differs, and a reloaded module has new ones: neither may be given the source or
+    the error text of another."""
     ts.init(precision="f32")
-    scene = ts.build_scene("cloth", {"nx": 6, "ny": 6}, seed=1)
-    ts.run(scene, "vbd", dt=1e-3, t_end=2e-3)
-    from taichi.lang import kernel_impl
-    original = frontend_cache.ORIGINALS["getsourcelines"]
-    functions = [f for f in _taichi_functions() if getattr(f, "__code__", None) is not None]
-    assert len(functions) > 20
-    for function in functions:
-        assert kernel_impl.getsourcelines(function) == original(function)
+    _write_module(tmp_path, "fc_float", "ti.f32", "undefined_one")
+    _write_module(tmp_path, "fc_int", "ti.i32", "undefined_one")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.delitem(sys.modules, "fc_float", raising=False)
+    monkeypatch.delitem(sys.modules, "fc_int", raising=False)
+    as_float, as_int = importlib.import_module("fc_float"), importlib.import_module("fc_int")
+    assert as_float.value._primal.func.__code__ == as_int.value._primal.func.__code__
+    assert as_float.value() == pytest.approx(0.7) and as_int.value() == 0
+    with pytest.raises(Exception, match="undefined_one"):
+        as_float.broken()
 
-
-def _taichi_functions():
-    """The Python functions behind the package's kernels and ti.funcs."""
-    import gc
-
-    from taichi.lang.kernel_impl import Func, Kernel
-    return [obj.func for obj in gc.get_objects()
-            if isinstance(obj, (Kernel, Func)) and obj.func.__module__.startswith("taichi_sim")]
+    _write_module(tmp_path, "fc_float", "ti.i32", "undefined_two")  # edited, then reloaded
+    importlib.reload(as_float)
+    assert as_float.value() == 0
+    with pytest.raises(Exception) as error:
+        as_float.broken()
+    assert "x = undefined_two" in str(error.value) and "undefined_one" not in str(error.value)
