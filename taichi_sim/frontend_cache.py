@@ -21,21 +21,20 @@ from __future__ import annotations
 
 import taichi as ti
 
-_INSTALLED = {"done": False}
 ORIGINALS: dict = {}
-"""Taichi's own functions, by name, once :func:`install` has wrapped them (for tests that
-compare the answers)."""
+"""Taichi's own functions, by name, once :func:`install` has wrapped them (empty before; tests
+compare the answers with them)."""
 
 
 def installed() -> bool:
     """Whether :func:`install` wrapped Taichi's frontend in this process."""
-    return _INSTALLED["done"]
+    return bool(ORIGINALS)
 
 
 def install() -> bool:
     """Wrap Taichi's source lookup and position text in caches (once per process); returns
     whether they are installed. Safe to call repeatedly."""
-    if _INSTALLED["done"]:
+    if ORIGINALS:
         return True
     if tuple(ti.__version__[:2]) != (1, 7):
         return False
@@ -43,15 +42,15 @@ def install() -> bool:
         from taichi.lang import kernel_impl
         from taichi.lang.ast import ast_transformer_utils, checkers
         context = ast_transformer_utils.ASTTransformerContext
-        lookups = (kernel_impl.getsourcelines, checkers.getsourcelines, context.get_pos_info)
+        getsourcelines, get_pos_info = kernel_impl.getsourcelines, context.get_pos_info
+        checkers.getsourcelines  # noqa: B018 - checkers reads it too: it must be there to wrap
     except (ImportError, AttributeError):
         return False
-    ORIGINALS.update(getsourcelines=lookups[0], get_pos_info=lookups[2])
-    source_lines = _remember_source_lines(lookups[0])
+    source_lines = _remember_source_lines(getsourcelines)
     kernel_impl.getsourcelines = source_lines
     checkers.getsourcelines = source_lines
-    context.get_pos_info = _remember_position_text(lookups[2])
-    _INSTALLED["done"] = True
+    context.get_pos_info = _remember_position_text(get_pos_info)
+    ORIGINALS.update(getsourcelines=getsourcelines, get_pos_info=get_pos_info)
     return True
 
 

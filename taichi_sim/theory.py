@@ -33,7 +33,8 @@ explicit Runge-Kutta methods from their stability polynomial) the prediction tak
 the largest eigenvalue of M^-1 D for the dashpots' and drag's damping matrix D, with omega_max
 (:func:`damped_step_limit`): by power iteration in ``advise`` and the messages
 (:func:`scene_damping_rate`); a cloth preset's default step takes the Gershgorin bounds and,
-where they call it too long, power iteration (:func:`explicit_default_step`). Wind is left out. The circle ODE (``simple``) has omega = 1.
+where they call it too long, power iteration (:func:`explicit_default_step`). Wind is left out.
+The circle ODE (``simple``) has omega = 1.
 """
 from __future__ import annotations
 

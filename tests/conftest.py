@@ -12,8 +12,8 @@ TEST_ARCH = os.environ.get("TAICHI_SIM_TEST_ARCH", "cpu")
 
 # Taichi's kernel cache for the suite (its subprocesses inherit it): a folder of its own, so the
 # suite neither evicts a user's kernels nor loses its own. The suite compiles about 10 000
-# kernels (cache entries), 234 MB; under Taichi's default cap of 100 MB the cache evicted a quarter at
-# a time (least recently used) and the next run compiled most of them again
+# kernels (cache entries), 234 MB; under Taichi's default cap of 100 MB the cache evicted a
+# quarter at a time (least recently used) and the next run compiled most of them again
 # (docs/first-contact.md, "The suite's time").
 os.environ.setdefault("TI_OFFLINE_CACHE_FILE_PATH",
                       os.path.join(os.path.expanduser("~"), ".cache", "taichi_sim", "test-kernels"))

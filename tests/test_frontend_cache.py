@@ -1,9 +1,7 @@
 """The frontend caches (taichi_sim/frontend_cache.py) give Taichi exactly the answers it would
 have computed itself, on the package's own kernels compiled twice."""
 import importlib
-import os
 import sys
-import time
 
 import pytest
 from taichi.lang.ast import ast_transformer_utils
@@ -36,14 +34,9 @@ def test_every_cached_answer_is_the_one_taichi_computes(monkeypatch):
 
 
 def _write_module(folder, name, annotation, missing):
-    path = folder / f"{name}.py"
-    path.write_text("import taichi as ti\n\n\n@ti.kernel\ndef value() -> ti.f32:\n"
-                    f"    a: {annotation} = 0.7\n    return a\n\n\n"
-                    f"@ti.kernel\ndef broken():\n    x = {missing}\n")
-    # a later modification time than the cached bytecode's, whatever the clock's resolution
-    stamp = time.time() + 10 * (1 + len(list(folder.iterdir())))
-    os.utime(path, (stamp, stamp))
-    return path
+    (folder / f"{name}.py").write_text(
+        "import taichi as ti\n\n\n@ti.kernel\ndef value() -> ti.f32:\n"
+        f"    a: {annotation} = 0.7\n    return a\n\n\n@ti.kernel\ndef broken():\n    x = {missing}\n")
 
 
 def test_kernels_with_equal_code_but_other_source_compile_their_own_source(tmp_path, monkeypatch):
@@ -51,6 +44,8 @@ def test_kernels_with_equal_code_but_other_source_compile_their_own_source(tmp_p
     source) differs, and a reloaded module has new ones: neither may be given the source or
     the error text of another."""
     ts.init(precision="f32")
+    # no bytecode: the edit below keeps the file's size, and a cached .pyc would hide it
+    monkeypatch.setattr(sys, "dont_write_bytecode", True)
     _write_module(tmp_path, "fc_float", "ti.f32", "undefined_one")
     _write_module(tmp_path, "fc_int", "ti.i32", "undefined_one")
     monkeypatch.syspath_prepend(str(tmp_path))
