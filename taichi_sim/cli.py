@@ -210,7 +210,7 @@ def cmd_simulate(args) -> int:
             print(f"{scene.name}: solver residual not measured: {result.residual_note}")
         for part in scene.parts:
             if part.name in replaced:
-                print(f"{scene.name}: {part.name}: done in {integrator_name}'s solve (the post-step stage was off)")
+                print(f"{scene.name}: {part.name}: done in {integrator_name}'s solve (its post-step event did not run)")
             elif part.summary():
                 print(f"{scene.name}: {part.summary()}")
         if result.constraint_violation is not None and len(result.constraint_violation):

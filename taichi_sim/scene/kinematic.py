@@ -7,6 +7,11 @@ there. Within the next step the integrators then all see the pins at x(t) (a lag
 step's travel, the same for explicit, implicit and positional integrators), spring dashpots see
 the pins' true velocity, and the self-contact stage, which runs after this event, sees each pin
 move on a straight line from x(t - h) to x(t) over the step, as it assumes of every vertex.
+
+The one exception: ``vbd`` with self-contact in its solve moves the pins itself, inside its
+substeps and under its contact bounds, and the Stepper skips this event for it
+(:mod:`taichi_sim.integrators.positional.vbd_pins`): a jump between steps would pass those
+bounds.
 """
 
 import math

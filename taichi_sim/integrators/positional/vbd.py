@@ -16,6 +16,7 @@ from ..implicit.common import positive_int
 from .colouring import colour_vertices
 from .vbd_contact import SolveContact, check_contact_options
 from .vbd_energy import EnergyCap
+from .vbd_pins import MAX_PIECES, DrivenPins
 from .vbd_scene import SceneAttachment
 from .vbd_springs import VBDSprings, fraction_option, positive_option
 
@@ -146,6 +147,8 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, Integrator):
                                     friction_epsilon=float(friction_epsilon), refresh=int(contact_refresh))
         self.contact: SolveContact | None = None  # set by attach_scene when the scene has contact
         self.has_contact = self.has_self_contact = False  # read by the kernels (ti.static)
+        self.pins: DrivenPins | None = None  # the scene's scripted pins, when the solve moves them
+        self.drives_pins = False  # read by the kernels (ti.static)
         real, n = runtime.real(), system.particle_count
         self.springs = system.term("springs")
         self.has_springs = self.springs is not None
@@ -199,19 +202,23 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, Integrator):
         use_acceleration = int(self.warm_start and continued)
         kernels = self._bound(state)
         bad = 0
+        pieces_before = 0 if self.pins is None else self.pins.pieces
         for k in range(self.substeps):
             if self.solved_start is not None and k == self.substeps - 1:
                 self.solved_start.copy_from(state)  # what the convergence monitor measures
                 self.solved_h = dt
             t_end = t + (k + 1) * dt  # backward Euler evaluates the forces at the substep's end
-            previous_dt = self._last_dt if k == 0 else dt
+            previous_dt = self._last_dt  # the last substep's (or piece's) length: its v0 is start_v
             if self.contact is not None:
                 bad = self._contact_substep(kernels, state, dt, t_end, use_acceleration, previous_dt)
                 if bad < 0:
                     self._resume_time = None
+                    message = ("vbd: the contact detection lost pairs (positions non-finite or too far apart "
+                               "for its hash)") if bad == -1 else (
+                        f"vbd: the scripted pins could not move within their contact bounds in {MAX_PIECES} "
+                        "pieces of a substep (a pin pressed into the cloth): lower --dt")
                     return StepReport(accepted=False, h=0.0, next_h=h, f_evals=k * self.iterations,
-                                      status=Status.DIVERGED, message="vbd: the contact detection lost pairs "
-                                      "(positions non-finite or too far apart for its hash)")
+                                      status=Status.DIVERGED, message=message)
             elif self.serial:
                 bad = kernels["substep"](dt, t_end, use_acceleration, previous_dt, self.iterations)
             else:
@@ -222,22 +229,50 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, Integrator):
                     kernels["sweep"](dt, t_end, omega, sweep)
                 bad = kernels["end"](dt)
             use_acceleration = int(self.warm_start)
-            self._last_dt = dt
+            if self.pins is None:
+                self._last_dt = dt  # (the pieces keep their own)
             if bad:
                 self._resume_time = None
                 return StepReport(accepted=False, h=0.0, next_h=h, f_evals=(k + 1) * self.iterations,
                                   status=Status.DIVERGED, message=f"vbd: {bad} particles non-finite")
-        self.sweeps += self.substeps * self.iterations
+        pieces = self.substeps if self.pins is None else self.pins.pieces - pieces_before
+        work = pieces * self.iterations
+        self.sweeps += work
         self._resume_time = t + h
-        work = self.substeps * self.iterations
         return StepReport(accepted=True, h=h, next_h=h, f_evals=work, linear_iterations=work)
 
     def _contact_substep(self, kernels, state, dt, t_end, use_acceleration, previous_dt) -> int:
-        """A substep with contact in the solve: detect at the start (free of intersections),
-        start from the bounded guess, sweep, detecting again every ``contact_refresh`` sweeps.
-        Returns the non-finite particles, or -1 when a detection could miss pairs."""
+        """A substep with contact in the solve, in pieces where the scripted pins need them
+        (:mod:`.vbd_pins`; one piece otherwise). Returns the non-finite particles, -1 when a
+        detection could miss pairs, -2 when the pins found no piece they fit in."""
+        if self.pins is None:
+            return self._contact_piece(kernels, state, dt, t_end, use_acceleration, previous_dt)
+        t, remaining = t_end - dt, dt
+        for _ in range(MAX_PIECES):
+            if self.contact.refresh(state.x):
+                return -1
+            piece = self.pins.plan(state.x, t, remaining)
+            if piece <= 0.0:
+                return -2
+            if piece >= remaining * (1.0 - 1e-9):
+                piece = remaining  # the last piece ends on the substep's end, not a rounding off it
+            bad = self._contact_piece(kernels, state, piece, t + piece, use_acceleration, previous_dt,
+                                      detected=True)
+            self.pins.pieces += 1
+            self._last_dt = piece
+            if bad or piece == remaining:
+                return bad
+            t, remaining = t + piece, remaining - piece
+            use_acceleration, previous_dt = int(self.warm_start), piece
+        return -2
+
+    def _contact_piece(self, kernels, state, dt, t_end, use_acceleration, previous_dt, detected=False) -> int:
+        """dt seconds with contact in the solve: detect at the start (free of intersections;
+        unless ``detected`` already), start from the bounded guess, sweep, detecting again every
+        ``contact_refresh`` sweeps. Returns the non-finite particles, or -1 when a detection
+        could miss pairs."""
         contact = self.contact
-        if contact.refresh(state.x):
+        if not detected and contact.refresh(state.x):
             return -1
         kernels["begin"](dt, use_acceleration, previous_dt, t_end)
         every = contact.refresh_every or self.iterations
@@ -362,6 +397,9 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, Integrator):
                     delta = dt * y.v[i] + dt * dt * ti.min(ti.max(along, 0.0), g) * direction
                 else:
                     delta = dt * y.v[i]
+            if ti.static(self.drives_pins):
+                if self.pins.driven[i]:  # a scripted pin: where the script puts it (vbd_pins)
+                    delta = self.pins.target[i] - y.x[i]
             self.start_x[i] = y.x[i]
             self.start_v[i] = y.v[i]
             self.delta[i] = delta
@@ -389,8 +427,9 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, Integrator):
         # (the energy rose step after step); the sweeps start from the lower merit.
         guess_merit = self._merit(dt)
         for i in range(self.system.particle_count):
-            self.point.x[i] = self.start_x[i]
-            self.point.v[i] = ti.Vector.zero(y.x.dtype, 3)
+            if not self._scripted(i):  # the scripted pins move either way
+                self.point.x[i] = self.start_x[i]
+                self.point.v[i] = ti.Vector.zero(y.x.dtype, 3)
         at_rest = self._merit(dt) < guess_merit
         if at_rest:
             self.rest_starts[None] += 1
@@ -398,10 +437,10 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, Integrator):
                 self.contact.shift[None] = ti.Vector.zero(y.x.dtype, 3)  # staying put needs none
         for i in range(self.system.particle_count):
             delta = self.delta[i]
-            if at_rest:
+            if at_rest and not self._scripted(i):
                 delta = ti.Vector.zero(y.x.dtype, 3)
             self.delta[i] = delta
-            if self.system.free[i]:
+            if self.system.free[i] or self._scripted(i):
                 self.point.x[i] = self.start_x[i] + delta
                 self.point.v[i] = delta / dt
             if ti.static(self.chebyshev):
@@ -410,6 +449,14 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, Integrator):
         if ti.static(self.has_multipliers):
             for s in range(self.springs.spring_count):
                 self.spring_penalty[s] = ti.min(self.penalty, self.springs.stiffness[s])
+
+    @ti.func
+    def _scripted(self, i):
+        """Whether particle i is a scripted pin this solve moves (vbd_pins)."""
+        out = False
+        if ti.static(self.drives_pins):
+            out = self.pins.driven[i] != 0
+        return out
 
     @ti.func
     def _merit(self, dt):
@@ -486,6 +533,10 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, Integrator):
             if self.system.free[i]:
                 y.x[i] = self.start_x[i] + self.delta[i]
                 y.v[i] = self.delta[i] / dt
+            if ti.static(self.drives_pins):
+                if self.pins.driven[i]:  # where the script puts it, at the script's velocity
+                    y.x[i] = self.pins.target[i]
+                    y.v[i] = self.pins.velocity[i]
             if not (finite(y.x[i]) and finite(y.v[i])):
                 bad += 1
         return bad

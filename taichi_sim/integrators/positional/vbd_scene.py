@@ -2,14 +2,16 @@
 objects, its self-contact, the energy cap on a closed scene) and what a run says about it
 afterwards (warnings, forces the residual does not model)."""
 from ...collide.self_contact import SelfCollision
+from ...scene.kinematic import KinematicPins
 from .vbd_contact import SolveContact
 from .vbd_energy import closed_scene
+from .vbd_pins import DrivenPins
 
 
 class SceneAttachment:
     """Mixin of :class:`~.vbd.VBD` (reads its ``contact_options``, ``self_contact``,
     ``energy_cap``, ``delta`` and ``capped``; sets ``contact``, ``has_contact``,
-    ``has_self_contact``, ``cap_active`` and ``replaces_parts``)."""
+    ``has_self_contact``, ``pins``, ``drives_pins``, ``cap_active`` and ``replaces_parts``)."""
 
     def attach_scene(self, scene) -> None:
         """Put the scene's objects (and, with ``self_contact``, its mesh) in the solve. Raises
@@ -33,10 +35,17 @@ class SceneAttachment:
                 options["radius"] = float(scene.params.get("thickness", 0.005))
             options["self_friction"] = float(scene.params.get("self_friction", 0.0))
             contact = SolveContact(scene, self.delta, **options)  # may raise: nothing bound yet
+        # Scripted pins jump between steps, past the bounds that keep the cloth from crossing
+        # itself: with self-contact in the solve, the solve moves them itself (vbd_pins).
+        pins = scene.part(KinematicPins.name)
+        drives = contact is not None and contact.self_contact and pins is not None and pins.count > 0
         self.contact = contact
         self.has_contact = contact is not None
         self.has_self_contact = contact is not None and contact.self_contact
-        self.replaces_parts = frozenset({SelfCollision.name} if follows else ())
+        self.pins = DrivenPins(pins, contact, scene.system.particle_count) if drives else None
+        self.drives_pins = drives
+        self.replaces_parts = frozenset(({SelfCollision.name} if follows else set())
+                                        | ({KinematicPins.name} if drives else set()))
         # Not with contact in the solve: its penalty energy is not in E, and a vertex pushed
         # out of a contact would read as a gain (the folds measured never rose, docs/vbd.md).
         self.cap_active = self.energy_cap and contact is None and closed_scene(scene)
