@@ -1,7 +1,9 @@
 """Contact in the VBD solve against symplectic Euler with the post-step Bridson stage
-on `cloth-fold`, in one process: steps/s, the cost of each phase, intersecting frames, energy.
+on `cloth-fold` (or ``--scene cloth-twist``), in one process: steps/s, the cost of each phase,
+intersecting frames, energy.
 
     python benchmarks/bench_vbd_contact.py --n 64 --t-end 5 --base-t-end 0.3
+    python benchmarks/bench_vbd_contact.py --scene cloth-twist --n 32 --t-end 4 --base-t-end 1
 
 `vbd` runs with self-contact in its solve (which replaces the preset's post-step self-collision
 stage) at h = 1/60 s in f32 with the guard on; every step's positions are checked with the exact intersection test
@@ -35,10 +37,11 @@ def timed(fn, bucket: list):
     return wrapper
 
 
-def run(n: int, t_end: float, integrator: str, dt: float | str, options: dict, params: dict) -> dict:
-    """One run of `cloth-fold` at n x n for t_end s; dt in s, or "default" for the scene's (symplectic
-    Euler's: 1 ms, less on fine grids)."""
-    scene = ts.build_scene("cloth-fold", {"nx": n, "ny": n, **params})
+def run(scene_name: str, n: int, t_end: float, integrator: str, dt: float | str, options: dict,
+        params: dict) -> dict:
+    """One run of ``scene_name`` at n x n for t_end s; dt in s, or "default" for the scene's
+    (symplectic Euler's: 1 ms, less on fine grids)."""
+    scene = ts.build_scene(scene_name, {"nx": n, "ny": n, **params})
     name = integrator
     if dt == "default":
         dt = scene.default_dt
@@ -56,8 +59,11 @@ def run(n: int, t_end: float, integrator: str, dt: float | str, options: dict, p
     wall = time.perf_counter()
     check_time = 0.0
     height = None  # the cloth's mean height at PACE_TIME: how fast the fold collapses
+    refresh_per_step = []  # each step's detections together (substeps, the pins' pieces)
     for k in range(count):
+        before = len(refresh)
         stepper.step()
+        refresh_per_step.append(sum(refresh[before:]))
         if stepper.failure is not None:
             return {"name": name, "failure": stepper.failure.message, "steps": k}
         if (k + 1) % 60 == 0:  # a run cut short still says how far it got
@@ -76,17 +82,19 @@ def run(n: int, t_end: float, integrator: str, dt: float | str, options: dict, p
     warm = slice(2, None)
     step_med = statistics.median(steps[warm])
     event_med = statistics.median(events[warm])
-    substeps = getattr(method, "substeps", 1)
-    refresh_med = statistics.median(refresh[2 * substeps:]) * substeps if len(refresh) > 2 * substeps else 0.0
+    refresh_med = statistics.median(refresh_per_step[warm]) if refresh else 0.0
+    pieces = getattr(getattr(method, "pins", None), "pieces", None)
     return {"name": name, "dt": dt, "steps": count, "steps_per_s": 1.0 / (step_med + event_med),
             "wall": wall, "step_ms": 1e3 * step_med, "refresh_ms": 1e3 * refresh_med,
             "solve_ms": 1e3 * (step_med - refresh_med), "events_ms": 1e3 * event_med,
             "bad_frames": bad_frames, "first_bad": first_bad, "energy0": energy0, "energy_max": top,
-            "pairs": getattr(getattr(method, "contact", None), "pairs_total", 0), "height": height}
+            "pairs": getattr(getattr(method, "contact", None), "pairs_total", 0), "height": height,
+            "pieces_per_step": None if pieces is None else pieces / count}
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--scene", choices=("cloth-fold", "cloth-twist"), default="cloth-fold")
     parser.add_argument("--n", type=int, default=64)
     parser.add_argument("--t-end", type=float, default=5.0)
     parser.add_argument("--base-t-end", type=float, default=0.3, help="seconds of the default (0: skip)")
@@ -107,16 +115,16 @@ def main() -> None:
         params["jitter"] = args.jitter
     options = parse_options("vbd", dict(text.split("=", 1) for text in args.option))
     params.update(text.split("=", 1) for text in args.set)  # build_scene parses and checks them
-    rows = [run(args.n, args.t_end, "vbd", 1 / 60,
+    rows = [run(args.scene, args.n, args.t_end, "vbd", 1 / 60,
                 {"iterations": args.iterations, "substeps": args.substeps, **options}, params)]
     if args.base_t_end > 0:
-        rows.append(run(args.n, args.base_t_end, "symplectic_euler", "default", {}, params))
+        rows.append(run(args.scene, args.n, args.base_t_end, "symplectic_euler", "default", {}, params))
     for row in rows:
         print(row)
     print()
     print("| method | h (s) | steps | steps/s | step (ms) | refresh (ms) | solve (ms) | events (ms) "
-          "| frames intersecting | energy max / start (J) | mean height at 0.5 s (m) |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+          "| frames intersecting | energy max / start (J) | mean height at 0.5 s (m) | pin pieces a step |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         if "failure" in r:
             print(f"| {r['name']} | failed after {r['steps']} steps: {r['failure']} |")
@@ -124,7 +132,8 @@ def main() -> None:
         print(f"| {r['name']} | {r['dt']:.4g} | {r['steps']} | {r['steps_per_s']:.3g} | {r['step_ms']:.3g} "
               f"| {r['refresh_ms']:.3g} | {r['solve_ms']:.3g} | {r['events_ms']:.3g} | {r['bad_frames']} of {r['steps']} "
               f"| {r['energy_max']:.4g} / {r['energy0']:.4g} "
-              f"| {'-' if r['height'] is None else format(r['height'], '.3f')} |")
+              f"| {'-' if r['height'] is None else format(r['height'], '.3f')} "
+              f"| {'-' if r['pieces_per_step'] is None else format(r['pieces_per_step'], '.2f')} |")
     print("load average:", open("/proc/loadavg").read().split()[:3], "backend:", ts.runtime.backend())
 
 

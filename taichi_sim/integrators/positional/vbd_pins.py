@@ -70,7 +70,7 @@ class DrivenPins:
     @ti.kernel
     def _load(self, x: ti.template(), where: ti.types.ndarray(), speed: ti.types.ndarray()) -> ti.f64:
         """Put the targets in place; return the largest ratio of a pin's move to its bound."""
-        worst = 0.0
+        worst = ti.cast(0.0, ti.f64)
         for k in range(self.count):
             i = self.ids[k]
             p = ti.Vector([where[k, 0], where[k, 1], where[k, 2]], dt=x.dtype)
