@@ -6,8 +6,10 @@ intersecting frames, energy.
     python benchmarks/bench_vbd_contact.py --scene cloth-twist --n 32 --t-end 4 --base-t-end 1
 
 `vbd` runs with self-contact in its solve (which replaces the preset's post-step self-collision
-stage) at h = 1/60 s in f32 with the guard on; every step's positions are checked with the exact intersection test
-(taichi_sim.geometry.self_intersections, the `check` command's). Beside it, symplectic Euler
+stage) at h = 1/60 s in f32 with the guard on, its substeps cut into pieces as its
+``contact_pieces`` (16 unless ``--option contact_pieces=N``) allows; every step's positions are
+checked with the exact intersection test (taichi_sim.geometry.self_intersections, the `check`
+command's). Beside it, symplectic Euler
 with the Bridson stage at 1 ms (0.9 of its stable step where that is less) for
 ``--base-t-end`` seconds. Per-phase times are wall times around each phase with ti.sync(),
 medians over the steps after the first two (compiling). Timings depend on the machine's load.
@@ -20,10 +22,12 @@ import time
 import taichi as ti
 
 import taichi_sim as ts
+from taichi_sim.forces.springs.spectrum import explicit_default_step
 from taichi_sim.geometry import self_intersections
 from taichi_sim.integrators import parse_options
 
 PACE_TIME = 0.5  # s: by then a free fold has collapsed (32 x 32, symplectic Euler at 1 ms: 0.04 m from 0.6)
+HEIGHT_TIMES = (0.25, 0.5, 0.75, 1.0, 2.0)  # s: when the mean height is kept (the fold's pace)
 
 
 def timed(fn, bucket: list):
@@ -39,12 +43,13 @@ def timed(fn, bucket: list):
 
 def run(scene_name: str, n: int, t_end: float, integrator: str, dt: float | str, options: dict,
         params: dict) -> dict:
-    """One run of ``scene_name`` at n x n for t_end s; dt in s, or "default" for the scene's
-    (symplectic Euler's: 1 ms, less on fine grids)."""
+    """One run of ``scene_name`` at n x n for t_end s; dt in s, or "explicit" for symplectic
+    Euler's step on these scenes before they defaulted to vbd: 1 ms, or 0.9 of its stable step
+    where that is less (fine grids)."""
     scene = ts.build_scene(scene_name, {"nx": n, "ny": n, **params})
     name = integrator
-    if dt == "default":
-        dt = scene.default_dt
+    if dt == "explicit":
+        dt = explicit_default_step(scene.arrays, scene.x0, 1e-3, 0.9)
     method = ts.create_integrator(name, scene.system, **options)
     steps, events, refresh = [], [], []
     method.step = timed(method.step, steps)
@@ -59,6 +64,7 @@ def run(scene_name: str, n: int, t_end: float, integrator: str, dt: float | str,
     wall = time.perf_counter()
     check_time = 0.0
     height = None  # the cloth's mean height at PACE_TIME: how fast the fold collapses
+    heights, marks = {}, list(HEIGHT_TIMES)
     refresh_per_step = []  # each step's detections together (substeps, the pins' pieces)
     for k in range(count):
         before = len(refresh)
@@ -74,6 +80,8 @@ def run(scene_name: str, n: int, t_end: float, integrator: str, dt: float | str,
         x = scene.state.to_numpy()[0]
         if height is None and stepper.t >= PACE_TIME - 0.5 * dt:
             height = float(x[:, 1].mean())
+        if marks and stepper.t >= marks[0] - 0.5 * dt:
+            heights[marks.pop(0)] = round(float(x[:, 1].mean()), 3)
         if len(self_intersections(x, tris).pairs):
             bad_frames += 1
             first_bad = first_bad if first_bad is not None else (k + 1) * dt
@@ -83,13 +91,13 @@ def run(scene_name: str, n: int, t_end: float, integrator: str, dt: float | str,
     step_med = statistics.median(steps[warm])
     event_med = statistics.median(events[warm])
     refresh_med = statistics.median(refresh_per_step[warm]) if refresh else 0.0
-    pieces = getattr(getattr(method, "pins", None), "pieces", None)
+    pieces = getattr(method, "pieces", None) if getattr(method, "contact", None) is not None else None
     return {"name": name, "dt": dt, "steps": count, "steps_per_s": 1.0 / (step_med + event_med),
             "wall": wall, "step_ms": 1e3 * step_med, "refresh_ms": 1e3 * refresh_med,
             "solve_ms": 1e3 * (step_med - refresh_med), "events_ms": 1e3 * event_med,
             "bad_frames": bad_frames, "first_bad": first_bad, "energy0": energy0, "energy_max": top,
             "pairs": getattr(getattr(method, "contact", None), "pairs_total", 0), "height": height,
-            "pieces_per_step": None if pieces is None else pieces / count}
+            "pieces_per_step": None if pieces is None else pieces / count, "heights": heights}
 
 
 def main() -> None:
@@ -97,7 +105,7 @@ def main() -> None:
     parser.add_argument("--scene", choices=("cloth-fold", "cloth-twist"), default="cloth-fold")
     parser.add_argument("--n", type=int, default=64)
     parser.add_argument("--t-end", type=float, default=5.0)
-    parser.add_argument("--base-t-end", type=float, default=0.3, help="seconds of the default (0: skip)")
+    parser.add_argument("--base-t-end", type=float, default=0.3, help="seconds of symplectic Euler with the stage (0: skip)")
     parser.add_argument("--iterations", type=int, default=20)
     parser.add_argument("--substeps", type=int, default=1)
     parser.add_argument("--contact-radius", type=float, default=None, help="the scene's thickness (m)")
@@ -118,12 +126,12 @@ def main() -> None:
     rows = [run(args.scene, args.n, args.t_end, "vbd", 1 / 60,
                 {"iterations": args.iterations, "substeps": args.substeps, **options}, params)]
     if args.base_t_end > 0:
-        rows.append(run(args.scene, args.n, args.base_t_end, "symplectic_euler", "default", {}, params))
+        rows.append(run(args.scene, args.n, args.base_t_end, "symplectic_euler", "explicit", {}, params))
     for row in rows:
         print(row)
     print()
     print("| method | h (s) | steps | steps/s | step (ms) | refresh (ms) | solve (ms) | events (ms) "
-          "| frames intersecting | energy max / start (J) | mean height at 0.5 s (m) | pin pieces a step |")
+          "| frames intersecting | energy max / start (J) | mean height at 0.5 s (m) | pieces a step |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         if "failure" in r:

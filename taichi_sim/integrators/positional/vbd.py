@@ -16,7 +16,8 @@ from ..implicit.common import positive_int
 from .colouring import colour_vertices
 from .vbd_contact import SolveContact, check_contact_options
 from .vbd_energy import EnergyCap
-from .vbd_pins import MAX_PIECES, DrivenPins
+from .vbd_pieces import MAX_PIECES, ContactPieces
+from .vbd_pins import DrivenPins
 from .vbd_scene import SceneAttachment
 from .vbd_springs import VBDSprings, fraction_option, positive_option
 
@@ -28,7 +29,7 @@ SERIAL_WORK = 2_000_000
 
 
 @ti.data_oriented
-class VBD(VBDSprings, EnergyCap, SceneAttachment, Integrator):
+class VBD(VBDSprings, EnergyCap, SceneAttachment, ContactPieces, Integrator):
     """Vertex block descent (Chen, Liu, Yang & Yuksel 2024, "Vertex Block Descent").
 
     A step of h seconds (``substeps`` pieces of dt = h / substeps) minimises backward Euler's
@@ -89,6 +90,11 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, Integrator):
             nearest object or contact partner, in (0, 0.5).
         friction_epsilon: the slip speed (m/s) below which friction is smoothed (IPC's eps_v).
         contact_refresh: sweeps between self-contact detections; 0 (default): once per substep.
+        contact_pieces: with self-contact, the most pieces (default 16) a substep may be cut
+            into so that its start guess stays within the contact bounds for all but 0.5 % of
+            the vertices (each piece a detection and its sweeps; :mod:`.vbd_pieces`); 1: one
+            piece, the guess cut to the bounds, which holds back a collapsing cloth
+            (docs/vbd.md, "The fold's pace").
         energy_cap: on a closed scene (no wind, turbulence, moving object, kinematic pin or
             emitter) without contact in the solve, shorten a substep that would end with more
             energy (J) than it started with toward its start until it does not
@@ -120,7 +126,7 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, Integrator):
                  penalty_growth: float = 1e5, contact: bool = True, self_contact: bool | None = None,
                  contact_radius: float | None = None, contact_stiffness: float = 100.0,
                  bound_fraction: float = 0.4, friction_epsilon: float = 0.01, contact_refresh: int = 0,
-                 energy_cap: bool = True):
+                 contact_pieces: int = 16, energy_cap: bool = True):
         super().__init__(system)
         self.iterations = positive_int("iterations", iterations)
         self.substeps = positive_int("substeps", substeps)
@@ -138,6 +144,7 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, Integrator):
             if not isinstance(flag, (bool, np.bool_)):
                 raise ConfigError(f"{name} must be True or False, got {flag!r}")
         check_contact_options(contact_radius, contact_stiffness, bound_fraction, friction_epsilon, contact_refresh)
+        self.contact_pieces = positive_int("contact_pieces", contact_pieces)
         self.self_contact = None if self_contact is None else bool(self_contact)
         self.energy_cap = bool(energy_cap)
         self.cap_active = False  # set by attach_scene on a closed scene (read by the kernels)
@@ -183,6 +190,7 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, Integrator):
         self._resume_time: float | None = None  # when the last step ended (warm start continues it)
         self._last_dt = 0.0
         self.sweeps = 0  # sweeps run since construction (all substeps)
+        self.pieces = 0  # pieces of substeps run with contact in the solve (_contact_substep)
 
     @property
     def colour_count(self) -> int:
@@ -202,7 +210,7 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, Integrator):
         use_acceleration = int(self.warm_start and continued)
         kernels = self._bound(state)
         bad = 0
-        pieces_before = 0 if self.pins is None else self.pins.pieces
+        pieces_before = self.pieces
         for k in range(self.substeps):
             if self.solved_start is not None and k == self.substeps - 1:
                 self.solved_start.copy_from(state)  # what the convergence monitor measures
@@ -229,66 +237,16 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, Integrator):
                     kernels["sweep"](dt, t_end, omega, sweep)
                 bad = kernels["end"](dt)
             use_acceleration = int(self.warm_start)
-            if self.pins is None:
-                self._last_dt = dt  # (the pieces keep their own)
+            if self.contact is None:
+                self._last_dt = dt  # (with contact the pieces keep their own)
             if bad:
                 self._resume_time = None
                 return StepReport(accepted=False, h=0.0, next_h=h, f_evals=(k + 1) * self.iterations,
                                   status=Status.DIVERGED, message=f"vbd: {bad} particles non-finite")
-        pieces = self.substeps if self.pins is None else self.pins.pieces - pieces_before
-        work = pieces * self.iterations
+        work = (self.pieces - pieces_before if self.contact is not None else self.substeps) * self.iterations
         self.sweeps += work
         self._resume_time = t + h
         return StepReport(accepted=True, h=h, next_h=h, f_evals=work, linear_iterations=work)
-
-    def _contact_substep(self, kernels, state, dt, t_end, use_acceleration, previous_dt) -> int:
-        """A substep with contact in the solve, in pieces where the scripted pins need them
-        (:mod:`.vbd_pins`; one piece otherwise). Returns the non-finite particles, -1 when a
-        detection could miss pairs, -2 when the pins found no piece they fit in."""
-        if self.pins is None:
-            return self._contact_piece(kernels, state, dt, t_end, use_acceleration, previous_dt)
-        t, remaining = t_end - dt, dt
-        for _ in range(MAX_PIECES):
-            if self.contact.refresh(state.x):
-                return -1
-            piece = self.pins.plan(state.x, t, remaining)
-            if piece <= 0.0:
-                return -2
-            if piece >= remaining * (1.0 - 1e-9):
-                piece = remaining  # the last piece ends on the substep's end, not a rounding off it
-            bad = self._contact_piece(kernels, state, piece, t + piece, use_acceleration, previous_dt,
-                                      detected=True)
-            self.pins.pieces += 1
-            self._last_dt = piece
-            if bad or piece == remaining:
-                return bad
-            t, remaining = t + piece, remaining - piece
-            use_acceleration, previous_dt = int(self.warm_start), piece
-        return -2
-
-    def _contact_piece(self, kernels, state, dt, t_end, use_acceleration, previous_dt, detected=False) -> int:
-        """dt seconds with contact in the solve: detect at the start (free of intersections;
-        unless ``detected`` already), start from the bounded guess, sweep, detecting again every
-        ``contact_refresh`` sweeps. Returns the non-finite particles, or -1 when a detection
-        could miss pairs."""
-        contact = self.contact
-        if not detected and contact.refresh(state.x):
-            return -1
-        kernels["begin"](dt, use_acceleration, previous_dt, t_end)
-        every = contact.refresh_every or self.iterations
-        done, omega = 0, 1.0
-        while done < self.iterations:
-            if done and contact.refresh(self.point.x):
-                return -1
-            count = min(every, self.iterations - done)
-            if self.serial:
-                kernels["sweeps"](dt, t_end, done, count)
-            else:
-                for sweep in range(done, done + count):
-                    omega = self._omega(sweep, omega)
-                    kernels["sweep"](dt, t_end, omega, sweep)
-            done += count
-        return kernels["end"](dt)
 
     def _omega(self, sweep: int, omega: float) -> float:
         """Chebyshev weight of sweep ``sweep`` (0-based) given the last one's (1 when off)."""
@@ -415,8 +373,13 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, Integrator):
             if ti.static(self.has_self_contact):
                 if stopped > 0:
                     self.contact.shift[None] = ti.Vector.zero(y.x.dtype, 3)
+            if ti.static(self.has_self_contact):
+                for b in self.contact.overshoot:  # how far the bounds cut the guess (vbd_pieces)
+                    self.contact.overshoot[b] = 0
             for i in range(self.system.particle_count):
                 if self.system.free[i]:
+                    if ti.static(self.has_self_contact):
+                        self.contact.count_overshoot(i, self.delta[i], self.start_x[i])
                     self.delta[i] = self.contact.limit(i, ti.Vector.zero(y.x.dtype, 3), self.delta[i],
                                                        self.start_x[i], t)
         for i in range(self.system.particle_count):

@@ -15,6 +15,7 @@ from ...errors import ConfigError
 
 CONTACTS_PER_VERTEX = 64  # contact pairs a vertex keeps between refreshes; more are counted, not kept
 PAIRS_PER_VERTEX = 16  # room in the pair list per vertex
+OVERSHOOT_BINS, OVERSHOOT_BINS_PER_OCTAVE = 64, 8  # the histogram of how far guesses leave the bounds
 SELF_CONTACT = 1  # flag of a vertex in a self-contact pair (SolveContact.mark_contacts)
 OBJECT_CONTACT = 2  # flag of a vertex within the contact radius of an object
 
@@ -65,6 +66,8 @@ class SolveContact:
         self.refresh_every = int(refresh)
         self.radius = float(radius)
         self.refreshes = 0  # detections run since construction
+        # the step the penalty's stiffness is scaled by (s): the whole substep's, also in its pieces
+        self.penalty_dt = ti.field(runtime.real(), shape=())
         if not self.self_contact:
             return
         mesh = scene.mesh
@@ -103,6 +106,10 @@ class SolveContact:
         self.ref_x = ti.Vector.field(3, real, shape=n)  # positions at the last refresh (m)
         self.nearest = ti.field(real, shape=n)  # distance to the nearest pair partner, capped at reach (m)
         self.shift = ti.Vector.field(3, real, shape=())  # the translation the bounds are measured from (m)
+        # how far the bounds cut the start guess: vertices by |move| / bound, OVERSHOOT_BINS_PER_OCTAVE
+        # bins an octave above 1 (VBD._begin fills it; vbd_pieces reads it)
+        self.overshoot = ti.field(ti.i32, shape=OVERSHOOT_BINS)
+        self.free_count = int(free.sum())
         self.pair_capacity = PAIRS_PER_VERTEX * n
         self.pair_ids = ti.Vector.field(4, ti.i32, shape=self.pair_capacity)
         self.pair_kind = ti.field(ti.i32, shape=self.pair_capacity)  # 0 vertex-triangle, 1 edge-edge
@@ -227,7 +234,7 @@ class SolveContact:
         f = ti.Vector.zero(x.dtype, 3)
         H = ti.Matrix.zero(x.dtype, 3, 3)
         if ti.static(self.has_objects):
-            k = self.stiffness * m / (dt * dt)
+            k = self.stiffness * m / (self.penalty_dt[None] * self.penalty_dt[None])
             p = x[i]
             slip = self.delta[i]
             if ti.static(self.has_plane):
@@ -243,7 +250,7 @@ class SolveContact:
                         moved = slip - dt * collider.surface_velocity(c, t, q)
                         f, H = self._push(f, H, d, n, k, 1.0, moved, collider.friction[c], dt)
         if ti.static(self.self_contact):
-            k = self.stiffness * self.mean_mass / (dt * dt)
+            k = self.stiffness * self.mean_mass / (self.penalty_dt[None] * self.penalty_dt[None])
             for s in range(ti.min(self.vertex_pair_count[i], self.per_vertex)):
                 pair = self.vertex_pairs[i, s]
                 ids = self.pair_ids[pair]
@@ -317,6 +324,26 @@ class SolveContact:
         if gap > 0.0 and approach > self.fraction * gap:
             scale = self.fraction * gap / approach
         return scale
+
+    @ti.func
+    def count_overshoot(self, i, delta, start):
+        """Count vertex i in the histogram ``overshoot`` when displacement ``delta`` (m) lies
+        outside its ball, by how far: |delta - centre| / radius, in bins of 1/8 octave above 1
+        (the last bin holds the rest)."""
+        centre = self.ref_x[i] - start + self.shift[None]
+        ratio = (delta - centre).norm() / ti.max(self.fraction * self.nearest[i], 1e-30)
+        if ratio > 1.0:
+            b = ti.min(ti.cast(ti.log(ratio) / ti.log(2.0) * OVERSHOOT_BINS_PER_OCTAVE, ti.i32), OVERSHOOT_BINS - 1)
+            ti.atomic_add(self.overshoot[b], 1)
+
+    def overshoot_above(self, share: float) -> float:
+        """The smallest ratio |move| / bound that at most ``share`` of the free vertices' start
+        guesses exceed (1.0: few enough leave their balls at all), from the last histogram."""
+        counts = self.overshoot.to_numpy()
+        allowed = share * self.free_count
+        above = np.cumsum(counts[::-1])[::-1]  # above[b]: vertices in bins b and higher
+        first = int(np.argmax(np.append(above, 0) <= allowed))  # the first bin with few enough above
+        return 2.0 ** (first / OVERSHOOT_BINS_PER_OCTAVE)
 
     @ti.func
     def outside_ball(self, i, delta, start):

@@ -12,14 +12,13 @@ each piece of a substep the pins move from where they are to where the script pu
 piece's end, in the solve, where the other vertices see them, and a piece is made short enough
 that no pin moves further than its bound (the script's path is not linear in time, so the
 length is found by shortening until it fits). A pin pressed against the cloth has a small bound
-and makes short pieces: each piece is a detection and its sweeps (docs/vbd.md, "Scripted pins").
+and makes short pieces: each piece is a detection and its sweeps (:mod:`.vbd_pieces`, docs/vbd.md, "Scripted pins").
 """
 import numpy as np
 import taichi as ti
 
 from ... import runtime
 
-MAX_PIECES = 256  # pieces of one substep before the step is given up (a pin the cloth cannot let by)
 FIT = 0.9  # a shortened piece aims at this share of the pins' bound (the path bends)
 
 
@@ -45,7 +44,6 @@ class DrivenPins:
         self.target = ti.Vector.field(3, real, shape=n)  # where a pin is at the piece's end (m)
         self.velocity = ti.Vector.field(3, real, shape=n)  # the script's velocity there (m/s)
         self._mark()
-        self.pieces = 0  # pieces run since construction (one per substep where the pins allow)
 
     @ti.kernel
     def _mark(self):

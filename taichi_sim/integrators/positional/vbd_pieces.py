@@ -1,0 +1,100 @@
+"""A substep of vbd with contact in its solve, in pieces.
+
+Each piece detects the contact pairs at its start (where the cloth is free of intersections),
+starts from the bounded guess and sweeps. The bounds keep every vertex within bound_fraction of
+its distance to its nearest contact partner until the next detection, so a vertex whose start
+guess (x0 + dt v0 + dt^2 a) lies farther is cut back to its bound, and a cloth whose parts close
+on each other faster than that per detection falls behind (docs/vbd.md, "The fold's pace"). A
+substep is therefore cut short where
+
+* the scene's scripted pins would move further than their bounds (:mod:`.vbd_pins`; always);
+* the start guess would leave the bounds, with ``contact_pieces`` > 1: the piece is shortened
+  until it fits for all but ``PACE_SHARE`` of the free vertices (a few vertices jiggling in a
+  settled pile do not cut every step into pieces; theirs are cut as before), at most
+  ``contact_pieces`` pieces a substep.
+
+Each piece is a backward Euler step of its own length, so a substep in pieces is what shorter
+substeps would be where the motion needs them, and one piece where it does not.
+"""
+
+MAX_PIECES = 256  # pieces of one substep before the step is given up (pins the cloth cannot let by)
+PACE_FIT = 0.9  # a piece shortened for the pace aims its guess at this share of the bounds
+PACE_SHARE = 0.005  # ... for all but this share of the free vertices (a few jiggling in a pile)
+
+
+class ContactPieces:
+    """Mixin of :class:`~.vbd.VBD`: its substep with contact in the solve (reads ``contact``,
+    ``pins``, ``contact_pieces``, ``has_self_contact``, ``warm_start``, ``iterations``,
+    ``serial``; counts ``pieces``; keeps ``_last_dt``, the last piece's length)."""
+
+    def _contact_substep(self, kernels, state, dt, t_end, use_acceleration, previous_dt) -> int:
+        """A substep with contact in the solve, in one piece or more: each piece detects at its
+        start (free of intersections), starts from the bounded guess and sweeps, detecting
+        again every ``contact_refresh`` sweeps. A piece ends early where the scripted pins need
+        it (:mod:`.vbd_pins`) and, with ``contact_pieces`` > 1, where the guess would leave the
+        bounds (:meth:`_plan_piece`). Returns the non-finite particles, -1 when a detection
+        could miss pairs, -2 when the pins found no piece they fit in."""
+        contact = self.contact
+        contact.penalty_dt[None] = dt
+        t, remaining = t_end - dt, dt
+        for done in range(MAX_PIECES):
+            if contact.refresh(state.x):
+                return -1
+            piece = self._plan_piece(kernels, state, t, remaining, use_acceleration, previous_dt,
+                                     self.contact_pieces - done)
+            if piece <= 0.0:
+                return -2
+            bad = self._sweep_piece(kernels, piece, t + piece)
+            self.pieces += 1
+            self._last_dt = piece
+            if bad or piece == remaining:
+                return bad
+            t, remaining = t + piece, remaining - piece
+            use_acceleration, previous_dt = int(self.warm_start), piece
+        return -2
+
+    def _plan_piece(self, kernels, state, t, remaining, use_acceleration, previous_dt, pieces_left) -> float:
+        """Start the next piece (from time t, at most ``remaining`` s) and return its length:
+        as long as the scripted pins allow, then, with pieces left to spend, shortened so that
+        the start guess stays within the contact bounds (each vertex's move from the detection
+        within bound_fraction of its nearest partner's distance), which the sweeps would
+        otherwise cut. 0.0 when the pins find no length."""
+        piece = self._fit_pins(state, t, remaining)
+        if piece <= 0.0:
+            return 0.0
+        kernels["begin"](piece, use_acceleration, previous_dt, t + piece)
+        if pieces_left > 1 and self.has_self_contact:
+            over = self.contact.overshoot_above(PACE_SHARE)
+            if over > 1.0:
+                shorter = max(piece * PACE_FIT / over, remaining / pieces_left)
+                if shorter < piece:
+                    piece = self._fit_pins(state, t, shorter)
+                    if piece <= 0.0:
+                        return 0.0
+                    kernels["begin"](piece, use_acceleration, previous_dt, t + piece)
+        return piece
+
+    def _fit_pins(self, state, t, length) -> float:
+        """``length``, or shorter where the scripted pins need it (0.0: no length fits)."""
+        piece = length if self.pins is None else self.pins.plan(state.x, t, length)
+        return length if piece >= length * (1.0 - 1e-9) else piece  # the end, not a rounding off it
+
+    def _sweep_piece(self, kernels, dt, t_end) -> int:
+        """The sweeps of a begun piece of dt seconds, detecting again every ``contact_refresh``
+        sweeps, then its end; returns the non-finite particles, or -1 when a detection could
+        miss pairs."""
+        contact = self.contact
+        every = contact.refresh_every or self.iterations
+        done, omega = 0, 1.0
+        while done < self.iterations:
+            if done and contact.refresh(self.point.x):
+                return -1
+            count = min(every, self.iterations - done)
+            if self.serial:
+                kernels["sweeps"](dt, t_end, done, count)
+            else:
+                for sweep in range(done, done + count):
+                    omega = self._omega(sweep, omega)
+                    kernels["sweep"](dt, t_end, omega, sweep)
+            done += count
+        return kernels["end"](dt)
