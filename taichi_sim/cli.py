@@ -161,11 +161,13 @@ def cmd_simulate(args) -> int:
 
     runtime.init(arch=args.arch, precision=args.precision)
     scene = build_scene(args.scene, params, seed=args.seed)
-    if args.dt is None and not adaptive and scene.default_dt < dt and step_limited(integrator_name):
-        # a fine cloth's particles are light: its explicit stable step is shorter than the preset's
+    explicit_dt = scene.explicit_step
+    if args.dt is None and not adaptive and step_limited(integrator_name) and explicit_dt < dt:
+        # a fine cloth's particles are light: its explicit stable step is shorter than the preset's;
+        # and the contact cloths' default (vbd) takes frame-sized steps
         print(f"taichi-sim: the default step {dt:g} s is past this scene's stable step for an explicit "
-              f"method: using its {scene.default_dt:g} s (give --dt to choose)", file=sys.stderr)
-        dt = scene.default_dt
+              f"method: using its {explicit_dt:g} s (give --dt to choose)", file=sys.stderr)
+        dt = explicit_dt
         check_planned(dt)
     if adaptive and scene.post_step and "max_step" not in options:
         options["max_step"] = 10 * preset.default_dt  # events act only between steps

@@ -103,6 +103,18 @@ def test_simulate_keeps_the_presets_step_for_an_implicit_method(tmp_path, capsys
     assert float(np.load(tmp_path / "i.npz")["dt"]) == 1e-3
 
 
+def test_the_contact_cloths_give_an_explicit_method_a_step_of_its_own(tmp_path, capsys):
+    """cloth-fold, cloth-spin and cloth-twist run vbd at 1/60 s by default; symplectic Euler
+    named without --dt takes the 1 ms it had as their default (at 1/60 s it blew up at step 7),
+    in simulate and in the launcher, and vbd beside it in the launcher shares that step."""
+    assert main(["simulate", "cloth-fold", "--set", "nx=8", "--set", "ny=8", "--integrator", "symplectic_euler",
+                 "--steps", "3", "--quiet", "--out", str(tmp_path / "f.npz")]) == 0
+    assert "using its 0.001 s" in capsys.readouterr().err
+    assert float(np.load(tmp_path / "f.npz")["dt"]) == 1e-3
+    assert Session("cloth-spin", ["vbd", "symplectic_euler"], params={"nx": 8, "ny": 8}).dt == 1e-3
+    assert math.isclose(Session("cloth-spin", ["vbd"], params={"nx": 8, "ny": 8}).dt, 1 / 60)
+
+
 def test_a_large_scenes_messages_take_the_bounds_without_iterating(f32, monkeypatch):
     scene = ts.build_scene("cloth", {"damping": 5.0})  # 1024 particles
     monkeypatch.setattr(theory, "POWER_PARTICLES", 1000)

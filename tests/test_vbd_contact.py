@@ -126,6 +126,29 @@ def test_pieces_let_a_fold_collapse_at_its_pace_without_intersecting(f32):
     assert heights[16] < 0.15 < heights[1], heights
 
 
+def test_a_piece_begun_again_keeps_the_warm_starts_acceleration(f64):
+    """A piece shortened for the pace is begun a second time with its shorter dt: its guess must
+    be the one a first start with that dt makes (the last substep's acceleration along gravity
+    included, though start_v already holds the new v0), and its start choice is counted once."""
+    scene = fold(8)
+    vbd = create_integrator("vbd", scene.system, self_contact=True)
+    stepper = step_checked(scene, vbd, H, 3)  # falling: the acceleration along gravity is g
+    begin = vbd._bound(scene.state)["begin"]
+    v0 = vbd.start_v.to_numpy()
+    short = H / 4
+
+    begin(short, 1, H, stepper.t + short, 0)
+    once = vbd.delta.to_numpy()
+    rests = vbd.rest_starts[None]
+    vbd.start_v.from_numpy(v0)  # as the last substep left it
+    begin(H, 1, H, stepper.t + H, 0)
+    begin(short, 1, H, stepper.t + short, 1)
+    np.testing.assert_allclose(vbd.delta.to_numpy(), once, rtol=0, atol=1e-12)
+    v = scene.state.to_numpy()[1]
+    assert np.abs(once - short * v).max() > 0.5 * 9.8 * short ** 2  # the gravity term is there
+    assert vbd.rest_starts[None] - rests == vbd.last_rest[None]
+
+
 def test_contact_pairs_dropped_for_lack_of_room_are_said(f32, monkeypatch):
     # each vertex keeps one pair: the fold finds more, and the run must say it lost them
     monkeypatch.setattr(vbd_contact, "CONTACTS_PER_VERTEX", 1)
@@ -152,7 +175,7 @@ def test_a_twisted_cloth_whose_pins_vbd_moves_never_intersects(f32):
     the pins jumping between steps instead (as before), this 16 x 16 twist intersected in 6 of
     its 90 frames, the first at 1.42 s."""
     scene = ts.build_scene("cloth-twist", {"nx": 16, "ny": 16})
-    vbd = create_integrator("vbd", scene.system)
+    vbd = create_integrator("vbd", scene.system, contact_pieces=1)  # pieces for the pins only
     tris = scene.mesh.triangles_np
     pinned = scene.kinematic.ids_np
 

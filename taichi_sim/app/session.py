@@ -147,7 +147,7 @@ class Session:
             [build_scene(self.scene_name, self.params, seed=self.seed) for _ in integrators]
         if self.follow_default_dt:  # the scene's explicit stable step where a panel needs one
             preset_dt = scene_preset(self.scene_name).default_dt
-            self.dt = float(scenes[0].default_dt if any(step_limited(n) for n in integrators) else preset_dt)
+            self.dt = float(scenes[0].explicit_step if any(step_limited(n) for n in integrators) else preset_dt)
         allowed = compatible_integrators(scenes[0], self.plugins)
         if fallback is not None:
             integrators = [n if n in allowed else fallback for n in integrators]

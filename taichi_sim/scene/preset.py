@@ -22,6 +22,7 @@ class ScenePreset:
     default_integrator: str
     size: Callable[[dict[str, Any]], Size] = lambda values: Size(1, 0)
     size_params: tuple[str, ...] = ()
+    explicit_dt: float | None = None  # s: an explicit method's step when not told (Scene.explicit_dt)
 
     def param(self, name: str) -> Param:
         return next(p for p in self.params if p.name == name)

@@ -24,6 +24,9 @@ class Scene:
         static_arrays: model data fixed at build time (mass, pinned, gravity, drag, ...); see
             :attr:`arrays` for everything.
         default_dt, default_integrator: what ``simulate`` uses when not told.
+        explicit_dt: the step (s) an explicit (step-limited) method takes when not told, where
+            the default method is not one and takes longer steps (the contact cloths run ``vbd``
+            at 1/60 s; symplectic Euler there at 1 ms, less on a fine grid); None: default_dt.
         seed: the random seed the scene was built with.
         parts: the optional scene parts (:class:`~taichi_sim.part.ScenePart`: colliders, the
             ground, scripted pins, self-contact, tearing, an emitter), in the order their events
@@ -53,6 +56,13 @@ class Scene:
     grabber: Any = None
     constraints: Any = None
     rest_x: np.ndarray | None = None
+    explicit_dt: float | None = None
+
+    @property
+    def explicit_step(self) -> float:
+        """The step (s) an explicit (step-limited) method takes when not told: ``explicit_dt``
+        where the scene has one, else ``default_dt``."""
+        return self.default_dt if self.explicit_dt is None else self.explicit_dt
 
     def part(self, name: str):
         """The part called ``name`` (e.g. ``"spheres"``, ``"plane"``), or None."""

@@ -89,12 +89,13 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, ContactPieces, Integrator):
         bound_fraction: each vertex's displacement cap as a fraction of its distance to the
             nearest object or contact partner, in (0, 0.5).
         friction_epsilon: the slip speed (m/s) below which friction is smoothed (IPC's eps_v).
-        contact_refresh: sweeps between self-contact detections; 0 (default): once per substep.
+        contact_refresh: sweeps between self-contact detections; 0 (default): once per piece of
+            a substep (:mod:`.vbd_pieces`).
         contact_pieces: with self-contact, the most pieces (default 16) a substep may be cut
             into so that its start guess stays within the contact bounds for all but 0.5 % of
-            the vertices (each piece a detection and its sweeps; :mod:`.vbd_pieces`); 1: one
-            piece, the guess cut to the bounds, which holds back a collapsing cloth
-            (docs/vbd.md, "The fold's pace").
+            the vertices (each piece a detection and its sweeps; :mod:`.vbd_pieces`; a scene's
+            scripted pins may need more, up to 256); 1: one piece, the guess cut to the bounds,
+            which holds back a collapsing cloth (docs/vbd.md, "The fold's pace").
         energy_cap: on a closed scene (no wind, turbulence, moving object, kinematic pin or
             emitter) without contact in the solve, shorten a substep that would end with more
             energy (J) than it started with toward its start until it does not
@@ -118,8 +119,9 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, ContactPieces, Integrator):
     @classmethod
     def scratch_bytes(cls, particles: int, springs: int, real_bytes: int, linear_solver: str = "cg") -> int:
         """Start positions and velocities, the displacement, two earlier ones (Chebyshev), the
-        colour order per particle; a penalty and a multiplier per spring (the augmented option)."""
-        return particles * (15 * real_bytes + 4) + springs * 2 * real_bytes
+        last acceleration along gravity, the colour order per particle; a penalty and a multiplier
+        per spring (the augmented option)."""
+        return particles * (16 * real_bytes + 4) + springs * 2 * real_bytes
 
     def __init__(self, system: System, *, iterations: int = 20, substeps: int = 1, warm_start: bool = True,
                  chebyshev_rho: float = 0.0, augmented: bool = False, penalty: float = 1e3,
@@ -186,6 +188,9 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, ContactPieces, Integrator):
         self.serial = runtime.serial_loops(n + (self.springs.spring_count if self.has_springs else 0),
                                            SERIAL_WORK)
         self.rest_starts = ti.field(ti.i32, shape=())  # substeps whose sweeps started at V = 0
+        self.last_rest = ti.field(ti.i32, shape=())  # whether the last begun start was V = 0
+        # the last substep's acceleration along gravity (m/s^2), for a piece begun again
+        self.gravity_along = ti.field(real, shape=max(1, n))
         self._kernels: dict = {}
         self._resume_time: float | None = None  # when the last step ended (warm start continues it)
         self._last_dt = 0.0
@@ -230,7 +235,7 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, ContactPieces, Integrator):
             elif self.serial:
                 bad = kernels["substep"](dt, t_end, use_acceleration, previous_dt, self.iterations)
             else:
-                kernels["begin"](dt, use_acceleration, previous_dt, t_end)
+                kernels["begin"](dt, use_acceleration, previous_dt, t_end, 0)
                 omega = 1.0
                 for sweep in range(self.iterations):
                     omega = self._omega(sweep, omega)
@@ -270,7 +275,7 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, ContactPieces, Integrator):
 
         @ti.kernel
         def substep(dt: float, t: float, use_acceleration: ti.i32, previous_dt: float, iterations: ti.i32) -> ti.i32:
-            vbd._begin(y, dt, use_acceleration, previous_dt, t)
+            vbd._begin(y, dt, use_acceleration, previous_dt, t, 0)
             ti.loop_config(serialize=True)
             for _ in range(1):  # one serial task: every sweep, colour after colour
                 omega = 1.0
@@ -292,8 +297,8 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, ContactPieces, Integrator):
             return vbd._finish(y, dt)
 
         @ti.kernel
-        def begin(dt: float, use_acceleration: ti.i32, previous_dt: float, t: float):
-            vbd._begin(y, dt, use_acceleration, previous_dt, t)
+        def begin(dt: float, use_acceleration: ti.i32, previous_dt: float, t: float, again: ti.i32):
+            vbd._begin(y, dt, use_acceleration, previous_dt, t, again)
 
         @ti.kernel
         def sweeps(dt: float, t: float, first: ti.i32, count: ti.i32):
@@ -337,8 +342,11 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, ContactPieces, Integrator):
         return {"substep": substep, "begin": begin, "sweeps": sweeps, "sweep": sweep, "end": end}
 
     @ti.func
-    def _begin(self, y, dt, use_acceleration, previous_dt, t):
-        """Keep (x0, v0) and put the iterate at the start guess (see the class docstring)."""
+    def _begin(self, y, dt, use_acceleration, previous_dt, t, again):
+        """Keep (x0, v0) and put the iterate at the start guess (see the class docstring).
+        ``again`` != 0: the same start begun again with another dt (a shortened piece,
+        vbd_pieces): start_v already holds y.v, so the acceleration is the one kept the first
+        time, and the first time's start choice is not counted twice."""
         direction = ti.Vector.zero(y.x.dtype, 3)
         g = ti.cast(0.0, y.x.dtype)
         if ti.static(self.has_gravity):
@@ -351,7 +359,10 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, ContactPieces, Integrator):
                 if use_acceleration and previous_dt > 0.0:
                     # The last substep's acceleration along gravity, clamped to [0, g] (Chen et
                     # al. 2024, adaptive initialisation); start_v still holds that substep's v0.
-                    along = (y.v[i] - self.start_v[i]).dot(direction) / previous_dt
+                    along = self.gravity_along[i]
+                    if not again:
+                        along = (y.v[i] - self.start_v[i]).dot(direction) / previous_dt
+                        self.gravity_along[i] = along
                     delta = dt * y.v[i] + dt * dt * ti.min(ti.max(along, 0.0), g) * direction
                 else:
                     delta = dt * y.v[i]
@@ -394,6 +405,9 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, ContactPieces, Integrator):
                 self.point.x[i] = self.start_x[i]
                 self.point.v[i] = ti.Vector.zero(y.x.dtype, 3)
         at_rest = self._merit(dt) < guess_merit
+        if again:
+            self.rest_starts[None] -= self.last_rest[None]
+        self.last_rest[None] = int(at_rest)
         if at_rest:
             self.rest_starts[None] += 1
             if ti.static(self.has_self_contact):

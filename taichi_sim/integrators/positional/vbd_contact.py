@@ -26,14 +26,16 @@ class SolveContact:
 
     Objects (the ground plane, spheres, capsules, boxes, where they are at the substep's end):
     with d the signed distance to the surface and n its outward normal, below the contact
-    radius r the energy 1/2 k_i (r - d)^2 with k_i = ``stiffness`` m_i / dt^2, and IPC's lagged
+    radius r the energy 1/2 k_i (r - d)^2 with k_i = ``stiffness`` m_i / dt^2 (dt the
+    substep's length, ``penalty_dt``, also in each of its pieces), and IPC's lagged
     friction mu lambda f0(|u|) on the tangential slip u of the substep relative to the surface
     (lambda = k_i (r - d), f0 smoothed below |u| = ``friction_epsilon`` dt). Each vertex step
     is then shortened to ``bound_fraction`` times the vertex's distance to the nearest object
     (conservative advancement: a vertex outside a convex object cannot reach it).
 
     Self-contact: vertex-triangle and edge-edge pairs closer than r at the last refresh (a
-    spatial hash at the current positions, once per substep or every ``refresh`` sweeps), each
+    spatial hash at the current positions, once per piece of a substep or every ``refresh``
+    sweeps), each
     pair the energy 1/2 k (r - d)^2 (k = ``stiffness`` m / dt^2, m the mean particle mass) plus
     friction ``self_friction`` as above. Every vertex's displacement since the refresh, less one
     translation ``shift`` common to all (the start guess's mean, when no particle is pinned), is
@@ -332,8 +334,9 @@ class SolveContact:
         (the last bin holds the rest)."""
         centre = self.ref_x[i] - start + self.shift[None]
         ratio = (delta - centre).norm() / ti.max(self.fraction * self.nearest[i], 1e-30)
-        if ratio > 1.0:
-            b = ti.min(ti.cast(ti.log(ratio) / ti.log(2.0) * OVERSHOOT_BINS_PER_OCTAVE, ti.i32), OVERSHOOT_BINS - 1)
+        if ratio > 1.0:  # (capped before the log: an infinite ratio has no bin)
+            octaves = ti.log(ti.min(ratio, 2.0 ** (OVERSHOOT_BINS // OVERSHOOT_BINS_PER_OCTAVE))) / ti.log(2.0)
+            b = ti.max(0, ti.min(ti.cast(octaves * OVERSHOOT_BINS_PER_OCTAVE, ti.i32), OVERSHOOT_BINS - 1))
             ti.atomic_add(self.overshoot[b], 1)
 
     def overshoot_above(self, share: float) -> float:
@@ -445,4 +448,4 @@ def check_contact_options(radius, stiffness, bound_fraction, friction_epsilon, r
             or not 0 < bound_fraction < 0.5:
         raise ConfigError(f"bound_fraction must be a number in (0, 0.5), got {bound_fraction!r}")
     if isinstance(refresh, bool) or not isinstance(refresh, (int, np.integer)) or refresh < 0:
-        raise ConfigError(f"contact_refresh must be an integer >= 0 (0: once per substep), got {refresh!r}")
+        raise ConfigError(f"contact_refresh must be an integer >= 0 (0: once per piece), got {refresh!r}")

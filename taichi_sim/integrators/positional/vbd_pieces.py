@@ -8,13 +8,16 @@ on each other faster than that per detection falls behind (docs/vbd.md, "The fol
 substep is therefore cut short where
 
 * the scene's scripted pins would move further than their bounds (:mod:`.vbd_pins`; always);
-* the start guess would leave the bounds, with ``contact_pieces`` > 1: the piece is shortened
-  until it fits for all but ``PACE_SHARE`` of the free vertices (a few vertices jiggling in a
-  settled pile do not cut every step into pieces; theirs are cut as before), at most
-  ``contact_pieces`` pieces a substep.
+* the start guess would leave the bounds, with ``contact_pieces`` > 1: the piece is begun
+  again, shortened once to where the guesses of all but ``PACE_SHARE`` of the free vertices
+  would fit (a few vertices jiggling in a settled pile do not cut every step into pieces;
+  theirs are cut as before), at most ``contact_pieces`` pieces a substep for this (the pins'
+  pieces come on top, up to ``MAX_PIECES``).
 
-Each piece is a backward Euler step of its own length, so a substep in pieces is what shorter
-substeps would be where the motion needs them, and one piece where it does not.
+Each piece is a backward Euler step of its own length, where the motion needs it, and a
+substep is one piece where it does not. The contact penalty keeps the substep's stiffness in
+every piece (``SolveContact.penalty_dt``): scaled by a piece's own length, its push-out gave
+energy to a folding cloth.
 """
 
 MAX_PIECES = 256  # pieces of one substep before the step is given up (pins the cloth cannot let by)
@@ -62,7 +65,7 @@ class ContactPieces:
         piece = self._fit_pins(state, t, remaining)
         if piece <= 0.0:
             return 0.0
-        kernels["begin"](piece, use_acceleration, previous_dt, t + piece)
+        kernels["begin"](piece, use_acceleration, previous_dt, t + piece, 0)
         if pieces_left > 1 and self.has_self_contact:
             over = self.contact.overshoot_above(PACE_SHARE)
             if over > 1.0:
@@ -71,13 +74,13 @@ class ContactPieces:
                     piece = self._fit_pins(state, t, shorter)
                     if piece <= 0.0:
                         return 0.0
-                    kernels["begin"](piece, use_acceleration, previous_dt, t + piece)
+                    kernels["begin"](piece, use_acceleration, previous_dt, t + piece, 1)
         return piece
 
     def _fit_pins(self, state, t, length) -> float:
-        """``length``, or shorter where the scripted pins need it (0.0: no length fits)."""
-        piece = length if self.pins is None else self.pins.plan(state.x, t, length)
-        return length if piece >= length * (1.0 - 1e-9) else piece  # the end, not a rounding off it
+        """``length`` itself, or at most half of it where the scripted pins need a shorter piece
+        (0.0: no length fits)."""
+        return length if self.pins is None else self.pins.plan(state.x, t, length)
 
     def _sweep_piece(self, kernels, dt, t_end) -> int:
         """The sweeps of a begun piece of dt seconds, detecting again every ``contact_refresh``

@@ -66,9 +66,9 @@ class DrivenPins:
         return 0.0
 
     @ti.kernel
-    def _load(self, x: ti.template(), where: ti.types.ndarray(), speed: ti.types.ndarray()) -> ti.f64:
+    def _load(self, x: ti.template(), where: ti.types.ndarray(), speed: ti.types.ndarray()) -> ti.f32:
         """Put the targets in place; return the largest ratio of a pin's move to its bound."""
-        worst = ti.cast(0.0, ti.f64)
+        worst = ti.cast(0.0, x.dtype)
         for k in range(self.count):
             i = self.ids[k]
             p = ti.Vector([where[k, 0], where[k, 1], where[k, 2]], dt=x.dtype)
@@ -77,8 +77,8 @@ class DrivenPins:
             # the shift is zero on a scene with pins: bounds are measured from the detection
             bound = self.contact.fraction * self.contact.nearest[i]
             move = (p - x[i]).norm()
-            ratio = ti.cast(0.0, ti.f64)
+            ratio = ti.cast(0.0, x.dtype)
             if move > 0.0:
-                ratio = ti.cast(move, ti.f64) / ti.max(ti.cast(bound, ti.f64), 1e-300)
+                ratio = move / ti.max(bound, 1e-30)
             ti.atomic_max(worst, ratio)
-        return worst
+        return ti.cast(worst, ti.f32)
