@@ -86,9 +86,9 @@ def fold(n: int = 12, **extra):
     return ts.build_scene("cloth-fold", {"nx": n, "ny": n, "self_collision": False, "jitter": 0.002, **extra})
 
 
-def test_a_cloth_folding_on_itself_never_intersects_and_never_gains_energy(f32):
-    scene = fold()
-    vbd = create_integrator("vbd", scene.system, self_contact=True)
+def step_clean(scene, vbd, steps):
+    """Step ``scene`` with ``vbd`` at H, failing on any frame with intersecting triangles;
+    returns (the energies (J), the start's first; the stepper)."""
     tris = scene.mesh.triangles_np
     energy = [scene.energy()]
 
@@ -96,8 +96,14 @@ def test_a_cloth_folding_on_itself_never_intersects_and_never_gains_energy(f32):
         assert not len(self_intersections(scene.state.to_numpy()[0], tris).pairs)
         energy.append(scene.energy())
 
-    step_checked(scene, vbd, H, 90, clean)
-    energy = np.asarray(energy)
+    stepper = step_checked(scene, vbd, H, steps, clean)
+    return np.asarray(energy), stepper
+
+
+def test_a_cloth_folding_on_itself_never_intersects_and_never_gains_energy(f32):
+    scene = fold()
+    vbd = create_integrator("vbd", scene.system, self_contact=True)
+    energy, _ = step_clean(scene, vbd, 90)
     assert np.all(energy <= energy[0] * (1 + 1e-6)), energy.max() - energy[0]
     assert vbd.contact.pairs_total > 0  # the layers met
     assert vbd.run_warning() == ""  # every pair found was kept
@@ -112,14 +118,7 @@ def test_pieces_let_a_fold_collapse_at_its_pace_without_intersecting(f32):
     for pieces in (1, 16):
         scene = fold(16)
         vbd = create_integrator("vbd", scene.system, self_contact=True, contact_pieces=pieces)
-        tris = scene.mesh.triangles_np
-        energy = [scene.energy()]
-
-        def clean(scene):
-            assert not len(self_intersections(scene.state.to_numpy()[0], tris).pairs)
-            energy.append(scene.energy())
-
-        step_checked(scene, vbd, H, 30, clean)
+        energy, _ = step_clean(scene, vbd, 30)
         assert max(energy) <= energy[0] * (1 + 1e-6), max(energy) - energy[0]
         heights[pieces] = float(scene.state.to_numpy()[0][:, 1].mean())
         assert (vbd.pieces > 30 + 30) == (pieces > 1)  # more than a piece a step, only when allowed
@@ -176,13 +175,8 @@ def test_a_twisted_cloth_whose_pins_vbd_moves_never_intersects(f32):
     its 90 frames, the first at 1.42 s."""
     scene = ts.build_scene("cloth-twist", {"nx": 16, "ny": 16})
     vbd = create_integrator("vbd", scene.system, contact_pieces=1)  # pieces for the pins only
-    tris = scene.mesh.triangles_np
     pinned = scene.kinematic.ids_np
-
-    def clean(scene):
-        assert not len(self_intersections(scene.state.to_numpy()[0], tris).pairs)
-
-    stepper = step_checked(scene, vbd, H, 90, clean)
+    _, stepper = step_clean(scene, vbd, 90)
     assert vbd.replaces_parts == {"self_collision", "kinematic"}
     assert vbd.pieces > 90  # the pins needed more than one piece a step somewhere
     where, speed = scene.kinematic.path.at(stepper.t)

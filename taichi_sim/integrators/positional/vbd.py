@@ -16,7 +16,7 @@ from ..implicit.common import positive_int
 from .colouring import colour_vertices
 from .vbd_contact import SolveContact, check_contact_options
 from .vbd_energy import EnergyCap
-from .vbd_pieces import MAX_PIECES, ContactPieces
+from .vbd_pieces import FAILURES, ContactPieces
 from .vbd_pins import DrivenPins
 from .vbd_scene import SceneAttachment
 from .vbd_springs import VBDSprings, fraction_option, positive_option
@@ -226,12 +226,8 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, ContactPieces, Integrator):
                 bad = self._contact_substep(kernels, state, dt, t_end, use_acceleration, previous_dt)
                 if bad < 0:
                     self._resume_time = None
-                    message = ("vbd: the contact detection lost pairs (positions non-finite or too far apart "
-                               "for its hash)") if bad == -1 else (
-                        f"vbd: the scripted pins could not move within their contact bounds in {MAX_PIECES} "
-                        "pieces of a substep (a pin pressed into the cloth): lower --dt")
                     return StepReport(accepted=False, h=0.0, next_h=h, f_evals=k * self.iterations,
-                                      status=Status.DIVERGED, message=message)
+                                      status=Status.DIVERGED, message=FAILURES[bad])
             elif self.serial:
                 bad = kernels["substep"](dt, t_end, use_acceleration, previous_dt, self.iterations)
             else:

@@ -23,6 +23,14 @@ energy to a folding cloth.
 MAX_PIECES = 256  # pieces of one substep before the step is given up (pins the cloth cannot let by)
 PACE_FIT = 0.9  # a piece shortened for the pace aims its guess at this share of the bounds
 PACE_SHARE = 0.005  # ... for all but this share of the free vertices (a few jiggling in a pile)
+# what a substep returns instead of its non-finite particle count when it cannot go on
+LOST_PAIRS = -1  # a detection could miss pairs (positions non-finite or beyond its hash)
+PINS_STUCK = -2  # the scripted pins found no piece they fit in
+FAILURES = {
+    LOST_PAIRS: "vbd: the contact detection lost pairs (positions non-finite or too far apart for its hash)",
+    PINS_STUCK: f"vbd: the scripted pins could not move within their contact bounds in {MAX_PIECES} pieces "
+                "of a substep (a pin pressed into the cloth): lower --dt",
+}
 
 
 class ContactPieces:
@@ -35,18 +43,18 @@ class ContactPieces:
         start (free of intersections), starts from the bounded guess and sweeps, detecting
         again every ``contact_refresh`` sweeps. A piece ends early where the scripted pins need
         it (:mod:`.vbd_pins`) and, with ``contact_pieces`` > 1, where the guess would leave the
-        bounds (:meth:`_plan_piece`). Returns the non-finite particles, -1 when a detection
-        could miss pairs, -2 when the pins found no piece they fit in."""
+        bounds (:meth:`_plan_piece`). Returns the non-finite particles, or ``LOST_PAIRS`` or
+        ``PINS_STUCK`` (:data:`FAILURES` says why)."""
         contact = self.contact
         contact.penalty_dt[None] = dt
         t, remaining = t_end - dt, dt
         for done in range(MAX_PIECES):
             if contact.refresh(state.x):
-                return -1
+                return LOST_PAIRS
             piece = self._plan_piece(kernels, state, t, remaining, use_acceleration, previous_dt,
                                      self.contact_pieces - done)
             if piece <= 0.0:
-                return -2
+                return PINS_STUCK
             bad = self._sweep_piece(kernels, piece, t + piece)
             self.pieces += 1
             self._last_dt = piece
@@ -54,7 +62,7 @@ class ContactPieces:
                 return bad
             t, remaining = t + piece, remaining - piece
             use_acceleration, previous_dt = int(self.warm_start), piece
-        return -2
+        return PINS_STUCK
 
     def _plan_piece(self, kernels, state, t, remaining, use_acceleration, previous_dt, pieces_left) -> float:
         """Start the next piece (from time t, at most ``remaining`` s) and return its length:
@@ -84,14 +92,14 @@ class ContactPieces:
 
     def _sweep_piece(self, kernels, dt, t_end) -> int:
         """The sweeps of a begun piece of dt seconds, detecting again every ``contact_refresh``
-        sweeps, then its end; returns the non-finite particles, or -1 when a detection could
-        miss pairs."""
+        sweeps, then its end; returns the non-finite particles, or ``LOST_PAIRS`` when a
+        detection could miss pairs."""
         contact = self.contact
         every = contact.refresh_every or self.iterations
         done, omega = 0, 1.0
         while done < self.iterations:
             if done and contact.refresh(self.point.x):
-                return -1
+                return LOST_PAIRS
             count = min(every, self.iterations - done)
             if self.serial:
                 kernels["sweeps"](dt, t_end, done, count)
