@@ -4,7 +4,7 @@ import pytest
 
 import taichi_sim as ts
 from taichi_sim.cli import main
-from taichi_sim.geometry import predicates, self_intersections
+from taichi_sim.geometry import intersections, predicates, self_intersections
 
 TRI = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 
@@ -59,6 +59,35 @@ def test_the_float_filter_agrees_with_exact_arithmetic(monkeypatch):
     assert np.array_equal(filtered, exact)
     naive = np.sign(np.einsum("ij,ij->i", b - a, np.cross(c - a, d - a)))
     assert (naive != exact).sum() > 100  # cases where plain floating point gets the sign wrong
+
+
+def grid_triangles(n):
+    """The triangles of an n x n grid of vertices, two a square."""
+    v = np.arange(n * n).reshape(n, n)
+    a, b, c, d = v[:-1, :-1].ravel(), v[1:, :-1].ravel(), v[:-1, 1:].ravel(), v[1:, 1:].ravel()
+    return np.concatenate([np.stack([a, b, d], axis=1), np.stack([a, d, c], axis=1)])
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_the_broad_phase_passes_every_pair_of_overlapping_boxes_once(seed):
+    rng = np.random.default_rng(seed)
+    n = 16
+    u, v = (g.ravel() for g in np.meshgrid(np.linspace(0, 1, n), np.linspace(0, 1, n), indexing="ij"))
+    # crumpled, some vertices far more than others: boxes spanning one cell to several
+    x = np.stack([u, v, 0 * u], axis=1) + rng.normal(0, 0.1, (n * n, 3)) * rng.random((n * n, 1)) ** 2
+    if seed % 2:
+        x = np.round(x * 32) / 32  # on a lattice: boxes touching face to face or edge to edge
+    if seed % 3 == 0:
+        x[rng.integers(0, n * n, 3)] *= 4  # stretched triangles, wider than the grid allows
+    tris = grid_triangles(n)
+    corners = x[tris]
+    lo, hi = corners.min(axis=1), corners.max(axis=1)
+    i, j = np.triu_indices(len(tris), 1)
+    boxes = np.all((lo[i] <= hi[j]) & (lo[j] <= hi[i]), axis=1)
+    shared = (tris[i][:, :, None] == tris[j][:, None, :]).any(axis=(1, 2))
+    expected = np.stack([i, j], axis=1)[boxes & ~shared]
+    found = intersections._broad_phase(corners, tris)
+    assert np.array_equal(found[np.lexsort(found.T[::-1])], expected)  # all of them, each once
 
 
 def test_a_flat_cloth_is_clean_and_a_folded_one_is_not(f64):
