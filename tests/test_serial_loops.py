@@ -90,3 +90,49 @@ def test_an_anchor_changes_no_field_of_any_shape(f64):
     values[1] = 2.0 * values[1]
     for field, value in zip(fields, values):
         assert np.array_equal(field.to_numpy(), value)
+
+
+
+def acted(scene) -> dict:
+    """Wrap each post-step event of ``scene`` to count the steps in which it changed something
+    (the state, or the system: a torn spring); returns the counts by event class."""
+    counts: dict = {}
+
+    def watch(event):
+        def call(state, t, h):
+            before = state.to_numpy()
+            changed = event(state, t, h)
+            moved = not all(np.array_equal(b, a) for b, a in zip(before, state.to_numpy()))
+            key = type(event).__name__
+            counts[key] = counts.get(key, 0) + int(bool(changed) or moved)
+            return changed
+        return call
+
+    scene.post_step[:] = [watch(event) for event in scene.post_step]
+    return counts
+
+
+@pytest.mark.parametrize("name,params", [
+    ("cloth-sphere", {"capsule": True, "plane_height": 0.25}),
+    ("cloth-tear", {"plane": False, "box": True, "box_y": 0.9, "box_half_y": 0.05, "sphere_y": 1.25, "sphere_speed": 2.0})])
+def test_the_colliders_and_tearing_give_the_same_trajectory_serial_and_parallel(f64, monkeypatch, name, params):
+    """The post-step events' loops (a sphere, a capsule, a box, the ground plane, their kept step
+    starts, tearing) touch one particle or one spring an iteration, so running them on one
+    thread changes no bit of a run in which every one of them acts."""
+    if runtime._current["threads"] <= 1:
+        pytest.skip("one thread: every loop runs serial")
+    runs = []
+    for serial in (True, False):
+        monkeypatch.setattr(runtime, "SERIAL_WORK", 10 ** 12 if serial else 0)
+        scene = ts.build_scene(name, {"nx": 12, "ny": 12, **params})
+        colliders = [event for event in scene.post_step if hasattr(event, "serial")]
+        assert len(colliders) >= 2 and all(event.serial is serial for event in colliders)
+        assert all(event.start.serial is serial for event in colliders if hasattr(event, "start"))
+        assert scene.system.serial_loops is serial  # the tearing springs' loop follows the system
+        counts = acted(scene)
+        result = ts.run(scene, "symplectic_euler", dt=1e-3, steps=600)
+        assert result.status.value == "ok"
+        assert len(counts) == len(scene.post_step) and min(counts.values()) > 0, counts
+        runs.append((*scene.state.to_numpy(), scene.arrays.get("alive")))
+    for serial_run, parallel_run in zip(*runs):
+        assert serial_run is None and parallel_run is None or np.array_equal(serial_run, parallel_run)

@@ -23,6 +23,7 @@ class PrimitiveHash:
                  entries_per_primitive: int = 16):
         real = runtime.real()
         self.n, self.corners = count, corners
+        self.serial = runtime.serial_loops(count)  # for loops whose order cannot change a bit
         self.buckets = 1 << max(10, (4 * count - 1).bit_length())
         self.capacity = max(1, entries_per_primitive * count)
         self.cell = ti.field(real, shape=())
@@ -89,6 +90,7 @@ class PrimitiveHash:
                     alive: ti.template()) -> ti.f64:
         """The longest side (m) of any live primitive's swept box, as :meth:`build` would make it."""
         self.extent[None] = 0.0
+        ti.loop_config(serialize=self.serial)  # a maximum: the same in any order
         for p in range(self.n):
             if alive[p]:
                 lo, hi = self.swept_box(x0, x1, prims[p])

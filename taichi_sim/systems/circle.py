@@ -2,6 +2,7 @@
 
 import taichi as ti
 
+from .. import runtime
 from ..state import State, finite
 from .base import Health, System
 
@@ -19,13 +20,15 @@ class CircleSystem(System):
 
     def __init__(self, particle_count: int = 1):
         self.particle_count = int(particle_count)
+        self.serial_loops = runtime.serial_loops(self.particle_count)
 
     def eval_f(self, y: State, t: float, out: State) -> None:
         self._eval_f(y, out)
 
     @ti.kernel
     def _eval_f(self, y: ti.template(), out: ti.template()):
-        for i in y.x:
+        ti.loop_config(serialize=self.serial_loops)  # each point its own
+        for i in range(self.particle_count):
             p = y.x[i]
             out.x[i] = ti.Vector([-p[1], p[0], 0.0])
 

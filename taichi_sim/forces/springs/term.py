@@ -358,6 +358,7 @@ class Springs(SpringJacobians, ForceTerm):
     @ti.kernel
     def _tear(self, y: ti.template()) -> ti.i32:
         torn = 0
+        ti.loop_config(serialize=self.serial_loops)  # each spring its own; the count is an integer
         for s in range(self.spring_count):
             if self.alive[s]:
                 e = self.ends[s]

@@ -129,6 +129,7 @@ class MeshCollider(ScenePart):
         self.cell_start = ti.field(ti.i32, shape=self.grid.cell_count + 1)
         self.cell_triangles = ti.field(ti.i32, shape=max(1, capacity))
         self.start = StepStart(free.shape[0])
+        self.serial = runtime.serial_loops(free.shape[0])
         self.contacts = ti.field(ti.i64, shape=())
         self.listed_segment = -1
         self.normals_np = np.zeros((T, 3))
@@ -328,7 +329,8 @@ class MeshCollider(ScenePart):
     @ti.kernel
     def _collide(self, y: ti.template(), x_start: ti.template(), t: float, h: float, friction: float,
                  reach: float):
-        for i in y.x:
+        ti.loop_config(serialize=self.serial)
+        for i in range(y.x.shape[0]):  # a range-for: serialize applies
             if self.free[i]:
                 center = self.path.center(0, t)
                 a = x_start[i] - self.path.center(0, t - h)

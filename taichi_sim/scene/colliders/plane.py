@@ -31,6 +31,7 @@ class PlaneCollider(ScenePart):
         self.point_np = np.asarray(point, float)
         self.normal_np = normal / np.linalg.norm(normal)
         self.free = free
+        self.serial = runtime.serial_loops(free.shape[0])
         self.point = ti.Vector.field(3, real, shape=())
         self.normal = ti.Vector.field(3, real, shape=())
         self.restitution = ti.field(real, shape=())
@@ -55,7 +56,8 @@ class PlaneCollider(ScenePart):
     @ti.kernel
     def _project(self, y: ti.template()):
         n = self.normal[None]
-        for i in y.x:
+        ti.loop_config(serialize=self.serial)
+        for i in range(y.x.shape[0]):  # a range-for: serialize applies
             if self.free[i]:
                 depth = (y.x[i] - self.point[None]).dot(n)
                 if depth < 0.0:

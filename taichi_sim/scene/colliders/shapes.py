@@ -87,6 +87,7 @@ class _TranslatingShapes(FaceContact, Obstacle, ScenePart):
         self.friction.from_numpy(np.asarray([s.friction for s in shapes], runtime.np_real()))
         self.touch.from_numpy(np.asarray([TOUCH_FRACTION * self.thinnest(s) for s in shapes], runtime.np_real()))
         self.start = StepStart(free.shape[0])
+        self.serial = runtime.serial_loops(free.shape[0] * K)
         self._init_faces(mesh, system, [self.bounding_box(s) for s in shapes], [self.thinnest(s) for s in shapes])
         self.move_to(0.0)
 
@@ -143,7 +144,8 @@ class _TranslatingShapes(FaceContact, Obstacle, ScenePart):
 
     @ti.kernel
     def _collide(self, y: ti.template(), x_start: ti.template(), t: float, h: float):
-        for i in y.x:
+        ti.loop_config(serialize=self.serial)
+        for i in range(y.x.shape[0]):  # a range-for: serialize applies
             if self.free[i]:
                 for k in range(self.count):
                     center = self.path.center(k, t)

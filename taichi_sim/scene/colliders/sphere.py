@@ -59,6 +59,7 @@ class SphereColliders(FaceContact, Obstacle, ScenePart):
         self.radius.from_numpy(np.asarray(radii, runtime.np_real()))
         self.friction.from_numpy(np.asarray(frictions, runtime.np_real()))
         self.start = StepStart(free.shape[0])
+        self.serial = runtime.serial_loops(free.shape[0] * K)
         self.paths0 = tuple(self.paths)
         self.path.upload(self.paths)
         self.touch = ti.field(real, shape=K)
@@ -160,7 +161,8 @@ class SphereColliders(FaceContact, Obstacle, ScenePart):
 
     @ti.kernel
     def _collide(self, y: ti.template(), x_start: ti.template(), t: float, h: float, continuous: ti.template()):
-        for i in y.x:
+        ti.loop_config(serialize=self.serial)
+        for i in range(y.x.shape[0]):  # a range-for: serialize applies
             if self.free[i]:
                 for k in range(self.count):
                     c1 = self.path.center(k, t)

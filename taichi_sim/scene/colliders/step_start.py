@@ -17,6 +17,7 @@ class StepStart:
 
     def __init__(self, n: int):
         self.x = ti.Vector.field(3, runtime.real(), shape=n)
+        self.serial = runtime.serial_loops(n)  # two loads and a store a particle
         self.t_end = None
 
     def restore(self) -> None:
@@ -34,10 +35,12 @@ class StepStart:
 
     @ti.kernel
     def _estimate(self, y: ti.template(), h: float):
-        for i in y.x:
+        ti.loop_config(serialize=self.serial)
+        for i in range(y.x.shape[0]):  # a range-for: serialize applies
             self.x[i] = y.x[i] - h * y.v[i]
 
     @ti.kernel
     def _keep(self, y: ti.template()):
-        for i in y.x:
+        ti.loop_config(serialize=self.serial)
+        for i in range(y.x.shape[0]):  # a range-for: serialize applies
             self.x[i] = y.x[i]
