@@ -5,6 +5,7 @@ import math
 import taichi as ti
 
 from ... import runtime
+from ...loops import anchor
 from ...systems.base import System
 from ..base import Integrator, StepReport
 from ..equation import FIXED_WORK, Equation
@@ -42,7 +43,11 @@ class XPBD(Integrator):
     The springs are edge-coloured once (:func:`~.colouring.colour_springs`): the springs of one
     colour share no particle, so a colour can be projected in parallel (on a GPU; on a CPU the
     loops run on one thread below :data:`SERIAL_SPRINGS`, where that is faster). Tearing only
-    kills springs, so the colouring stays valid; nothing is refactorised.
+    kills springs, so the colouring stays valid; nothing is refactorised. At the start of each
+    step the springs are copied in colour order with their compliance terms for that step's dt
+    (live stiffness, damping and rest length changes and torn springs are seen at the next
+    step) and the update's denominator, and each particle's inverse mass is stored, so a
+    projection reads its spring's data in sequence and divides only once (by its length).
 
     What it converges to: with the sweeps converged, each substep is a backward Euler step of the
     springs (with the explicit forces applied first), so XPBD inherits backward Euler's
@@ -72,9 +77,11 @@ class XPBD(Integrator):
 
     @classmethod
     def scratch_bytes(cls, particles: int, springs: int, real_bytes: int, linear_solver: str = "cg") -> int:
-        """Displacement and explicit force per particle; lambda and order per spring, and the
-        edge colouring's Python ints on the host while it runs (about 120 bytes per spring)."""
-        return 6 * real_bytes * particles + springs * (real_bytes + 4 + 120)
+        """Per particle the substep's record (8 reals), the explicit force and the inverse mass;
+        per spring lambda, its place in colour order and the colour-ordered copy (ends and six
+        reals), and the edge colouring's Python ints on the host while it runs (about 120 bytes
+        per spring)."""
+        return 12 * real_bytes * particles + springs * (7 * real_bytes + 12 + 120)
 
     def __init__(self, system: System, *, substeps: int = 20, iterations: int = 1):
         super().__init__(system)
@@ -85,16 +92,28 @@ class XPBD(Integrator):
         self.springs = system.term("springs")
         self.grab = system.term("grab")
         self.has_springs, self.has_grab = self.springs is not None, self.grab is not None
-        # The substep's displacement (m): kept apart from the positions so that v = delta / dt
-        # carries no cancellation (in f32, x1 - x0 at a small dt would leave v mostly rounding).
-        self.delta = ti.Vector.field(3, real, shape=n)
+        # Each particle's substep as one record (x, 0, delta, 0): its position at the substep's
+        # start and its displacement (m), so a projection reads both ends in one cache line each
+        # and works on 4-wide vectors (the zero lanes stay zero). The displacement is kept apart
+        # from the position so that v = delta / dt carries no cancellation (in f32, x1 - x0 at
+        # a small dt would leave v mostly rounding).
+        self.record = ti.Vector.field(8, real, shape=n)
+        self.w = ti.field(real, shape=n)  # inverse mass (1/kg) for this step; 0 on a particle that does not move
         self.starts: list[int] = [0]
         if self.springs is not None:
             order, self.starts = colour_springs(n, self.springs.ends_np)
-            self.order = ti.field(ti.i32, shape=max(1, len(order)))
+            self.colour_order = ti.field(ti.i32, shape=max(1, len(order)))
             if len(order):
-                self.order.from_numpy(order)
-            self.multiplier = ti.field(real, shape=max(1, self.springs.spring_count))  # lambda (N s^2)
+                self.colour_order.from_numpy(order)
+            # The springs in colour order (index q = place in colour_order), refreshed each step
+            # by _prepare: the sweep reads them in sequence instead of through colour_order.
+            size = max(1, len(order))
+            self.ends = ti.Vector.field(2, ti.i32, shape=size)
+            # (rest length, alpha = 1/(k dt^2), gamma = damping/(k dt), 1 / the update's
+            # denominator, w_i, w_j): all fixed through a step. alpha < 0 marks a spring that is
+            # skipped (torn, k <= 0, or both ends fixed)
+            self.terms = ti.Vector.field(6, real, shape=size)
+            self.multiplier = ti.field(real, shape=size)  # lambda (N s^2), in colour order
         self.grab_multiplier = ti.Vector.field(3, real, shape=())
         self.fused = self.iterations <= FUSED_ITERATIONS
         # Below SERIAL_SPRINGS each parallel loop costs more in thread hand-off than it gains
@@ -109,6 +128,7 @@ class XPBD(Integrator):
 
     def step(self, state, t: float, h: float) -> StepReport:
         dt = h / self.substeps
+        self._prepare(dt)
         for k in range(self.substeps):
             if self.solved_start is not None and k == self.substeps - 1:
                 self.solved_start.copy_from(state)  # what the convergence monitor measures
@@ -124,6 +144,28 @@ class XPBD(Integrator):
                           linear_iterations=self.substeps * self.iterations)
 
     # -- kernels --------------------------------------------------------------------------------
+
+    @ti.kernel
+    def _prepare(self, dt: float):
+        ti.loop_config(serialize=self.serial)
+        for i in range(self.system.particle_count):  # a range-for: serialize applies
+            self.w[i] = self.system.inverse_mass(i)
+        if ti.static(self.has_springs):
+            springs = self.springs
+            ti.loop_config(serialize=self.serial)
+            for q in range(self.colour_order.shape[0]):
+                s = self.colour_order[q]
+                k = springs.stiffness[s]
+                i, j = springs.ends[s][0], springs.ends[s][1]
+                wi, wj = self.w[i], self.w[j]
+                terms = ti.Vector([springs.rest[s], -1.0, 0.0, 0.0, wi, wj], dt=self.terms.dtype)
+                if springs.is_alive(s) and k > 0.0 and wi + wj > 0.0:
+                    alpha = 1.0 / (k * dt * dt)  # compliance / dt^2
+                    gamma = springs.damping[s] / (k * dt)  # alpha * (damping dt^2) / dt
+                    terms[1], terms[2] = alpha, gamma
+                    terms[3] = 1.0 / ((1.0 + gamma) * (wi + wj) + alpha)
+                self.ends[q] = springs.ends[s]
+                self.terms[q] = terms
 
     @ti.kernel
     def _substep(self, y: ti.template(), dt: float, t: float):
@@ -147,53 +189,76 @@ class XPBD(Integrator):
     @ti.func
     def _predict(self, y, dt, t):
         self.external.gather(y, t)
-        ti.loop_config(serialize=self.serial)
-        for i in range(self.system.particle_count):  # a range-for: serialize applies
-            step = ti.Vector.zero(y.x.dtype, 3)
-            if self.system.free[i]:
-                step = dt * (y.v[i] + dt * self.external.force[i] / self.system.mass[i])
-            self.delta[i] = step
-        if ti.static(self.has_springs):
-            ti.loop_config(serialize=self.serial)
-            for s in range(self.multiplier.shape[0]):
-                self.multiplier[s] = 0.0
+        if ti.static(self.serial):  # one serial task, anchored (taichi_sim/loops.py): about 5% of a step
+            ti.loop_config(serialize=True)
+            for _ in range(1):
+                for field in ti.static((y.x, y.v, self.record, self.w, self.external.force, self.system.free)):
+                    anchor(field)
+                for i in range(self.system.particle_count):
+                    self._predict_particle(i, y, dt)
+                if ti.static(self.has_springs):
+                    anchor(self.multiplier)
+                    for q in range(self.multiplier.shape[0]):
+                        self.multiplier[q] = 0.0
+        else:
+            for i in range(self.system.particle_count):
+                self._predict_particle(i, y, dt)
+            if ti.static(self.has_springs):
+                for q in range(self.multiplier.shape[0]):
+                    self.multiplier[q] = 0.0
         if ti.static(self.has_grab):
             self.grab_multiplier[None] = ti.Vector.zero(y.x.dtype, 3)
+
+    @ti.func
+    def _predict_particle(self, i, y, dt):
+        step = ti.Vector.zero(y.x.dtype, 3)
+        if self.system.free[i]:
+            step = dt * (y.v[i] + dt * self.external.force[i] * self.w[i])
+        self.record[i] = ti.Vector([y.x[i][0], y.x[i][1], y.x[i][2], 0.0, step[0], step[1], step[2], 0.0])
 
     @ti.func
     def _sweep(self, y, dt):
         """One Gauss-Seidel sweep, colour by colour, always in the same order (alternating the
         order, symmetric Gauss-Seidel, left a 64 x 64 cloth at k = 1e6 N/m with 7 to 100 times the
         stretch energy)."""
-        if ti.static(self.has_springs):
+        if ti.static(self.has_springs and self.serial):
+            # One thread: the colours in turn are one loop over the colour order. In one serial
+            # task the anchors keep the fields' base addresses in registers (taichi_sim/loops.py).
+            ti.loop_config(serialize=True)
+            for _ in range(1):
+                for field in ti.static((self.record, self.ends, self.terms, self.multiplier)):
+                    anchor(field)
+                for q in range(self.starts[-1]):
+                    self._project_spring(q, y)
+        elif ti.static(self.has_springs):
             for c in ti.static(range(self.colour_count)):
-                ti.loop_config(serialize=self.serial)
                 for q in range(self.starts[c], self.starts[c + 1]):
-                    self._project_spring(self.order[q], y, dt)
+                    self._project_spring(q, y)
         if ti.static(self.has_grab):
             for _ in range(1):  # one particle: a serial task
                 self._project_grab(y, dt)
 
     @ti.func
-    def _project_spring(self, s, y, dt):
-        springs = self.springs
-        k = springs.stiffness[s]
-        if springs.is_alive(s) and k > 0.0:
-            i, j = springs.ends[s][0], springs.ends[s][1]
-            wi, wj = self.system.inverse_mass(i), self.system.inverse_mass(j)
-            moved = self.delta[i] - self.delta[j]
-            d = (y.x[i] - y.x[j]) + moved
+    def _project_spring(self, q, y):
+        """Spring q of the colour order (its data as :meth:`_prepare` left it)."""
+        terms = self.terms[q]
+        alpha = terms[1]
+        if alpha >= 0.0:
+            i, j = self.ends[q][0], self.ends[q][1]
+            wi, wj = terms[4], terms[5]
+            ri, rj = self.record[i], self.record[j]
+            moved = ti.Vector([ri[4] - rj[4], ri[5] - rj[5], ri[6] - rj[6], ri[7] - rj[7]])
+            d = ti.Vector([ri[0] - rj[0], ri[1] - rj[1], ri[2] - rj[2], ri[3] - rj[3]]) + moved
             length = d.norm()
-            if wi + wj > 0.0 and length > 0.0:
-                u = d / length
-                alpha = 1.0 / (k * dt * dt)  # compliance / dt^2
-                gamma = springs.damping[s] / (k * dt)  # alpha * (damping dt^2) / dt
+            if length > 0.0:
+                u = d * (1.0 / length)
                 rate = u.dot(moved)
-                dl = (-(length - springs.rest[s]) - alpha * self.multiplier[s] - gamma * rate) \
-                    / ((1.0 + gamma) * (wi + wj) + alpha)
-                self.delta[i] += wi * dl * u
-                self.delta[j] -= wj * dl * u
-                self.multiplier[s] += dl
+                # dl = (-C - alpha lambda - gamma C-dot dt) / ((1 + gamma)(w_i + w_j) + alpha)
+                dl = (-(length - terms[0]) - alpha * self.multiplier[q] - terms[2] * rate) * terms[3]
+                for a in ti.static(range(4)):
+                    self.record[i][4 + a] = ri[4 + a] + wi * dl * u[a]
+                    self.record[j][4 + a] = rj[4 + a] - wj * dl * u[a]
+                self.multiplier[q] += dl
 
     @ti.func
     def _project_grab(self, y, dt):
@@ -201,20 +266,38 @@ class XPBD(Integrator):
         p = grab.particle[None]
         k = grab.stiffness[None]
         if p >= 0 and k > 0.0:
-            w = self.system.inverse_mass(p)
+            w = self.w[p]
             if w > 0.0:
                 alpha = 1.0 / (k * dt * dt)
                 gamma = grab.damping[None] / (k * dt)
-                rate = self.delta[p]
+                rate = self._delta(p)
                 dl = (-(y.x[p] - grab.target[None] + rate) - alpha * self.grab_multiplier[None] - gamma * rate) \
                     / ((1.0 + gamma) * w + alpha)
-                self.delta[p] += w * dl
+                for a in ti.static(range(3)):
+                    self.record[p][4 + a] += w * dl[a]
                 self.grab_multiplier[None] += dl
 
     @ti.func
     def _velocities(self, y, dt):
-        ti.loop_config(serialize=self.serial)
-        for i in range(self.system.particle_count):  # a range-for: serialize applies
-            if self.system.free[i]:
-                y.x[i] += self.delta[i]
-                y.v[i] = self.delta[i] / dt
+        if ti.static(self.serial):
+            ti.loop_config(serialize=True)
+            for _ in range(1):
+                for field in ti.static((y.x, y.v, self.record, self.system.free)):
+                    anchor(field)
+                for i in range(self.system.particle_count):
+                    self._move_particle(i, y, dt)
+        else:
+            for i in range(self.system.particle_count):
+                self._move_particle(i, y, dt)
+
+    @ti.func
+    def _move_particle(self, i, y, dt):
+        if self.system.free[i]:
+            delta = self._delta(i)
+            y.x[i] += delta
+            y.v[i] = delta / dt
+
+    @ti.func
+    def _delta(self, i):
+        """Particle i's displacement in this substep (m)."""
+        return ti.Vector([self.record[i][4], self.record[i][5], self.record[i][6]])
