@@ -208,12 +208,12 @@ def _triangles_intersect(t1: np.ndarray, t2: np.ndarray) -> np.ndarray:
         for tri, other, signs in ((u1, u2, s2), (u2, u1, s1)):
             for i, j in ((0, 1), (1, 2), (2, 0)):
                 si, sj = signs[solid, i], signs[solid, j]
-                r = np.flatnonzero((si * sj <= 0) & ~((si == 0) & (sj == 0)))
+                r = np.flatnonzero((si * sj <= 0) & ~((si == 0) & (sj == 0)))  # reaches the plane
                 t = solid[r]
                 rows.append(r)
-                tests.append((tri[t, i], tri[t, j], si[r], sj[r], other[t]))
+                tests.append((tri[t, i], tri[t, j], other[t]))
         hit = np.zeros(len(solid), bool)
-        meets = _segment_meets_triangle(*(np.concatenate(column) for column in zip(*tests)))
+        meets = _crossing_segment_meets_triangle(*(np.concatenate(column) for column in zip(*tests)))
         hit[np.concatenate(rows)[meets]] = True
         result[open_[solid]] = hit
     flat = np.flatnonzero(~apart & coplanar)
@@ -222,14 +222,12 @@ def _triangles_intersect(t1: np.ndarray, t2: np.ndarray) -> np.ndarray:
     return result
 
 
-def _segment_meets_triangle(p, q, sp, sq, tri) -> np.ndarray:
-    """Closed segment pq meets closed triangle tri, given the signs of p and q against its plane
-    (segments lying in the plane are the coplanar case's, not this test's)."""
-    crosses = ((sp * sq) <= 0) & ~((sp == 0) & (sq == 0))
+def _crossing_segment_meets_triangle(p, q, tri) -> np.ndarray:
+    """Closed segment pq, which reaches the plane of closed triangle tri without lying in it (its
+    ends' signs against the plane differ or one is zero: the caller's test), meets tri."""
     e = [orient3d(p, q, tri[:, k], tri[:, (k + 1) % 3]) for k in range(3)]
     e = np.stack(e, axis=1)
-    inside = np.all(e >= 0, axis=1) | np.all(e <= 0, axis=1)
-    return crosses & inside
+    return np.all(e >= 0, axis=1) | np.all(e <= 0, axis=1)
 
 
 def _coplanar_triangles_meet(t1: np.ndarray, t2: np.ndarray) -> np.ndarray:

@@ -229,17 +229,17 @@ class XPBD(Integrator):
                 for field in ti.static((self.record, self.ends, self.terms, self.multiplier)):
                     anchor(field)
                 for q in range(self.starts[-1]):
-                    self._project_spring(q, y)
+                    self._project_spring(q)
         elif ti.static(self.has_springs):
             for c in ti.static(range(self.colour_count)):
                 for q in range(self.starts[c], self.starts[c + 1]):
-                    self._project_spring(q, y)
+                    self._project_spring(q)
         if ti.static(self.has_grab):
             for _ in range(1):  # one particle: a serial task
                 self._project_grab(y, dt)
 
     @ti.func
-    def _project_spring(self, q, y):
+    def _project_spring(self, q):
         """Spring q of the colour order (its data as :meth:`_prepare` left it)."""
         terms = self.terms[q]
         alpha = terms[1]
