@@ -100,6 +100,40 @@ def step_clean(scene, vbd, steps):
     return np.asarray(energy), stepper
 
 
+def test_the_edge_query_finds_every_pair_of_edges_within_the_radius_once(f64):
+    """The detection's edge-edge query (edges bucketed once, in their home cell; each pair
+    taken from the edge whose home comes first) against every pair of edges tested directly,
+    on a crumpled cloth: the same pairs, none twice."""
+    from taichi_sim.collide.mesh_check import _segment_distance
+
+    scene = fold(12)
+    vbd = create_integrator("vbd", scene.system, self_contact=True, contact_radius=0.02)
+    vbd.attach_scene(scene)
+    x, v = scene.state.to_numpy()
+    i, j = np.divmod(np.arange(len(x)), 12)  # grid_index: particle i * ny + j
+    rng = np.random.default_rng(5)  # rows pressed 14 mm apart, bent and jittered
+    crumpled = np.stack([i / 11, 0.02 * np.sin(3.0 * i / 11 + j), 0.014 * j], axis=1) \
+        + rng.normal(0.0, 0.003, x.shape)
+    scene.state.from_numpy(crumpled, v)
+    contact = vbd.contact
+    assert contact.refresh(scene.state.x) == 0
+    count = int(contact.pair_count[None])
+    assert count <= contact.pair_capacity
+    ids, kind = contact.pair_ids.to_numpy()[:count], contact.pair_kind.to_numpy()[:count]
+    found = [tuple(sorted((tuple(sorted(p[:2])), tuple(sorted(p[2:]))))) for p in ids[kind == 1]]
+    assert len(found) == len(set(found))  # none twice
+    edges = contact.edges.to_numpy()[:contact.edge_count]
+    a, b = np.triu_indices(len(edges), 1)
+    apart = ~(edges[a][:, :, None] == edges[b][:, None, :]).any(axis=(1, 2))  # no shared vertex
+    a, b = a[apart], b[apart]
+    d = _segment_distance(crumpled[edges[a, 0]], crumpled[edges[a, 1]], crumpled[edges[b, 0]], crumpled[edges[b, 1]])
+    pair = lambda i, j: tuple(sorted((tuple(sorted(edges[i])), tuple(sorted(edges[j])))))  # noqa: E731
+    surely = {pair(i, j) for i, j in zip(a[d < 0.02 - 1e-9], b[d < 0.02 - 1e-9])}
+    maybe = {pair(i, j) for i, j in zip(a[d < 0.02 + 1e-9], b[d < 0.02 + 1e-9])}
+    assert len(surely) > 500  # a crumple, not a flat sheet
+    assert surely <= set(found) <= maybe
+
+
 def test_a_cloth_folding_on_itself_never_intersects_and_never_gains_energy(f32):
     scene = fold()
     vbd = create_integrator("vbd", scene.system, self_contact=True)

@@ -9,7 +9,7 @@ import taichi as ti
 
 from ... import runtime
 from ...collide.closest_points import closest_barycentric, segment_parameters
-from ...collide.hash_grid import PrimitiveHash
+from ...collide.hash_grid import PrimitiveHash, cell_order
 from ...collide.mesh_check import check_contact_mesh
 from ...errors import ConfigError
 
@@ -104,7 +104,8 @@ class SolveContact:
         self.edge_alive.fill(1)
         # a vertex is a point: the triangles' boxes grow by all of the reach, the edges' by half each
         self.triangle_grid = PrimitiveHash(mesh.triangle_count, 3, self.reach, self.reach, entries_per_primitive=16)
-        self.edge_grid = PrimitiveHash(len(edges), 2, self.reach, 0.5 * self.reach, entries_per_primitive=16)
+        self.edge_grid = PrimitiveHash(len(edges), 2, self.reach, 0.5 * self.reach, entries_per_primitive=1,
+                                       home_cell_only=True)
         self.ref_x = ti.Vector.field(3, real, shape=n)  # positions at the last refresh (m)
         self.nearest = ti.field(real, shape=n)  # distance to the nearest pair partner, capped at reach (m)
         self.shift = ti.Vector.field(3, real, shape=())  # the translation the bounds are measured from (m)
@@ -171,22 +172,33 @@ class SolveContact:
                     w = closest_barycentric(p, a, b, c)
                     d = (p - w[0] * a - w[1] * b - w[2] * c).norm()
                     self._near(ti.Vector([v, tri[0], tri[1], tri[2]]), 0, d)
-        eg = self.edge_grid
         for e1 in range(self.edge_count):
-            c_lo, c_hi = eg.cell_lo[e1], eg.cell_hi[e1]
-            ends = self.edges[e1]
-            for i, j, k in ti.ndrange((c_lo[0], c_hi[0] + 1), (c_lo[1], c_hi[1] + 1), (c_lo[2], c_hi[2] + 1)):
-                cell = ti.Vector([i, j, k])
+            self._edge_query(e1, x)
+
+    @ti.func
+    def _edge_query(self, e1, x):
+        """The edges near edge e1, each pair once: found from the edge whose home cell comes
+        first (:func:`~taichi_sim.collide.hash_grid.cell_order`), or from the lower index where
+        the two share a home; so the cells before e1's home are not read at all."""
+        eg = self.edge_grid
+        # every edge whose box can meet e1's has its home in this range, and is there once
+        c_lo, c_hi = eg.home_range(e1)
+        home = eg.cell_lo[e1]
+        ends, lo, hi = self.edges[e1], eg.lo[e1], eg.hi[e1]
+        for i, j, k in ti.ndrange((home[0], c_hi[0] + 1), (c_lo[1], c_hi[1] + 1), (c_lo[2], c_hi[2] + 1)):
+            cell = ti.Vector([i, j, k])
+            order = cell_order(cell, home)
+            if order >= 0:
                 first, last = eg.entries(eg.bucket(cell))
                 for e in range(first, last):
                     e2 = eg.items[e]
-                    other = self.edges[e2]
-                    if e2 > e1 and eg.first_shared_cell(cell, c_lo, c_hi, e2) \
-                            and ends[0] != other[0] and ends[0] != other[1] and ends[1] != other[0] \
-                            and ends[1] != other[1] and all(eg.lo[e1] <= eg.hi[e2]) and all(eg.lo[e2] <= eg.hi[e1]):
-                        ids = ti.Vector([ends[0], ends[1], other[0], other[1]])
-                        gap, _ = self._pair_geometry(ids, 1, x)
-                        self._near(ids, 1, gap.norm())
+                    if (order > 0 or e2 > e1) and eg.is_home(cell, e) and eg.entry_overlaps(e, lo, hi):
+                        other = self.edges[e2]
+                        if ends[0] != other[0] and ends[0] != other[1] and ends[1] != other[0] \
+                                and ends[1] != other[1]:
+                            ids = ti.Vector([ends[0], ends[1], other[0], other[1]])
+                            gap, _ = self._pair_geometry(ids, 1, x)
+                            self._near(ids, 1, gap.norm())
 
     @ti.func
     def _near(self, ids, kind, d):
