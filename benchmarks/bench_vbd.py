@@ -5,7 +5,10 @@ drag) falls from rest for ``--t-end`` s (default 0.5) at dt = 1/60 s in f32. For
 steps per second (median over the timed steps, after a warm-up run of two steps that compiles
 everything; the state is reset before the timed run), the rms and largest distance of the
 final positions from backward Euler solved tightly (implicit_euler, newton_tolerance 1e-6,
-f64, the same step), and the worst relative solver residual of a second, untimed run
+f64, the same step), the same from the cloth's converged motion (symplectic Euler at a quarter
+of its stable step in f64, the reference of `taichi-sim bench stiff-cloth`; the backward Euler
+step is itself a first-order approximation of that motion, and its row says how far it ends
+from it), and the worst relative solver residual of a second, untimed run
 (taichi_sim/convergence.py; the bound is 1e-2 or three times f32's rounding floor).
 
     python benchmarks/bench_vbd.py                          # 64 x 64, k = 1e6 and 1e8
@@ -23,6 +26,7 @@ import time
 import numpy as np
 
 import taichi_sim as ts
+from taichi_sim.bench.stiffcloth import reference_solution
 from taichi_sim.scene.cloth import fixed_particle_cloth
 
 DT = 1 / 60
@@ -70,7 +74,13 @@ def reference(size: int, k: float, steps: int) -> np.ndarray:
     return scene.state.to_numpy()[0].astype(float)
 
 
-def measure(size: int, k: float, method: str, steps: int, exact: np.ndarray) -> dict:
+def distances(x: np.ndarray, reference: np.ndarray) -> tuple[float, float]:
+    """(rms, largest) distance (m) of positions x ((n, 3)) from the reference's."""
+    distance = np.linalg.norm(x - reference, axis=1)
+    return math.sqrt(float(np.mean(distance ** 2))), float(distance.max())
+
+
+def measure(size: int, k: float, method: str, steps: int, exact: np.ndarray, motion: np.ndarray) -> dict:
     name, options = parse_method(method)
     ts.init(arch="cpu", precision="f32")
     scene = ts.build_scene("cloth", cloth(size, k))
@@ -91,13 +101,13 @@ def measure(size: int, k: float, method: str, steps: int, exact: np.ndarray) -> 
             status = report.status.value
             break
     x = scene.state.to_numpy()[0].astype(float)
-    distance = np.linalg.norm(x - exact, axis=1)
+    (rms, largest), (rms_motion, largest_motion) = distances(x, exact), distances(x, motion)
     scene.reset()
     integrator.reset()
     checked = ts.run(scene, integrator, dt=DT, steps=steps, energy_every=0)
     median = statistics.median(times)
     return {"method": method, "status": status, "steps_per_s": 1.0 / median, "ms": 1e3 * median,
-            "rms": math.sqrt(float(np.mean(distance ** 2))), "max": float(distance.max()),
+            "rms": rms, "max": largest, "rms_motion": rms_motion, "max_motion": largest_motion,
             "residual": checked.worst_residual, "warned": bool(checked.warnings)}
 
 
@@ -110,17 +120,21 @@ def main():
     args = parser.parse_args()
     steps = max(1, round(args.t_end / DT))
     print(f"load average (1 min): {os.getloadavg()[0]:.2f} on {os.cpu_count()} cpus")
-    print(f"{args.size}x{args.size} cloth, {steps} steps of 1/60 s, f32; error against implicit_euler "
-          f"(newton_tolerance 1e-6, f64)")
-    print(f"{'k (N/m)':>8} {'method':<40} {'status':<8} {'steps/s':>8} {'ms/step':>8} {'rms (m)':>8} "
-          f"{'max (m)':>8} {'residual':>9} {'warned':>6}")
+    print(f"{args.size}x{args.size} cloth, {steps} steps of 1/60 s, f32; error (m) against implicit_euler "
+          f"(newton_tolerance 1e-6, f64: 'BE') and against the converged motion (fine symplectic Euler, f64: "
+          f"'motion')")
+    print(f"{'k (N/m)':>8} {'method':<40} {'status':<8} {'steps/s':>8} {'ms/step':>8} {'rms BE':>8} "
+          f"{'max BE':>8} {'rms mot.':>8} {'max mot.':>8} {'residual':>9} {'warned':>6}")
     for k in (float(v) for v in args.stiffnesses.split(",")):
         exact = reference(args.size, k, steps)
+        motion = reference_solution(args.size, k, steps * DT)[0]
+        print(f"{k:8.0e} {'implicit_euler (the BE reference)':<40} {'ok':<8} {'':>8} {'':>8} {0.0:8.4f} "
+              f"{0.0:8.4f} {distances(exact, motion)[0]:8.4f} {distances(exact, motion)[1]:8.4f}", flush=True)
         for method in split_methods(args.methods):
-            row = measure(args.size, k, method.strip(), steps, exact)
+            row = measure(args.size, k, method.strip(), steps, exact, motion)
             print(f"{k:8.0e} {row['method']:<40} {row['status']:<8} {row['steps_per_s']:8.1f} {row['ms']:8.2f} "
-                  f"{row['rms']:8.4f} {row['max']:8.4f} {row['residual']:9.2g} {'yes' if row['warned'] else 'no':>6}",
-                  flush=True)
+                  f"{row['rms']:8.4f} {row['max']:8.4f} {row['rms_motion']:8.4f} {row['max_motion']:8.4f} "
+                  f"{row['residual']:9.2g} {'yes' if row['warned'] else 'no':>6}", flush=True)
 
 
 if __name__ == "__main__":
