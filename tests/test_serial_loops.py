@@ -28,11 +28,15 @@ def test_the_choice_depends_on_the_backend_the_threads_and_the_size(monkeypatch)
 @pytest.mark.parametrize("integrator,wind", [
     ("symplectic_euler", True), ("symplectic_euler", False), ("rk4", True), ("rk4", False),
     ("euler", False), ("xpbd", True), pytest.param("projective_dynamics", True, marks=pytest.mark.cpu_only)])
-def test_serial_and_parallel_loops_give_the_same_trajectory_bit_for_bit(f64, monkeypatch, integrator, wind):
+def test_serial_and_parallel_loops_give_the_same_trajectory(f64, monkeypatch, integrator, wind):
     """No loop that runs serial for small systems reduces into a shared value or reads what
-    another iteration writes, so the order of its iterations cannot change a bit; nor do the
-    anchors that let the serial loops vectorise (without wind every force is local after the
-    spring pass, and symplectic Euler takes its one-loop, anchored update)."""
+    another iteration writes, so the order of its iterations cannot change the result; nor do
+    the anchors that let the serial loops vectorise (without wind every force is local after
+    the spring pass, and symplectic Euler takes its one-loop, anchored update). Equal to
+    rounding, not always bit for bit: Taichi compiles with fast-math, which lets LLVM reassociate
+    a sum in a vectorised loop, and on an AMD EPYC rk4's velocities differed in the last bit (35
+    of 432 components after 30 steps, 4e-16 relative) where an Intel Xeon gave the same bits. A
+    loop that read another iteration's writes would part by far more."""
     if runtime._current["threads"] <= 1:
         pytest.skip("one thread: every loop runs serial")
     dt = 1 / 60 if integrator in ("xpbd", "projective_dynamics") else 1e-3
@@ -52,7 +56,9 @@ def test_serial_and_parallel_loops_give_the_same_trajectory_bit_for_bit(f64, mon
         result = ts.run(scene, method, dt=dt, steps=30)
         assert result.status.value == "ok"
         runs.append(scene.state.to_numpy())
-    assert np.array_equal(runs[0][0], runs[1][0]) and np.array_equal(runs[0][1], runs[1][1])
+    for serial_run, parallel_run in zip(runs[0], runs[1]):  # positions, velocities
+        scale = max(1.0, float(np.abs(parallel_run).max()))
+        assert np.abs(serial_run - parallel_run).max() <= 1e-12 * scale
 
 
 def test_a_grid_s_springs_leave_the_system_s_choice_to_its_particles(monkeypatch):
