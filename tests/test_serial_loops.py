@@ -98,7 +98,6 @@ def test_an_anchor_changes_no_field_of_any_shape(f64):
         assert np.array_equal(field.to_numpy(), value)
 
 
-
 def acted(scene) -> dict:
     """Wrap each post-step event of ``scene`` to count the steps in which it changed something
     (the state, or the system: a torn spring); returns the counts by event class."""

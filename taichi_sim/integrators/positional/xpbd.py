@@ -2,6 +2,7 @@
 
 import math
 
+import numpy as np
 import taichi as ti
 
 from ... import runtime
@@ -105,10 +106,12 @@ class XPBD(Integrator):
             self.colour_order = ti.field(ti.i32, shape=max(1, len(order)))
             if len(order):
                 self.colour_order.from_numpy(order)
-            # The springs in colour order (index q = place in colour_order), refreshed each step
-            # by _prepare: the sweep reads them in sequence instead of through colour_order.
+            # The springs in colour order (index q = place in colour_order), their terms refreshed
+            # each step by _prepare: the sweep reads them in sequence instead of through colour_order.
             size = max(1, len(order))
-            self.ends = ti.Vector.field(2, ti.i32, shape=size)
+            self.ends = ti.Vector.field(2, ti.i32, shape=size)  # fixed: tearing only kills springs
+            if len(order):
+                self.ends.from_numpy(self.springs.ends_np[order].astype(np.int32))
             # (rest length, alpha = 1/(k dt^2), gamma = damping/(k dt), 1 / the update's
             # denominator, w_i, w_j): all fixed through a step. alpha < 0 marks a spring that is
             # skipped (torn, k <= 0, or both ends fixed)
@@ -164,7 +167,6 @@ class XPBD(Integrator):
                     gamma = springs.damping[s] / (k * dt)  # alpha * (damping dt^2) / dt
                     terms[1], terms[2] = alpha, gamma
                     terms[3] = 1.0 / ((1.0 + gamma) * (wi + wj) + alpha)
-                self.ends[q] = springs.ends[s]
                 self.terms[q] = terms
 
     @ti.kernel
