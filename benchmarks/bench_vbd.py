@@ -13,6 +13,13 @@ from it), and the worst relative solver residual of a second, untimed run
 
     python benchmarks/bench_vbd.py                          # 64 x 64, k = 1e6 and 1e8
     python benchmarks/bench_vbd.py --size 32 --stiffnesses 1e6 --methods "vbd,vbd(iterations=40)"
+    python benchmarks/bench_vbd.py --references out/stiff-refs.npz --methods xpbd   # computes and keeps them
+    python benchmarks/bench_vbd.py --references out/stiff-refs.npz --arch gpu --methods "xpbd(substeps=50)"
+
+``--arch gpu`` runs the methods on a GPU (each timed step ends with ``ti.sync()``, so a step's
+time includes its kernels); the references are always computed on the CPU in f64, and
+``--references`` keeps them in a file (for the same size, stiffnesses and t-end) so a GPU
+machine can take them from the development machine instead of computing them again.
 
 The 1-minute load average is printed first: other processes on the machine slow every figure.
 """
@@ -22,10 +29,13 @@ import math
 import os
 import statistics
 import time
+from pathlib import Path
 
 import numpy as np
+import taichi as ti
 
 import taichi_sim as ts
+from taichi_sim.atomic import write_atomically
 from taichi_sim.bench.stiffcloth import reference_solution
 from taichi_sim.scene.cloth import fixed_particle_cloth
 
@@ -74,15 +84,34 @@ def reference(size: int, k: float, steps: int) -> np.ndarray:
     return scene.state.to_numpy()[0].astype(float)
 
 
+def load_references(path: Path | None, size: int, stiffnesses: list[float], steps: int) -> dict:
+    """{k: (backward Euler's positions, the motion's positions)}, each (n, 3) in m; read from
+    ``path`` when it holds them for this size, these stiffnesses and this many steps, else
+    computed (on the CPU, f64) and written there."""
+    key = f"{size}:{steps}:" + ",".join(f"{k:g}" for k in stiffnesses)
+    if path is not None and path.exists():
+        kept = np.load(path)
+        if str(kept["key"]) != key:
+            raise SystemExit(f"{path} holds references for {kept['key']} (size:steps:stiffnesses), not {key}")
+        return {k: (kept[f"be_{i}"], kept[f"motion_{i}"]) for i, k in enumerate(stiffnesses)}
+    out = {k: (reference(size, k, steps), reference_solution(size, k, steps * DT)[0]) for k in stiffnesses}
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        arrays = {f"{kind}_{i}": out[k][j] for i, k in enumerate(stiffnesses) for j, kind in enumerate(("be", "motion"))}
+        write_atomically(path, lambda f: np.savez(f, key=key, **arrays))
+    return out
+
+
 def distances(x: np.ndarray, reference: np.ndarray) -> tuple[float, float]:
     """(rms, largest) distance (m) of positions x ((n, 3)) from the reference's."""
     distance = np.linalg.norm(x - reference, axis=1)
     return math.sqrt(float(np.mean(distance ** 2))), float(distance.max())
 
 
-def measure(size: int, k: float, method: str, steps: int, exact: np.ndarray, motion: np.ndarray) -> dict:
+def measure(size: int, k: float, method: str, steps: int, exact: np.ndarray, motion: np.ndarray,
+            arch: str = "cpu") -> dict:
     name, options = parse_method(method)
-    ts.init(arch="cpu", precision="f32")
+    ts.init(arch=arch, precision="f32")
     scene = ts.build_scene("cloth", cloth(size, k))
     integrator = ts.create_integrator(name, scene.system, **options)
     t = 0.0
@@ -93,8 +122,10 @@ def measure(size: int, k: float, method: str, steps: int, exact: np.ndarray, mot
     integrator.reset()
     times, t, status = [], 0.0, "ok"
     for _ in range(steps):
+        ti.sync()
         start = time.perf_counter()
         report = integrator.step(scene.state, t, DT)
+        ti.sync()
         times.append(time.perf_counter() - start)
         t += DT
         if report.status.value != "ok":
@@ -117,21 +148,25 @@ def main():
     parser.add_argument("--stiffnesses", default="1e6,1e8")
     parser.add_argument("--t-end", type=float, default=0.5)
     parser.add_argument("--methods", default=",".join(METHODS))
+    parser.add_argument("--arch", choices=("cpu", "gpu"), default="cpu", help="where the methods run")
+    parser.add_argument("--references", type=Path, default=None, metavar="FILE.npz",
+                        help="read the references from FILE.npz, or compute them and write it there")
     args = parser.parse_args()
     steps = max(1, round(args.t_end / DT))
-    print(f"load average (1 min): {os.getloadavg()[0]:.2f} on {os.cpu_count()} cpus")
+    stiffnesses = [float(v) for v in args.stiffnesses.split(",")]
+    references = load_references(args.references, args.size, stiffnesses, steps)
+    print(f"load average (1 min): {os.getloadavg()[0]:.2f} on {os.cpu_count()} cpus; methods on {args.arch}")
     print(f"{args.size}x{args.size} cloth, {steps} steps of 1/60 s, f32; error (m) against implicit_euler "
           f"(newton_tolerance 1e-6, f64: 'BE') and against the converged motion (fine symplectic Euler, f64: "
           f"'motion')")
     print(f"{'k (N/m)':>8} {'method':<40} {'status':<8} {'steps/s':>8} {'ms/step':>8} {'rms BE':>8} "
           f"{'max BE':>8} {'rms mot.':>8} {'max mot.':>8} {'residual':>9} {'warned':>6}")
-    for k in (float(v) for v in args.stiffnesses.split(",")):
-        exact = reference(args.size, k, steps)
-        motion = reference_solution(args.size, k, steps * DT)[0]
+    for k in stiffnesses:
+        exact, motion = references[k]
         print(f"{k:8.0e} {'implicit_euler (the BE reference)':<40} {'ok':<8} {'':>8} {'':>8} {0.0:8.4f} "
               f"{0.0:8.4f} {distances(exact, motion)[0]:8.4f} {distances(exact, motion)[1]:8.4f}", flush=True)
         for method in split_methods(args.methods):
-            row = measure(args.size, k, method.strip(), steps, exact, motion)
+            row = measure(args.size, k, method.strip(), steps, exact, motion, args.arch)
             print(f"{k:8.0e} {row['method']:<40} {row['status']:<8} {row['steps_per_s']:8.1f} {row['ms']:8.2f} "
                   f"{row['rms']:8.4f} {row['max']:8.4f} {row['rms_motion']:8.4f} {row['max_motion']:8.4f} "
                   f"{row['residual']:9.2g} {'yes' if row['warned'] else 'no':>6}", flush=True)

@@ -42,15 +42,18 @@ def timed(fn, bucket: list):
 
 
 def run(scene_name: str, n: int, t_end: float, integrator: str, dt: float | str, options: dict,
-        params: dict) -> dict:
+        params: dict, sweeps: str = "auto") -> dict:
     """One run of ``scene_name`` at n x n for t_end s; dt in s, or "explicit" for symplectic
     Euler's step on these scenes before they defaulted to vbd: 1 ms, or 0.9 of its stable step
-    where that is less (fine grids)."""
+    where that is less (fine grids). ``sweeps``: "serial" or "parallel" overrides vbd's choice
+    of one serial task or parallel colour loops (``VBD.serial``)."""
     scene = ts.build_scene(scene_name, {"nx": n, "ny": n, **params})
     name = integrator
     if dt == "explicit":
         dt = explicit_default_step(scene.arrays, scene.x0, 1e-3, 0.9)
     method = ts.create_integrator(name, scene.system, **options)
+    if sweeps != "auto" and hasattr(method, "serial"):
+        method.serial = sweeps == "serial"
     steps, events, refresh = [], [], []
     method.step = timed(method.step, steps)
     scene.after_step = timed(scene.after_step, events)
@@ -116,6 +119,8 @@ def main() -> None:
     parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                         help="a scene parameter, e.g. self_collision=0 (repeatable)")
     parser.add_argument("--arch", choices=("cpu", "gpu"), default="cpu")
+    parser.add_argument("--sweeps", choices=("auto", "serial", "parallel"), default="auto",
+                        help="vbd's sweeps as one serial task or parallel colour loops (default: its own rule)")
     args = parser.parse_args()
     ts.init(arch=args.arch, precision="f32")
     params = {} if args.contact_radius is None else {"thickness": args.contact_radius}
@@ -124,7 +129,7 @@ def main() -> None:
     options = parse_options("vbd", dict(text.split("=", 1) for text in args.option))
     params.update(text.split("=", 1) for text in args.set)  # build_scene parses and checks them
     rows = [run(args.scene, args.n, args.t_end, "vbd", 1 / 60,
-                {"iterations": args.iterations, "substeps": args.substeps, **options}, params)]
+                {"iterations": args.iterations, "substeps": args.substeps, **options}, params, args.sweeps)]
     if args.base_t_end > 0:
         rows.append(run(args.scene, args.n, args.base_t_end, "symplectic_euler", "explicit", {}, params))
     for row in rows:

@@ -13,6 +13,7 @@ import taichi_sim as ts
 from taichi_sim.errors import ConfigError
 from taichi_sim.geometry import self_intersections
 from taichi_sim.integrators import create_integrator
+from taichi_sim.integrators.positional import vbd as vbd_module
 from taichi_sim.integrators.positional import vbd_contact
 from taichi_sim.scene.builder import SceneBuilder
 from taichi_sim.scene.colliders import SpherePath
@@ -141,6 +142,32 @@ def test_a_cloth_folding_on_itself_never_intersects_and_never_gains_energy(f32):
     assert np.all(energy <= energy[0] * (1 + 1e-6)), energy.max() - energy[0]
     assert vbd.contact.pairs_total > 0  # the layers met
     assert vbd.run_warning() == ""  # every pair found was kept
+
+
+def test_with_self_contact_in_the_solve_a_smaller_cloth_sweeps_in_parallel(f32, monkeypatch):
+    """A vertex's contact pairs make its block several times a spring's work, so with
+    self-contact in the solve the colours become parallel loops from SERIAL_CONTACT_PARTICLES
+    particles (times spare threads) on, not from SERIAL_WORK particles plus springs; without
+    it the springs' rule stands, and a caller's choice wins over both. The parallel sweeps then
+    fold the cloth cleanly."""
+    if not ts.runtime.cpu_backend() or ts.runtime.usable_cpus() < 2:
+        pytest.skip("the rule applies to a CPU with a spare thread")
+    spare = ts.runtime.usable_cpus() - 1
+    scene = fold(12)  # 144 particles
+    monkeypatch.setattr(vbd_module, "SERIAL_CONTACT_PARTICLES", 144 * spare + 1)
+    alone = create_integrator("vbd", scene.system, self_contact=False)
+    contact = create_integrator("vbd", scene.system, self_contact=True)
+    for vbd in (alone, contact):
+        vbd.attach_scene(scene)
+    assert alone.serial and contact.serial  # 144 particles: below either break-even
+    monkeypatch.setattr(vbd_module, "SERIAL_CONTACT_PARTICLES", 144 * spare)
+    assert alone.serial and not contact.serial
+    contact.serial = True
+    assert contact.serial
+    contact.serial = False
+    energy, _ = step_clean(scene, contact, 45)
+    assert np.all(energy <= energy[0] * (1 + 1e-6)), energy.max() - energy[0]
+    assert contact.contact.pairs_total > 0
 
 
 def test_pieces_let_a_fold_collapse_at_its_pace_without_intersecting(f32):

@@ -26,6 +26,12 @@ from .vbd_springs import VBDSprings, fraction_option, positive_option
 # vertices, too few to pay a parallel loop's hand-off (see XPBD's SERIAL_SPRINGS, measured the
 # same way); never on a GPU.
 SERIAL_WORK = 2_000_000
+# With self-contact in the solve a vertex's block also sums its contact pairs (several times a
+# spring's work), so the colours pay a parallel loop from far fewer vertices: the break-even in
+# particles (times spare threads). cloth-fold's first second on a 2-vCPU machine (two cores, no
+# shared core), parallel against serial sweeps: 1.2 times slower at 64 x 64 (4096 particles),
+# 1.5 times faster at 90 x 90 (8100), 2.0 times at 128 x 128 (docs/vbd.md).
+SERIAL_CONTACT_PARTICLES = 6_000
 
 
 @ti.data_oriented
@@ -185,8 +191,9 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, ContactPieces, Integrator):
         self.order.from_numpy(order)
         self.colour_start = ti.field(ti.i32, shape=len(self.starts))  # the serial kernels loop over colours
         self.colour_start.from_numpy(np.asarray(self.starts, np.int32))
-        self.serial = runtime.serial_loops(n + (self.springs.spring_count if self.has_springs else 0),
-                                           SERIAL_WORK)
+        self._serial_springs = runtime.serial_loops(n + (self.springs.spring_count if self.has_springs else 0),
+                                                    SERIAL_WORK)
+        self._serial: bool | None = None  # set: a caller's choice (tests, benchmarks) over the rule
         self.rest_starts = ti.field(ti.i32, shape=())  # substeps whose sweeps started at V = 0
         self.last_rest = ti.field(ti.i32, shape=())  # whether the last begun start was V = 0
         # the last substep's acceleration along gravity (m/s^2), for a piece begun again
@@ -196,6 +203,23 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, ContactPieces, Integrator):
         self._last_dt = 0.0
         self.sweeps = 0  # sweeps run since construction (all substeps)
         self.pieces = 0  # pieces of substeps run with contact in the solve (_contact_substep)
+
+    @property
+    def serial(self) -> bool:
+        """Whether a substep's sweeps run as one serial task (else one kernel per sweep, each
+        colour a parallel loop): below SERIAL_WORK particles plus springs, and with self-contact
+        in the solve below SERIAL_CONTACT_PARTICLES particles too; never on a GPU. Assigning it
+        overrides the rule."""
+        if self._serial is not None:
+            return self._serial
+        if self.has_self_contact:
+            return self._serial_springs and runtime.serial_loops(self.system.particle_count,
+                                                                 SERIAL_CONTACT_PARTICLES)
+        return self._serial_springs
+
+    @serial.setter
+    def serial(self, value: bool) -> None:
+        self._serial = bool(value)
 
     @property
     def colour_count(self) -> int:
