@@ -86,14 +86,15 @@ def reference(size: int, k: float, steps: int) -> np.ndarray:
 
 def load_references(path: Path | None, size: int, stiffnesses: list[float], steps: int) -> dict:
     """{k: (backward Euler's positions, the motion's positions)}, each (n, 3) in m; read from
-    ``path`` when it holds them for this size, these stiffnesses and this many steps, else
-    computed (on the CPU, f64) and written there."""
+    ``path`` when it exists (it must hold them for this size, these stiffnesses and this many
+    steps: else the script stops and names both), else computed (on the CPU, f64) and written
+    there when a path is given."""
     key = f"{size}:{steps}:" + ",".join(f"{k:g}" for k in stiffnesses)
     if path is not None and path.exists():
-        kept = np.load(path)
-        if str(kept["key"]) != key:
-            raise SystemExit(f"{path} holds references for {kept['key']} (size:steps:stiffnesses), not {key}")
-        return {k: (kept[f"be_{i}"], kept[f"motion_{i}"]) for i, k in enumerate(stiffnesses)}
+        with np.load(path) as kept:
+            if str(kept["key"]) != key:
+                raise SystemExit(f"{path} holds references for {kept['key']} (size:steps:stiffnesses), not {key}")
+            return {k: (kept[f"be_{i}"], kept[f"motion_{i}"]) for i, k in enumerate(stiffnesses)}
     out = {k: (reference(size, k, steps), reference_solution(size, k, steps * DT)[0]) for k in stiffnesses}
     if path is not None:
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -154,8 +155,10 @@ def main():
     args = parser.parse_args()
     steps = max(1, round(args.t_end / DT))
     stiffnesses = [float(v) for v in args.stiffnesses.split(",")]
+    print(f"load average (1 min): {os.getloadavg()[0]:.2f} on {os.cpu_count()} cpus")
     references = load_references(args.references, args.size, stiffnesses, steps)
-    print(f"load average (1 min): {os.getloadavg()[0]:.2f} on {os.cpu_count()} cpus; methods on {args.arch}")
+    ts.init(arch=args.arch, precision="f32")  # where the methods run: what Taichi found
+    print(f"methods on {args.arch}: backend {ts.runtime.backend()}")
     print(f"{args.size}x{args.size} cloth, {steps} steps of 1/60 s, f32; error (m) against implicit_euler "
           f"(newton_tolerance 1e-6, f64: 'BE') and against the converged motion (fine symplectic Euler, f64: "
           f"'motion')")

@@ -150,9 +150,10 @@ def test_with_self_contact_in_the_solve_a_smaller_cloth_sweeps_in_parallel(f32, 
     particles (times spare threads) on, not from SERIAL_WORK particles plus springs; without
     it the springs' rule stands, and a caller's choice wins over both. The parallel sweeps then
     fold the cloth cleanly."""
-    if not ts.runtime.cpu_backend() or ts.runtime.usable_cpus() < 2:
+    threads = ts.runtime._current["threads"]  # what serial_loops counts
+    if not ts.runtime.cpu_backend() or threads < 2:
         pytest.skip("the rule applies to a CPU with a spare thread")
-    spare = ts.runtime.usable_cpus() - 1
+    spare = threads - 1
     scene = fold(12)  # 144 particles
     monkeypatch.setattr(vbd_module, "SERIAL_CONTACT_PARTICLES", 144 * spare + 1)
     alone = create_integrator("vbd", scene.system, self_contact=False)
@@ -162,9 +163,11 @@ def test_with_self_contact_in_the_solve_a_smaller_cloth_sweeps_in_parallel(f32, 
     assert alone.serial and contact.serial  # 144 particles: below either break-even
     monkeypatch.setattr(vbd_module, "SERIAL_CONTACT_PARTICLES", 144 * spare)
     assert alone.serial and not contact.serial
-    contact.serial = True
+    contact.serial = True  # a caller's choice against the rule
     assert contact.serial
+    monkeypatch.setattr(vbd_module, "SERIAL_CONTACT_PARTICLES", 144 * spare + 1)
     contact.serial = False
+    assert not contact.serial
     energy, _ = step_clean(scene, contact, 45)
     assert np.all(energy <= energy[0] * (1 + 1e-6)), energy.max() - energy[0]
     assert contact.contact.pairs_total > 0
