@@ -36,8 +36,7 @@ import taichi as ti
 
 import taichi_sim as ts
 from taichi_sim.atomic import write_atomically
-from taichi_sim.bench.stiffcloth import reference_solution
-from taichi_sim.scene.cloth import fixed_particle_cloth
+from taichi_sim.bench.stiffcloth import cloth_params, reference_solution
 
 DT = 1 / 60
 METHODS = ("vbd(iterations=10)", "vbd", "vbd(iterations=40)", "vbd(chebyshev_rho=0.9)",
@@ -69,14 +68,9 @@ def split_methods(text: str) -> list[str]:
     return [m for m in out + [current] if m.strip()]
 
 
-def cloth(size: int, k: float) -> dict:
-    return {"nx": size, "ny": size, "stiffness": k, "shear_stiffness": k / 2, "flex_stiffness": k / 5,
-            **fixed_particle_cloth(size, size)}
-
-
 def reference(size: int, k: float, steps: int) -> np.ndarray:
     ts.init(arch="cpu", precision="f64")
-    scene = ts.build_scene("cloth", cloth(size, k))
+    scene = ts.build_scene("cloth", cloth_params(size, k))
     integrator = ts.create_integrator("implicit_euler", scene.system, newton_tolerance=1e-6)
     result = ts.run(scene, integrator, dt=DT, steps=steps, energy_every=0)
     if result.status.value != "ok":
@@ -113,7 +107,7 @@ def measure(size: int, k: float, method: str, steps: int, exact: np.ndarray, mot
             arch: str = "cpu") -> dict:
     name, options = parse_method(method)
     ts.init(arch=arch, precision="f32")
-    scene = ts.build_scene("cloth", cloth(size, k))
+    scene = ts.build_scene("cloth", cloth_params(size, k))
     integrator = ts.create_integrator(name, scene.system, **options)
     t = 0.0
     for _ in range(2):  # compile

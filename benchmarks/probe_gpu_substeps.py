@@ -4,10 +4,11 @@ is the launches' (is it the launch queue filling that slows a step of many subst
 
     python benchmarks/probe_gpu_substeps.py --arch gpu
 
-The 64 x 64 cloth of bench_vbd.py at k = 1e6 (shear k/2, flex k/5), f32, h = 1/60 s: for each
-number of substeps and each K (0: no sync inside a step), a fresh scene, two steps to compile,
-then 30 steps each timed with ti.sync() at its end; prints the median, fastest and slowest
-step and the cloth's mean height (the same for every K: a sync changes no result).
+The 64 x 64 cloth of bench_vbd.py at k = 1e6 (``cloth_params``: shear k/2, flex k/5), f32,
+h = 1/60 s: for each number of substeps and each K (0: no sync inside a step), a fresh scene,
+two steps to compile, then 30 steps each timed with ti.sync() at its end; prints the median,
+fastest and slowest step and the cloth's mean height (the same for every K: a sync changes no
+result).
 """
 import argparse
 import statistics
@@ -16,7 +17,7 @@ import time
 import taichi as ti
 
 import taichi_sim as ts
-from taichi_sim.scene.cloth import fixed_particle_cloth
+from taichi_sim.bench.stiffcloth import cloth_params
 
 H = 1 / 60
 
@@ -28,8 +29,7 @@ def main() -> None:
     parser.add_argument("--sync-every", default="0,25,10", help="K values (0: no sync inside a step)")
     args = parser.parse_args()
     ts.init(arch=args.arch, precision="f32")
-    params = {"nx": 64, "ny": 64, "stiffness": 1e6, "shear_stiffness": 5e5, "flex_stiffness": 2e5,
-              **fixed_particle_cloth(64, 64)}
+    params = cloth_params(64, 1e6)
     print(f"backend {ts.runtime.backend()}")
     for substeps in (int(v) for v in args.substeps.split(",")):
         for sync_every in (int(v) for v in args.sync_every.split(",")):
