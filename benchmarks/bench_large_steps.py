@@ -26,8 +26,9 @@ import numpy as np
 import taichi as ti
 
 import taichi_sim as ts
-from taichi_sim.bench.stiffcloth import cloth_params, label
+from taichi_sim.bench.stiffcloth import cloth_params
 from taichi_sim.guard import GuardLimits
+from taichi_sim.integrators import method_label
 
 DT = 1 / 60  # s
 
@@ -89,7 +90,7 @@ def main() -> None:
                 rates = step_rate(n, k, name, options, DT, args)
                 median = statistics.median(rates)
                 status, rise, e0 = energy_check(n, k, name, options, args)
-                print(f"{n:>5} {k:>7.0e} {label(name, options):<36} {median:>8.1f} "
+                print(f"{n:>5} {k:>7.0e} {method_label(name, options):<36} {median:>8.1f} "
                       f"{min(rates):>7.1f}-{max(rates):<7.1f} {se / median:>6.1f} {status:>9} "
                       f"{max(rise, 0.0):>11.3g} {e0:>8.3g}", flush=True)
 

@@ -15,6 +15,10 @@ from it), and the worst relative solver residual of a second, untimed run
     python benchmarks/bench_vbd.py --size 32 --stiffnesses 1e6 --methods "vbd,vbd(iterations=40)"
     python benchmarks/bench_vbd.py --references out/stiff-refs.npz --methods xpbd   # computes and keeps them
     python benchmarks/bench_vbd.py --references out/stiff-refs.npz --arch gpu --methods "xpbd(substeps=50)"
+    python benchmarks/bench_vbd.py --per-area --size 32 --stiffnesses 1e6 --methods "xpbd,xpbd(substeps=50)"
+
+``--per-area`` studies the scenes' own cloth instead (``cloth-stiff`` at this size: the
+preset's area density, 0.01 kg a particle at 32 x 32 and a quarter of that at 64 x 64).
 
 ``--arch gpu`` runs the methods on a GPU (each timed step ends with ``ti.sync()``, so a step's
 time includes its kernels); the references are always computed on the CPU in f64, and
@@ -37,6 +41,7 @@ import taichi as ti
 import taichi_sim as ts
 from taichi_sim.atomic import write_atomically
 from taichi_sim.bench.stiffcloth import cloth_params, reference_solution
+from taichi_sim.scene.cloth import swept_stiffness
 
 DT = 1 / 60
 METHODS = ("vbd(iterations=10)", "vbd", "vbd(iterations=40)", "vbd(chebyshev_rho=0.9)",
@@ -68,9 +73,15 @@ def split_methods(text: str) -> list[str]:
     return [m for m in out + [current] if m.strip()]
 
 
-def reference(size: int, k: float, steps: int) -> np.ndarray:
+def studied_cloth(size: int, k: float, per_area: bool) -> dict:
+    """The ``cloth`` scene's parameters: the study's cloth (0.01 kg a particle at every size),
+    or with ``per_area`` the scenes' own (``cloth-stiff``'s at k = 1e6)."""
+    return {"nx": size, "ny": size, **swept_stiffness(k)} if per_area else cloth_params(size, k)
+
+
+def reference(params: dict, steps: int) -> np.ndarray:
     ts.init(arch="cpu", precision="f64")
-    scene = ts.build_scene("cloth", cloth_params(size, k))
+    scene = ts.build_scene("cloth", params)
     integrator = ts.create_integrator("implicit_euler", scene.system, newton_tolerance=1e-6)
     result = ts.run(scene, integrator, dt=DT, steps=steps, energy_every=0)
     if result.status.value != "ok":
@@ -78,18 +89,20 @@ def reference(size: int, k: float, steps: int) -> np.ndarray:
     return scene.state.to_numpy()[0].astype(float)
 
 
-def load_references(path: Path | None, size: int, stiffnesses: list[float], steps: int) -> dict:
+def load_references(path: Path | None, size: int, stiffnesses: list[float], steps: int,
+                    per_area: bool = False) -> dict:
     """{k: (backward Euler's positions, the motion's positions)}, each (n, 3) in m; read from
     ``path`` when it exists (it must hold them for this size, these stiffnesses and this many
     steps: else the script stops and names both), else computed (on the CPU, f64) and written
     there when a path is given."""
-    key = f"{size}:{steps}:" + ",".join(f"{k:g}" for k in stiffnesses)
+    key = f"{size}:{steps}:" + ",".join(f"{k:g}" for k in stiffnesses) + (":per-area" if per_area else "")
     if path is not None and path.exists():
         with np.load(path) as kept:
             if str(kept["key"]) != key:
                 raise SystemExit(f"{path} holds references for {kept['key']} (size:steps:stiffnesses), not {key}")
             return {k: (kept[f"be_{i}"], kept[f"motion_{i}"]) for i, k in enumerate(stiffnesses)}
-    out = {k: (reference(size, k, steps), reference_solution(size, k, steps * DT)[0]) for k in stiffnesses}
+    out = {k: (reference(studied_cloth(size, k, per_area), steps),
+               reference_solution(size, k, steps * DT, studied_cloth(size, k, per_area))[0]) for k in stiffnesses}
     if path is not None:
         path.parent.mkdir(parents=True, exist_ok=True)
         arrays = {f"{kind}_{i}": out[k][j] for i, k in enumerate(stiffnesses) for j, kind in enumerate(("be", "motion"))}
@@ -103,11 +116,11 @@ def distances(x: np.ndarray, reference: np.ndarray) -> tuple[float, float]:
     return math.sqrt(float(np.mean(distance ** 2))), float(distance.max())
 
 
-def measure(size: int, k: float, method: str, steps: int, exact: np.ndarray, motion: np.ndarray,
+def measure(params: dict, method: str, steps: int, exact: np.ndarray, motion: np.ndarray,
             arch: str = "cpu") -> dict:
     name, options = parse_method(method)
     ts.init(arch=arch, precision="f32")
-    scene = ts.build_scene("cloth", cloth_params(size, k))
+    scene = ts.build_scene("cloth", params)
     integrator = ts.create_integrator(name, scene.system, **options)
     t = 0.0
     for _ in range(2):  # compile
@@ -146,14 +159,16 @@ def main():
     parser.add_argument("--arch", choices=("cpu", "gpu"), default="cpu", help="where the methods run")
     parser.add_argument("--references", type=Path, default=None, metavar="FILE.npz",
                         help="read the references from FILE.npz, or compute them and write it there")
+    parser.add_argument("--per-area", action="store_true",
+                        help="the scenes' cloth (area density, cloth-stiff's) instead of the study's 0.01 kg a particle")
     args = parser.parse_args()
     steps = max(1, round(args.t_end / DT))
     stiffnesses = [float(v) for v in args.stiffnesses.split(",")]
     print(f"load average (1 min): {os.getloadavg()[0]:.2f} on {os.cpu_count()} cpus")
-    references = load_references(args.references, args.size, stiffnesses, steps)
+    references = load_references(args.references, args.size, stiffnesses, steps, args.per_area)
     ts.init(arch=args.arch, precision="f32")  # where the methods run: what Taichi found
     print(f"methods on {args.arch}: backend {ts.runtime.backend()}")
-    print(f"{args.size}x{args.size} cloth, {steps} steps of 1/60 s, f32; error (m) against implicit_euler "
+    print(f"{args.size}x{args.size} cloth ({'area density' if args.per_area else '0.01 kg a particle'}), {steps} steps of 1/60 s, f32; error (m) against implicit_euler "
           f"(newton_tolerance 1e-6, f64: 'BE') and against the converged motion (fine symplectic Euler, f64: "
           f"'motion')")
     print(f"{'k (N/m)':>8} {'method':<40} {'status':<8} {'steps/s':>8} {'ms/step':>8} {'rms BE':>8} "
@@ -163,7 +178,7 @@ def main():
         print(f"{k:8.0e} {'implicit_euler (the BE reference)':<40} {'ok':<8} {'':>8} {'':>8} {0.0:8.4f} "
               f"{0.0:8.4f} {distances(exact, motion)[0]:8.4f} {distances(exact, motion)[1]:8.4f}", flush=True)
         for method in split_methods(args.methods):
-            row = measure(args.size, k, method.strip(), steps, exact, motion, args.arch)
+            row = measure(studied_cloth(args.size, k, args.per_area), method.strip(), steps, exact, motion, args.arch)
             print(f"{k:8.0e} {row['method']:<40} {row['status']:<8} {row['steps_per_s']:8.1f} {row['ms']:8.2f} "
                   f"{row['rms']:8.4f} {row['max']:8.4f} {row['rms_motion']:8.4f} {row['max_motion']:8.4f} "
                   f"{row['residual']:9.2g} {'yes' if row['warned'] else 'no':>6}", flush=True)

@@ -22,16 +22,16 @@ import itertools
 import time
 
 import numpy as np
-from bench_vbd import DT, cloth, distances, reference
+from bench_vbd import DT, distances, reference
 
 import taichi_sim as ts
-from taichi_sim.bench.stiffcloth import reference_solution
+from taichi_sim.bench.stiffcloth import cloth_params, reference_solution
 
 
 def backward_euler(size: int, k: float, divisions: int, steps: int) -> np.ndarray:
     """Positions after ``steps`` steps of 1/60 s, each taken as ``divisions`` backward Euler steps."""
     ts.init(arch="cpu", precision="f64")
-    scene = ts.build_scene("cloth", cloth(size, k))
+    scene = ts.build_scene("cloth", cloth_params(size, k))
     method = ts.create_integrator("implicit_euler", scene.system, newton_tolerance=1e-8)
     result = ts.run(scene, method, dt=DT / divisions, steps=steps * divisions, energy_every=0)
     if result.status.value != "ok":
@@ -42,7 +42,7 @@ def backward_euler(size: int, k: float, divisions: int, steps: int) -> np.ndarra
 def fine_xpbd(size: int, k: float, substeps: int, sweeps: int, steps: int) -> np.ndarray:
     """Positions after ``steps`` XPBD steps of 1/60 s with ``substeps`` substeps of ``sweeps`` sweeps."""
     ts.init(arch="cpu", precision="f64")
-    scene = ts.build_scene("cloth", cloth(size, k))
+    scene = ts.build_scene("cloth", cloth_params(size, k))
     method = ts.create_integrator("xpbd", scene.system, substeps=substeps, iterations=sweeps)
     result = ts.run(scene, method, dt=DT, steps=steps, energy_every=0)
     if result.status.value != "ok":
@@ -73,7 +73,7 @@ def main() -> None:
     keep(f"backward Euler 1/{60 * args.divisions}, 1/{120 * args.divisions} s, Richardson", 2 * fine - coarse)
     keep(f"xpbd {args.xpbd_substeps} x {args.xpbd_sweeps}, f64",
          fine_xpbd(args.size, args.stiffness, args.xpbd_substeps, args.xpbd_sweeps, steps))
-    step = reference(args.size, args.stiffness, steps)
+    step = reference(cloth_params(args.size, args.stiffness), steps)
     print(f"{args.size}x{args.size} cloth, k = {args.stiffness:g} N/m, {steps * DT:g} s; distances (m): rms, largest")
     for (a, xa), (b, xb) in itertools.combinations(solutions.items(), 2):
         rms, largest = distances(xa, xb)

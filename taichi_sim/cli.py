@@ -69,7 +69,7 @@ def _frame_bar(frames):
 
 
 def cmd_list(args) -> int:
-    from .integrators import ENTRY_POINT_GROUP, INTEGRATORS, installed_plugins, integrator_class
+    from .integrators import ENTRY_POINT_GROUP, INTEGRATORS, installed_plugins, integrator_class, method_label
     from .scene import SCENES, scene_preset
 
     if args.scene_file is not None:
@@ -80,7 +80,8 @@ def cmd_list(args) -> int:
     print("Scenes (set parameters with --set NAME=VALUE):")
     for preset in SCENES.values():
         print(f"\n  {preset.name}: {preset.description}")
-        print(f"    default integrator {preset.default_integrator}, default dt {preset.default_dt:g} s")
+        method = method_label(preset.default_integrator, preset.integrator_options.get(preset.default_integrator, {}))
+        print(f"    default integrator {method}, default dt {preset.default_dt:g} s")
         for p in preset.params:
             default = str(p.default).lower() if isinstance(p.default, bool) else p.default
             unit = f" {p.unit}" if p.unit else ""
@@ -110,7 +111,7 @@ def cmd_simulate(args) -> int:
     from . import io, runtime
     from .convergence import check_max_residual
     from .guard import GuardLimits
-    from .integrators import check_options, create_integrator, integrator_class, parse_options
+    from .integrators import check_options, create_integrator, integrator_class, method_label, parse_options
     from .run import check_run_args, planned_steps, run
     from .scene import build_scene, scene_preset
     from .scene.params import resolve
@@ -133,6 +134,7 @@ def cmd_simulate(args) -> int:
         if name in options:
             raise ConfigError(f"--option {name} repeats a value given by its own flag; give it once")
         options[name] = value
+    options = {**preset.integrator_options.get(integrator_name, {}), **options}  # the scene's, unless told
     adaptive = check_options(integrator_name, options).adaptive
     dt = args.dt if args.dt is not None or adaptive else preset.default_dt
     check_run_args(dt, args.steps, args.t_end, adaptive=adaptive)
@@ -197,7 +199,7 @@ def cmd_simulate(args) -> int:
             print(f"taichi-sim: warning: {part.warning()}", file=sys.stderr)
     if not args.quiet:
         rejected = f" ({result.rejected_steps} rejected)" if result.rejected_steps else ""
-        label = integrator_name + (f"({', '.join(f'{k}={v}' for k, v in options.items())})" if options else "")
+        label = method_label(integrator_name, options)
         print(f"{scene.name}: {result.steps} steps{rejected} of {label} to t = {result.t:.6g} s, "
               f"{result.f_evals} f-evals, {result.wall_time:.3f} s on {runtime.backend()}, "
               f"status {result.status.value} -> {path}")

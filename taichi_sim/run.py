@@ -10,9 +10,9 @@ from tqdm import tqdm
 
 from .errors import ConfigError
 from .guard import GuardLimits
-from .integrators import Integrator, Status, create_integrator
+from .integrators import Integrator, Status
 from .scene.scene import Scene
-from .stepper import Stepper, check_dt
+from .stepper import Stepper, bind_integrator, check_dt
 
 
 @dataclass
@@ -145,7 +145,7 @@ def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: 
     explicit method.
     """
     if isinstance(integrator, str):
-        integrator = create_integrator(integrator, scene.system)
+        integrator = bind_integrator(scene, integrator)
     adaptive = integrator.adaptive
     check_run_args(dt, steps, t_end, adaptive=adaptive)
     if save_every is not None and (isinstance(save_every, bool) or not isinstance(save_every, int)

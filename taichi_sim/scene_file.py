@@ -330,10 +330,12 @@ def scene_file_text(preset) -> str:
         choices = f" (one of: {', '.join(p.choices)})" if p.choices else ""
         lines.append(f"{assignment:<{width}}  # {unit}{p.meaning}{choices}")
     lines += ["", "[integrator]", f"name = {_toml_value(preset.default_integrator)}"]
+    chosen = preset.integrator_options.get(preset.default_integrator, {})
+    lines += [f"{k} = {_toml_value(v)}  # this scene's choice" for k, v in chosen.items()]
     shown = [f"{k} = {_toml_value(v)}" for k, v in integrator_class(preset.default_integrator).options().items()
-             if isinstance(v, (bool, int, float, str))]  # None: chosen automatically
+             if isinstance(v, (bool, int, float, str)) and k not in chosen]  # None: chosen automatically
     if shown:
-        lines.append(f"# its options, at their defaults: {', '.join(shown)}")
+        lines.append(f"# its {'other ' if chosen else ''}options, at their defaults: {', '.join(shown)}")
     lines += ["", "[run]", f"dt = {_toml_value(preset.default_dt)}  # [s] step size",
               "duration = 1.0  # [s] simulated time (or: steps = N)", "seed = 0", 'precision = "f64"',
               'arch = "cpu"', "# save_every = 10  # keep every 10th step's positions (needed by an export)",

@@ -49,6 +49,13 @@ def check_dt(dt, *, adaptive: bool = False) -> float | None:
     return float(dt)
 
 
+def bind_integrator(scene, name: str, **options) -> Integrator:
+    """Integrator ``name`` bound to ``scene``'s system with ``options`` over the scene's own
+    for that method (:meth:`~taichi_sim.scene.scene.Scene.options_for`: ``cloth-stiff`` runs
+    XPBD with 50 substeps unless told otherwise); ConfigError for an unknown name or option."""
+    return create_integrator(name, scene.system, **{**scene.options_for(name), **options})
+
+
 def _iterative(integrator: str) -> bool:
     """Whether the method sweeps a fixed number of ``iterations`` per step (xpbd, vbd, ...)."""
     try:
@@ -121,7 +128,8 @@ class Stepper:
 
     Args:
         scene: the scene to step (the stepper owns its state from now on).
-        integrator: an integrator bound to ``scene.system``, or a registry name.
+        integrator: an integrator bound to ``scene.system``, or a registry name (bound with the
+            scene's options for it, :func:`bind_integrator`).
         dt: the step (s) of a fixed-step method; for an adaptive one the first step (None: the
             method picks it at the first step).
         limits: the guard's limits (default :class:`~taichi_sim.guard.GuardLimits`).
@@ -146,7 +154,7 @@ class Stepper:
                  max_residual: float | None = None):
         if isinstance(integrator, str):  # a bad dt is refused before anything is bound
             check_dt(dt, adaptive=integrator_class(integrator).adaptive)
-            integrator = create_integrator(integrator, scene.system)
+            integrator = bind_integrator(scene, integrator)
         self.scene = scene
         self.dt = check_dt(dt, adaptive=integrator.adaptive)
         self.guard = Guard(scene, limits)

@@ -254,10 +254,12 @@ def test_bench_stiff_cloth_writes_its_study(tmp_path, capsys):
 
 @pytest.mark.long
 def test_a_fine_stiff_cloth_that_xpbd_leaves_unsolved_is_told_to_raise_iterations(tmp_path, capsys):
-    """cloth-stiff at 96 x 96: xpbd's 20 iterations a step leave the springs unsolved, the
-    corners stretch past 100 % and the guard stops the run; with 40 it runs (measured
-    2026-11-27). The failure names the fix, not only a step size."""
-    args = ["simulate", "cloth-stiff", "--set", "nx=96", "--set", "ny=96", "--t-end", "0.3", "--quiet"]
+    """cloth-stiff at 96 x 96 with XPBD's own 20 substeps (the scene's default is 50, which
+    solves it): 20 sweeps a step leave the springs unsolved, the corners stretch past 100 %
+    and the guard stops the run; with 40 it runs (measured 2026-11-27). The failure names the
+    fix, not only a step size."""
+    args = ["simulate", "cloth-stiff", "--set", "nx=96", "--set", "ny=96", "--t-end", "0.3", "--quiet",
+            "--substeps", "20"]
     assert main([*args, "--out", str(tmp_path / "a.npz")]) != 0
     assert "raise --iterations" in capsys.readouterr().err
     assert main([*args, "--iterations", "40", "--out", str(tmp_path / "b.npz")]) == 0

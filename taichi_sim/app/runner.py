@@ -10,10 +10,10 @@ import time
 
 import numpy as np
 
-from ..integrators import create_integrator, integrator_class
+from ..integrators import integrator_class
 from ..render.drawer import DRAWABLE_LIMIT
 from ..scene.scene import Scene
-from ..stepper import Stepper
+from ..stepper import Stepper, bind_integrator
 from .energy import EnergySample, EnergyTrace
 
 #: Most integrator calls in one :meth:`Runner.advance` (an adaptive method crawling at tiny
@@ -28,7 +28,8 @@ class Runner:
         scene: the scene to step (the runner owns its state from now on).
         integrator: registry name of the method.
         dt: the step (s): every step of a fixed-step method, the first of an adaptive one.
-        options: integrator name -> its keyword options, used whenever that method is bound.
+        options: integrator name -> its keyword options, used whenever that method is bound
+            (over the scene's own, :func:`~taichi_sim.stepper.bind_integrator`).
 
     Attributes:
         stepper: the :class:`~taichi_sim.stepper.Stepper` that steps the scene; ``t``
@@ -61,8 +62,7 @@ class Runner:
         self.scene = scene
         integrator_class(integrator)  # unknown names raise ConfigError before anything is bound
         self._options = options or {}  # integrator name -> its keyword options
-        self._integrators = {integrator: create_integrator(integrator, scene.system,
-                                                           **self._options.get(integrator, {}))}
+        self._integrators = {integrator: bind_integrator(scene, integrator, **self._options.get(integrator, {}))}
         self.energy_trace = EnergyTrace()
         self.stepper = Stepper(scene, self._integrators[integrator], dt, observers=(self,))
         self._compiled: set[str] = set()  # integrators that have stepped this scene (kernels built)
@@ -123,7 +123,7 @@ class Runner:
         Each method is bound to the system once and reused when switched back to."""
         integrator_class(name)  # unknown names raise ConfigError before anything changes
         if name not in self._integrators:
-            self._integrators[name] = create_integrator(name, self.scene.system, **self._options.get(name, {}))
+            self._integrators[name] = bind_integrator(self.scene, name, **self._options.get(name, {}))
         self.stepper.set_integrator(self._integrators[name])
 
     def set_dt(self, dt: float) -> None:

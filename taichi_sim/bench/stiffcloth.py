@@ -17,6 +17,7 @@ import time
 
 import numpy as np
 
+from ..integrators import method_label
 from ..scene.cloth import fixed_particle_cloth, swept_stiffness
 
 METHODS: tuple[tuple[str, dict], ...] = (
@@ -32,13 +33,6 @@ METHODS: tuple[tuple[str, dict], ...] = (
     ("vbd", {"substeps": 5, "iterations": 4}),
 )
 STEPS = (1 / 60, 1 / 120, 1 / 240, 1 / 480)
-
-
-def label(name: str, options: dict) -> str:
-    """``xpbd(substeps=10)``-style name of a method and its options."""
-    if not options:
-        return name
-    return f"{name}({', '.join(f'{k}={v}' for k, v in options.items())})"
 
 
 def cloth_params(size: int, k: float, conservative: bool = False) -> dict:
@@ -60,15 +54,17 @@ def fresh_runtime() -> None:
     runtime.init(arch="cpu", precision="f64")
 
 
-def reference_solution(size: int, k: float, t_end: float) -> tuple[np.ndarray, float, float]:
+def reference_solution(size: int, k: float, t_end: float,
+                       params: dict | None = None) -> tuple[np.ndarray, float, float]:
     """(positions (n, 3) at t_end, the step used (s), the cloth's omega_max bound (rad/s)) of
-    the reference (see the module doc)."""
+    the reference (see the module doc), for the study's cloth or the ``cloth`` scene with
+    ``params``."""
     import taichi_sim as ts
 
     from ..theory import omega_max_bound
 
     fresh_runtime()
-    scene = ts.build_scene("cloth", cloth_params(size, k))
+    scene = ts.build_scene("cloth", cloth_params(size, k) if params is None else params)
     omega = omega_max_bound(scene.arrays)
     steps = math.ceil(t_end / (0.25 * 2.0 / omega))
     h = t_end / steps
@@ -99,7 +95,7 @@ def timed_run(size: int, k: float, name: str, options: dict, h: float, t_end: fl
     result = ts.run(scene, integrator, dt=h, steps=steps, energy_every=1 if conservative else 0)
     wall = time.perf_counter() - start
     energy = np.asarray(result.energy) if conservative else np.zeros(0)
-    return {"k": k, "h": h, "method": label(name, options), "integrator": name, "status": result.status.value,
+    return {"k": k, "h": h, "method": method_label(name, options), "integrator": name, "status": result.status.value,
             "steps": result.steps, "wall_s": wall, "ms_per_step": 1e3 * wall / max(result.steps, 1),
             "x": scene.state.to_numpy()[0].astype(float), "energy0": energy0,
             "energy_end": float(energy[-1]) if len(energy) else math.nan,
@@ -137,11 +133,11 @@ def plan_cases(size: int, stiffnesses, steps=STEPS, methods=METHODS, t_end: floa
             studied.append(Case("taichi_sim.bench.stiffcloth:accuracy_case",
                                 {"size": size, "k": k, "name": name, "options": options, "steps": hs,
                                  "bound_fraction": fraction, "t_end": t_end, "budget_s": budget_s},
-                                {"kind": "accuracy", "k": k, "method": label(name, options)}))
+                                {"kind": "accuracy", "k": k, "method": method_label(name, options)}))
         for name, options in methods:
             studied.append(Case("taichi_sim.bench.stiffcloth:damping_case",
                                 {"size": size, "k": k, "name": name, "options": options},
-                                {"kind": "damping", "k": k, "method": label(name, options)}))
+                                {"kind": "damping", "k": k, "method": method_label(name, options)}))
     return references, studied
 
 

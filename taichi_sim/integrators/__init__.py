@@ -86,6 +86,14 @@ def _parse_value(name: str, key: str, text: str, kinds):
     raise ConfigError(f"integrator {name!r} option {key}: expects {wanted}, got {text!r}")
 
 
+def method_label(name: str, options: dict) -> str:
+    """``xpbd(substeps=50)``: a method's name and its options, as the CLI and the benches print
+    them (the name alone without options)."""
+    if not options:
+        return name
+    return f"{name}({', '.join(f'{k}={v}' for k, v in options.items())})"
+
+
 def create_integrator(name: str, system, **options) -> Integrator:
     """Bind the integrator called ``name`` to ``system`` (allocates its scratch once).
 
@@ -97,6 +105,6 @@ def create_integrator(name: str, system, **options) -> Integrator:
 
 __all__ = ["INTEGRATORS", "ENTRY_POINT_GROUP", "Integrator", "Status", "StepReport", "ButcherTableau",
            "ExplicitRK", "EmbeddedRK", "LinearSolverStats", "missing_facts", "installed_plugins",
-           "integrator_class", "check_options", "parse_options", "create_integrator",
+           "integrator_class", "check_options", "parse_options", "create_integrator", "method_label",
            "Euler", "Trapezoid", "Midpoint", "RK4", "SymplecticEuler", "DormandPrince45", "Fehlberg45",
            "ImplicitEuler", "ImplicitEulerLinearised", "ImplicitMidpoint", "ProjectiveDynamics", "XPBD"]

@@ -312,8 +312,10 @@ class SceneBuilder:
         self._grab = (float(stiffness), float(damping))
 
     def finalize(self, *, name: str, params: dict[str, Any], default_dt: float,
-                 default_integrator: str, seed: int = 0) -> Scene:
-        """Allocate every field and return the Scene (only what was asked for)."""
+                 default_integrator: str, seed: int = 0,
+                 integrator_options: dict[str, dict[str, Any]] | None = None) -> Scene:
+        """Allocate every field and return the Scene (only what was asked for);
+        ``integrator_options``: see :attr:`Scene.integrator_options`."""
         if self._count == 0:
             raise ValueError("a scene needs at least one particle")
         x0, v0 = self.positions(), np.concatenate(self._v)
@@ -433,7 +435,8 @@ class SceneBuilder:
                       features=features, static_arrays=arrays, default_dt=default_dt,
                       default_integrator=default_integrator, seed=seed, parts=parts, post_step=list(parts),
                       springs=springs, mesh=mesh, constraints=constraints,
-                      rest_x=np.concatenate(self._rest_x) if self._rest_x else None)
+                      rest_x=np.concatenate(self._rest_x) if self._rest_x else None,
+                      integrator_options={k: dict(v) for k, v in (integrator_options or {}).items()})
         if self._grab is not None:
             grabber = Grabber(scene, grab_term)
             scene.grabber = grabber

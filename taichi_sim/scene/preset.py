@@ -1,5 +1,5 @@
 """ScenePreset: a named scene recipe with typed parameters."""
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any, Callable
 
 from ..memory import Size
@@ -12,7 +12,9 @@ from .scene import Scene
 class ScenePreset:
     """A scene recipe: ``build(preset, values, seed)`` returns a Scene; ``size(values)`` says, from
     the parameters alone, how many particles, springs and triangles it will allocate, and
-    ``size_params`` which parameters decide that (named when a size is refused)."""
+    ``size_params`` which parameters decide that (named when a size is refused);
+    ``integrator_options``: integrator name -> the keyword options the scene runs that method
+    with unless told otherwise (:attr:`Scene.integrator_options`)."""
 
     name: str
     description: str
@@ -23,6 +25,7 @@ class ScenePreset:
     size: Callable[[dict[str, Any]], Size] = lambda values: Size(1, 0)
     size_params: tuple[str, ...] = ()
     explicit_dt: float | None = None  # s: an explicit method's step when not told (Scene.explicit_dt)
+    integrator_options: dict[str, dict[str, Any]] = field(default_factory=dict, hash=False)
 
     def param(self, name: str) -> Param:
         return next(p for p in self.params if p.name == name)
@@ -35,7 +38,8 @@ class ScenePreset:
         builder.set_gravity(values["gravity"] if gravity is None else gravity)
         builder.set_drag(values["drag"] if drag is None else drag)
         return builder.finalize(name=self.name, params=values, default_dt=self.default_dt,
-                                default_integrator=self.default_integrator, seed=seed)
+                                default_integrator=self.default_integrator, seed=seed,
+                                integrator_options=self.integrator_options)
 
 
 def common_params(*, mass: float, gravity: float = 9.8, drag: float = 0.0,

@@ -24,6 +24,9 @@ class Scene:
         static_arrays: model data fixed at build time (mass, pinned, gravity, drag, ...); see
             :attr:`arrays` for everything.
         default_dt, default_integrator: what ``simulate`` uses when not told.
+        integrator_options: integrator name -> the keyword options this scene runs that method
+            with unless a caller sets them (``cloth-stiff``: XPBD with 50 substeps); see
+            :meth:`options_for`.
         explicit_dt: the step (s) an explicit (step-limited) method takes when not told, where
             the default method is not one and takes longer steps (the contact cloths run ``vbd``
             at 1/60 s; symplectic Euler there at 1 ms, less on a fine grid); None: default_dt.
@@ -57,12 +60,18 @@ class Scene:
     constraints: Any = None
     rest_x: np.ndarray | None = None
     explicit_dt: float | None = None
+    integrator_options: dict[str, dict[str, Any]] = field(default_factory=dict)
 
     @property
     def explicit_step(self) -> float:
         """The step (s) an explicit (step-limited) method takes when not told: ``explicit_dt``
         where the scene has one, else ``default_dt``."""
         return self.default_dt if self.explicit_dt is None else self.explicit_dt
+
+    def options_for(self, integrator: str) -> dict[str, Any]:
+        """The keyword options the scene gives integrator ``integrator`` (a name) when the
+        caller sets none of its own (a new dict; empty for most scenes and methods)."""
+        return dict(self.integrator_options.get(integrator, {}))
 
     def part(self, name: str):
         """The part called ``name`` (e.g. ``"spheres"``, ``"plane"``), or None."""
