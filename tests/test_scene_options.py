@@ -56,3 +56,16 @@ def test_simulate_list_and_the_scene_file_say_the_scenes_choice(f64, tmp_path, c
     path = tmp_path / "stiff.toml"
     path.write_text(text)
     assert load_scene_file(path).options == {"substeps": STIFF_SUBSTEPS}
+
+
+def test_every_scenes_options_are_options_its_methods_take():
+    """A preset's options are checked when a method is bound, which a scene's tests may never
+    do: a misspelt one (``substep``) would only fail when someone runs that method there."""
+    from taichi_sim.integrators import check_options
+    from taichi_sim.scene import SCENES
+
+    chosen = {name: preset.integrator_options for name, preset in SCENES.items() if preset.integrator_options}
+    assert chosen["cloth-stiff"] == {"xpbd": {"substeps": STIFF_SUBSTEPS}}
+    for options in chosen.values():
+        for method, values in options.items():
+            check_options(method, values)
