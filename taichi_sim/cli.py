@@ -163,6 +163,8 @@ def cmd_simulate(args) -> int:
 
     runtime.init(arch=args.arch, precision=args.precision)
     scene = build_scene(args.scene, params, seed=args.seed)
+    if scene.start_warning():
+        print(f"taichi-sim: warning: {scene.start_warning()}", file=sys.stderr)
     explicit_dt = scene.explicit_step
     if args.dt is None and not adaptive and step_limited(integrator_name) and explicit_dt < dt:
         # a fine cloth's particles are light: its explicit stable step is shorter than the preset's;

@@ -138,3 +138,37 @@ def test_a_start_that_already_passes_through_itself_is_refused_before_the_run():
     assert self_intersections(loose.x0, loose.mesh.triangles_np).count > 0
     with pytest.raises(ConfigError, match="starts passing through itself"):
         ts.build_scene("cloth-fold", params)
+
+
+def test_points_inside_each_kind_of_object_are_found_and_points_on_a_surface_are_not():
+    from taichi_sim.geometry.inside import inside_objects
+
+    arrays = {"sphere_center": [[0.0, 1.0, 0.0]], "sphere_radius": [0.5],
+              "capsule_center": [[0.0, 0.0, 0.0]], "capsule_radius": [0.1], "capsule_half_axis": [[0.3, 0.0, 0.0]],
+              "box_center": [[2.0, 0.0, 0.0]], "box_half_extents": [[0.2, 0.2, 0.2]],
+              "plane_point": [0.0, -0.5, 0.0], "plane_normal": [0.0, 2.0, 0.0]}
+    points = np.array([[0.0, 1.4, 0.0],    # sphere: inside
+                       [0.0, 1.5, 0.0],    # sphere: on its surface
+                       [0.35, 0.0, 0.0],   # capsule: in its end cap (0.05 from the end-cap centre)
+                       [0.45, 0.0, 0.0],   # capsule: 0.15 past the end-cap centre, outside
+                       [-0.25, 0.05, 0.0],  # capsule: beside the axis, inside
+                       [2.19, 0.1, -0.1],  # box: inside
+                       [2.2, 0.0, 0.0],    # box: on a face
+                       [5.0, -0.6, 0.0]])  # below the plane
+    found = inside_objects(points, arrays)
+    assert {k: np.flatnonzero(v).tolist() for k, v in found.items()} == {
+        "sphere": [0], "capsule": [2, 4], "box": [5], "plane": [7]}
+    assert inside_objects(points, {}) == {}
+
+
+def test_a_cloth_that_starts_inside_an_object_is_reported_before_the_run(f64, tmp_path, capsys):
+    across = {"nx": 8, "ny": 8, "capsule": True, "capsule_y": 0.12, "capsule_radius": 0.1}
+    warning = ts.build_scene("cloth-fold", across).start_warning()
+    assert "starts inside an object (6 inside the capsule, of 64 vertices)" in warning
+    assert ts.build_scene("cloth-fold", dict(across, capsule_z=0.3)).start_warning() == ""  # beside it
+    assert "inside the ground plane" in ts.build_scene("cloth", {"nx": 4, "ny": 4, "plane": True,
+                                                                 "plane_height": 2.0}).start_warning()
+    args = ["simulate", "cloth-fold", *[a for k, v in across.items() for a in ("--set", f"{k}={v}")],
+            "--integrator", "symplectic_euler", "--steps", "1", "--quiet", "--out", str(tmp_path / "fold.npz")]
+    assert main(args) == 0
+    assert "warning: the cloth starts inside an object (6 inside the capsule" in capsys.readouterr().err
