@@ -17,49 +17,13 @@ MAX_STEPS = 10**8
 
 
 def cmd_check(args) -> int:
-    """Self-intersections in every frame of a saved run (x_history, or the final x): exit 0 when
-    none, 1 when some frame has any."""
-    import os
-    import zipfile
+    """Self-intersections, and vertices inside the scene's objects, in every frame of a saved
+    run (x_history, or the final x): exit 0 when none, 1 when some frame has any."""
+    from .frame_check import check_run, load_run
 
-    import numpy as np
-
-    from .geometry import self_intersections
-
-    # np.load reads any file but a zip or .npy as a pickle, and refuses it talking of pickles
-    if os.path.isfile(args.npz) and not zipfile.is_zipfile(args.npz):
-        raise ConfigError(f"{args.npz} is not a run's npz (not a zip archive): give a file "
-                          "written by `taichi-sim simulate --out RUN.npz`")
-    try:
-        with np.load(args.npz) as data:
-            arrays = {k: data[k] for k in ("triangles", "x", "x_history", "t_history", "t", "scene")
-                      if k in data.files}
-    except (OSError, ValueError) as exc:
-        raise ConfigError(f"cannot read {args.npz} as a run's npz: {exc}") from None
-    if "triangles" not in arrays or "x" not in arrays:
-        raise ConfigError(f"{args.npz} has no cloth surface (no `triangles`): only cloth scenes can be checked")
-    frames = arrays.get("x_history", arrays["x"][None])
-    times = arrays.get("t_history", np.atleast_1d(arrays.get("t", np.nan)))
-    counts, flat = [], 0
-    for x in _frame_bar(frames):
-        try:
-            report = self_intersections(x, arrays["triangles"])
-        except ValueError as exc:
-            raise ConfigError(f"{args.npz}: {exc}") from None
-        counts.append(report.count)
-        flat = max(flat, len(report.degenerate))
-    counts = np.asarray(counts)
-    name = str(arrays.get("scene", "run"))
-    # zero-area triangles have no inside to pass through: left out, and said so
-    unchecked = f" ({flat} zero-area triangle(s) in some frame, not checked)" if flat else ""
-    if not counts.any():
-        print(f"{name}: {len(counts)} frame(s), no triangles intersect{unchecked}")
-        return 0
-    worst = int(counts.argmax())
-    print(f"{name}: {int((counts > 0).sum())} of {len(counts)} frame(s) have intersecting triangles; "
-          f"first at t = {times[int(np.argmax(counts > 0))]:.6g} s, most ({counts[worst]} pairs) at "
-          f"t = {times[worst]:.6g} s{unchecked}")
-    return 1
+    lines, passed = check_run(load_run(args.npz), progress=_frame_bar)
+    print("\n".join(lines))
+    return 0 if passed else 1
 
 
 def _frame_bar(frames):

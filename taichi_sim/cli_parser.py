@@ -310,6 +310,7 @@ def build_parser() -> argparse.ArgumentParser:
     exp.add_argument("--out", required=True, metavar="PATH", help="the folder (obj, ply) or file (usd) to write")
     exp.add_argument("--quiet", action="store_true", help="no summary line or progress bar")
 
-    chk = sub.add_parser("check", help="look for a cloth passing through itself in a saved run's frames")
+    chk = sub.add_parser("check", help="look for a cloth passing through itself, or into an object, in a saved "
+                                       "run's frames")
     chk.add_argument("npz", help="a run written by `simulate` (with --save-every for every frame)")
     return parser

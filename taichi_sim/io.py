@@ -60,6 +60,7 @@ def run_arrays(scene: Scene, result: RunResult, *, integrator: Integrator, dt: f
         data["residual_note"] = np.str_(result.residual_note)
     if result.x_history is not None:
         data["x_history"], data["t_history"] = result.x_history, result.t_history
+        data.update(result.object_history)
     if scene.mesh is not None:  # the cloth's surface, as built (torn ones included)
         data["triangles"] = np.asarray(scene.mesh.triangles_np, np.int64)
     if integrator.implicit:

@@ -48,6 +48,9 @@ class RunResult:
         x_history, t_history: with ``save_every``, the positions (S, N, 3) (m) (for a
             first-order system its state, (S, N, dim)) at t = 0, every ``save_every`` accepted
             steps and at the end, and their times (S,) (s); None otherwise.
+        object_history: with ``save_every``, where the scene's spheres, capsules and boxes were
+            at those times: ``sphere_center_history`` (S, K, 3) (m) and the like; empty
+            otherwise (what `taichi-sim check` tests the saved frames against).
     """
 
     status: Status
@@ -66,6 +69,7 @@ class RunResult:
     guard_checks: int = 0
     x_history: np.ndarray | None = None
     t_history: np.ndarray | None = None
+    object_history: dict[str, np.ndarray] = field(default_factory=dict)
     constraint_violation: np.ndarray | None = None
     solver_residual: np.ndarray = field(default_factory=lambda: np.zeros(0))
     residual_t: np.ndarray = field(default_factory=lambda: np.zeros(0))
@@ -227,7 +231,7 @@ def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: 
     t, failure, monitor = stepper.t, stepper.failure, stepper.monitor
     energy_t = np.asarray(energy_t, float)
     kept = energy_t <= t  # a diverged run's trace ends at the state it returns
-    x_history, t_history = history.arrays(t) if history is not None else (None, None)
+    x_history, t_history, object_history = history.arrays(t) if history is not None else (None, None, {})
     return RunResult(status=stepper.status, steps=stepper.steps, t=t, f_evals=stepper.f_evals,
                      rejected_steps=stepper.rejected, linear_iterations=stepper.linear_iterations,
                      linear_residual=stepper.linear_residual,
@@ -236,6 +240,7 @@ def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: 
                      failed_step=0 if failure is None else failure.step,
                      failed_t=math.nan if failure is None else failure.t,
                      guard_checks=watch.checks, x_history=x_history, t_history=t_history,
+                     object_history=object_history,
                      constraint_violation=None if violation is None else np.asarray(violation, float)[kept],
                      solver_residual=np.asarray(monitor.values, float), residual_t=np.asarray(monitor.times, float),
                      residual_note=monitor.reason, worst_residual=monitor.worst, max_residual=monitor.bound,
@@ -250,27 +255,37 @@ def _integrator_warnings(integrator) -> tuple[str, ...]:
 
 
 class _History:
-    """Frames of a run's positions, copied from the device as they are kept."""
+    """Frames of a run's positions, copied from the device as they are kept, with where the
+    scene's objects (spheres, capsules, boxes: the parts with ``centers_at``) were then."""
 
     def __init__(self, scene: Scene):
         self.scene = scene
         self.frames: list[np.ndarray] = []
         self.times: list[float] = []
+        self.objects = [part for part in scene.parts if hasattr(part, "centers_at")]
+        self.centers: list[dict[str, np.ndarray]] = []
+
+    def _centers(self, t: float) -> dict[str, np.ndarray]:
+        return {k: v for part in self.objects for k, v in part.centers_at(t).items()}
 
     def keep(self, t: float) -> None:
         if self.times and self.times[-1] == t:
             return  # the end of a run that ends on a saving step
         self.frames.append(np.asarray(self.scene.state.x.to_numpy(), np.float64))
         self.times.append(t)
+        self.centers.append(self._centers(t))
 
-    def arrays(self, t_final: float) -> tuple[np.ndarray, np.ndarray]:
+    def arrays(self, t_final: float) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
         """The frames up to ``t_final`` (a diverged run ends at the state it returns), with
-        that state last."""
+        that state last; their times; ``{key}_history`` (S, K, 3) of each object centre key."""
         times = np.asarray(self.times, float)
         kept = times <= t_final
         frames = [f for f, k in zip(self.frames, kept) if k]
+        centers = [c for c, k in zip(self.centers, kept) if k]
         times = times[kept]
         if not len(times) or times[-1] != t_final:
             frames.append(np.asarray(self.scene.state.x.to_numpy(), np.float64))
+            centers.append(self._centers(t_final))
             times = np.append(times, t_final)
-        return np.stack(frames), times
+        objects = {f"{key}_history": np.stack([c[key] for c in centers]) for key in (centers[0] if centers else {})}
+        return np.stack(frames), times, objects

@@ -174,3 +174,31 @@ def test_check_command_reports_frames_with_intersections(f64, tmp_path, capsys):
     err = capsys.readouterr().err
     assert err == (f"taichi-sim: error: {tmp_path / 'notes.md'} is not a run's npz (not a zip archive): "
                    "give a file written by `taichi-sim simulate --out RUN.npz`\n")
+
+
+def test_check_command_finds_vertices_inside_the_objects_where_they_were_at_each_frame(f64, tmp_path, capsys):
+    out = tmp_path / "drop.npz"
+    assert main(["simulate", "cloth", "--set", "nx=6", "--set", "ny=6", "--set", "sphere=1", "--set", "sphere_motion=drop",
+                 "--set", "plane=1", "--steps", "200", "--save-every", "100", "--out", str(out), "--quiet"]) == 0
+    assert main(["check", str(out)]) == 0
+    assert "drop.npz" not in capsys.readouterr().out
+    data = dict(np.load(out))
+    centres, radius = data["sphere_center_history"][:, 0], float(data["sphere_radius"][0])
+    assert centres.shape == (3, 3) and centres[2, 1] == pytest.approx(centres[0, 1] - 0.1)  # 0.5 m/s for 0.2 s
+    below = centres[2] - [0.0, radius - 0.02, 0.0]  # inside the sphere at 0.2 s, outside where it started
+    free = int(np.flatnonzero(~data["pinned"])[0])
+
+    def check_edited(frame, point):
+        edited = {k: v.copy() for k, v in data.items()}
+        edited["x_history"][frame, free] = point
+        np.savez(tmp_path / "edited.npz", **edited)
+        code = main(["check", str(tmp_path / "edited.npz")])
+        return code, capsys.readouterr().out
+
+    code, text = check_edited(0, below)
+    assert code == 0 and "cloth: no vertex inside the ground plane or spheres in any frame" in text
+    code, text = check_edited(2, below)
+    assert code == 1 and ("cloth: 1 of 3 frame(s) have vertices inside an object; first at t = 0.2 s, most "
+                          "(1 inside the spheres) at t = 0.2 s") in text
+    code, text = check_edited(1, [0.0, -0.01, 0.0])
+    assert code == 1 and "first at t = 0.1 s, most (1 inside the ground plane)" in text

@@ -1,0 +1,117 @@
+"""`taichi-sim check`: judge a saved run's frames on positions alone, with no solver code.
+
+Two questions, each answered for every saved frame (``x_history``, or the final ``x``):
+whether any two triangles of the cloth intersect (:func:`~taichi_sim.geometry.self_intersections`,
+exact predicates), and whether any vertex lies inside one of the scene's objects
+(:func:`~taichi_sim.geometry.inside.inside_objects`: spheres, capsules and boxes where the run
+kept their centres with the frames, the ground plane always; a collider mesh is not checked).
+"""
+from __future__ import annotations
+
+import os
+import zipfile
+
+import numpy as np
+
+from .errors import ConfigError
+from .geometry import inside_objects, self_intersections
+
+# m: a vertex counts as inside an object only deeper than this. A vertex resting on a surface in
+# f32 rounds to within about 1e-7 m of it at a metre from the origin.
+INSIDE_TOLERANCE = 1e-6
+_OBJECT_KEYS = ("sphere_radius", "capsule_radius", "capsule_half_axis", "box_half_extents",
+                "plane_point", "plane_normal")
+_MOVING = ("sphere", "capsule", "box")
+
+
+def load_run(path: str) -> dict[str, np.ndarray]:
+    """The arrays of a run's npz that the check reads (ConfigError for a file that is not one,
+    or a run without a cloth surface)."""
+    # np.load reads any file but a zip or .npy as a pickle, and refuses it talking of pickles
+    if os.path.isfile(path) and not zipfile.is_zipfile(path):
+        raise ConfigError(f"{path} is not a run's npz (not a zip archive): give a file "
+                          "written by `taichi-sim simulate --out RUN.npz`")
+    wanted = ("triangles", "x", "x_history", "t_history", "t", "scene", *_OBJECT_KEYS,
+              *(f"{kind}_center" for kind in _MOVING), *(f"{kind}_center_history" for kind in _MOVING))
+    try:
+        with np.load(path) as data:
+            arrays = {k: data[k] for k in wanted if k in data.files}
+    except (OSError, ValueError) as exc:
+        raise ConfigError(f"cannot read {path} as a run's npz: {exc}") from None
+    if "triangles" not in arrays or "x" not in arrays:
+        raise ConfigError(f"{path} has no cloth surface (no `triangles`): only cloth scenes can be checked")
+    return arrays
+
+
+def frames_of(arrays: dict) -> tuple[np.ndarray, np.ndarray, bool]:
+    """(frames (S, N, 3), their times (S,), whether they are the saved history)."""
+    if "x_history" in arrays:
+        return arrays["x_history"], arrays["t_history"], True
+    return arrays["x"][None], np.atleast_1d(arrays.get("t", np.nan)), False
+
+
+def objects_at(arrays: dict, frame: int, history: bool) -> tuple[dict, list[str]]:
+    """(The object keys of frame ``frame`` for :func:`inside_objects`, the object kinds left
+    unchecked). A saved history checks the objects whose centres it kept; the final frame
+    alone is checked against the centres the file holds (those at its end)."""
+    out = {k: arrays[k] for k in ("plane_point", "plane_normal") if k in arrays}
+    unchecked = []
+    for kind in _MOVING:
+        if f"{kind}_center" not in arrays:
+            continue
+        sizes = {k: arrays[k] for k in _OBJECT_KEYS if k.startswith(kind)}
+        if history and f"{kind}_center_history" in arrays:
+            out.update(sizes, **{f"{kind}_center": arrays[f"{kind}_center_history"][frame]})
+        elif not history:
+            out.update(sizes, **{f"{kind}_center": arrays[f"{kind}_center"]})
+        else:
+            unchecked.append(kind)
+    return out, unchecked
+
+
+def check_run(arrays: dict, progress=lambda frames: frames) -> tuple[list[str], bool]:
+    """(The report's lines, whether every frame passed) for a run's arrays (:func:`load_run`);
+    ``progress`` wraps the frames' iteration (a progress bar)."""
+    frames, times, history = frames_of(arrays)
+    name = str(arrays.get("scene", "run"))
+    counts, flat = [], 0
+    inside, kinds_seen, unchecked = [], set(), []
+    for k, x in enumerate(progress(frames)):
+        try:
+            report = self_intersections(x, arrays["triangles"])
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
+        counts.append(report.count)
+        flat = max(flat, len(report.degenerate))
+        objects, unchecked = objects_at(arrays, k, history)
+        found = {kind: int(mask.sum()) for kind, mask in inside_objects(x, objects, INSIDE_TOLERANCE).items()}
+        kinds_seen.update(found)
+        inside.append({kind: n for kind, n in found.items() if n})
+    counts = np.asarray(counts)
+    # zero-area triangles have no inside to pass through: left out, and said so
+    note = f" ({flat} zero-area triangle(s) in some frame, not checked)" if flat else ""
+    if not counts.any():
+        lines = [f"{name}: {len(counts)} frame(s), no triangles intersect{note}"]
+    else:
+        worst = int(counts.argmax())
+        lines = [f"{name}: {int((counts > 0).sum())} of {len(counts)} frame(s) have intersecting triangles; "
+                 f"first at t = {times[int(np.argmax(counts > 0))]:.6g} s, most ({counts[worst]} pairs) at "
+                 f"t = {times[worst]:.6g} s{note}"]
+    names = [_object_name(kind) for kind in sorted(kinds_seen)]
+    named = " or ".join([", ".join(names[:-1]), names[-1]] if len(names) > 2 else names)
+    bad = [k for k, found in enumerate(inside) if found]
+    if kinds_seen and not bad:
+        lines.append(f"{name}: no vertex inside the {named} in any frame")
+    elif bad:
+        worst = max(bad, key=lambda k: sum(inside[k].values()))
+        most = ", ".join(f"{n} inside the {_object_name(kind)}" for kind, n in inside[worst].items())
+        lines.append(f"{name}: {len(bad)} of {len(inside)} frame(s) have vertices inside an object; first at "
+                     f"t = {times[bad[0]]:.6g} s, most ({most}) at t = {times[worst]:.6g} s")
+    if unchecked:
+        lines.append(f"{name}: the {' and '.join(_object_name(k) for k in unchecked)} not checked: the file keeps "
+                     f"no centres with its frames (saved by an older version)")
+    return lines, not counts.any() and not bad
+
+
+def _object_name(kind: str) -> str:
+    return {"plane": "ground plane", "sphere": "spheres", "capsule": "capsules", "box": "boxes"}[kind]
