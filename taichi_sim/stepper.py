@@ -189,6 +189,10 @@ class Stepper:
             attach(self.scene)
         self.integrator = integrator
         self._skip = frozenset(getattr(integrator, "replaces_parts", ()))  # parts its solve does itself
+        paused = bool(getattr(integrator, "pauses_object_faces", False))
+        for part in self.scene.parts:  # the objects' face pass (scene/colliders/faces.py)
+            if hasattr(part, "faces_paused"):
+                part.faces_paused = paused
         # read once: an attribute of a Taichi data-oriented object costs about a microsecond
         self._integrate = integrator.step
         self.adaptive, self.implicit = integrator.adaptive, integrator.implicit

@@ -287,6 +287,25 @@ def test_objects_in_the_solve_keep_a_draped_cloth_out(f64):
     assert np.linalg.norm(x - sphere_c, axis=1).min() < 0.2 + 0.02  # it lies on the sphere
 
 
+def test_a_fold_over_a_box_edge_never_intersects_because_the_face_pass_waits(f32):
+    """The box's face pass, run after a step of vbd with self-contact, pushed the faces lying
+    across the box's edge past the solve's bounds and tangled the fold (16 x 16: 60 of 91
+    frames intersecting, the first at 0.52 s): with self-contact in the solve it does not run,
+    and runs again once another method steps the scene."""
+    from taichi_sim.geometry.inside import inside_objects
+
+    scene = ts.build_scene("cloth-fold", {"nx": 16, "ny": 16, "height": 1.4, "box": True, "box_y": 0.15,
+                                          "box_half_x": 0.3, "box_half_y": 0.15, "box_half_z": 0.3})
+    box = scene.part("boxes")
+    result = ts.run(scene, "vbd", dt=1 / 60, t_end=0.75, save_every=1, progress=False)
+    assert result.status.value == "ok" and box.faces_paused
+    assert max(self_intersections(x, scene.mesh.triangles_np).count for x in result.x_history) == 0
+    objects = {**scene.arrays, "box_center": result.object_history["box_center_history"][-1]}
+    assert not any(mask.any() for mask in inside_objects(result.x_history[-1], objects, 1e-6).values())
+    ts.Stepper(scene, "symplectic_euler", 1e-3)
+    assert not box.faces_paused
+
+
 def test_a_vertex_shot_at_a_thin_box_stops_on_its_near_side(f64):
     """A particle at 60 m/s (1 m a step) towards a box 2 cm thick: the penalty alone lets it
     through (its inertial target lies 1 m beyond, past the box's middle, where the nearest face

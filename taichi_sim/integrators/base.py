@@ -118,6 +118,11 @@ class Integrator(ABC):
     """Names of the scene's post-step parts (``ScenePart.name``) whose work the method does
     inside its own solve once bound to a scene (``attach_scene``), e.g. ``vbd``'s self-contact
     taking over ``self_collision``: the Stepper does not run them after its steps."""
+    pauses_object_faces = False
+    """Whether, once bound to a scene, the method's solve keeps the cloth off itself with
+    bounds on each vertex's move (``vbd`` with self-contact): the object colliders' face pass,
+    which would move vertices past those bounds after the step, then does not run (their
+    vertex pass does). A box's edge under a fold moved by it tangled the fold (docs/vbd.md)."""
     tracks_solved_start = False
     """Whether the method, when ``solved_start`` is set to a State, copies into it the start of
     the last piece of a step it solved (a substep, a halving) and sets ``solved_h`` (s)."""

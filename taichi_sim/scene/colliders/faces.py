@@ -188,6 +188,9 @@ class FaceContact:
         bounding box); ``thinnest``: its thinnest size (m), which scales LEFT_TO_VERTICES."""
         self.mesh = mesh
         self.face_contacts_total = 0
+        # Set by the Stepper for a method whose solve keeps the cloth off itself (vbd with
+        # self-contact): a face push after its step would move vertices past its bounds.
+        self.faces_paused = False
         if mesh is None:
             return
         real = runtime.real()
@@ -208,7 +211,7 @@ class FaceContact:
             self.allowed[k] = ALLOWED_OVERLAP * float(thinnest[k])
 
     def _faces(self, state, x_start, t: float, h: float) -> None:
-        if self.mesh is None:
+        if self.mesh is None or self.faces_paused:
             return
         for round_ in range(MAX_FACE_ROUNDS):
             self.rounds_run += 1  # numbers the rounds of every step, so no reset is needed
