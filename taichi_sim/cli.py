@@ -335,7 +335,8 @@ def cmd_record(args) -> int:
     check_output(args.out, clip.size, clip.fps)
     try:
         runtime.init(arch=args.arch, precision=args.precision)
-        result = record(clip, args.out, progress=None if not args.quiet else False)
+        result = record(clip, args.out, progress=None if not args.quiet else False,
+                        warn=lambda line: print(f"taichi-sim: warning: {line}", file=sys.stderr))
     except RenderUnavailable as exc:
         print(f"taichi-sim: error: {exc}", file=sys.stderr)
         return EXIT_USAGE

@@ -123,7 +123,7 @@ def frame_labels(session: Session, renderer: Renderer, size: tuple[int, int]) ->
 
 
 def record(clip: Clip, out: str | Path, *, still: str | Path | None = None, still_at: float = 1.0,
-           progress: bool | None = None) -> Recording:
+           progress: bool | None = None, warn=None) -> Recording:
     """Record ``clip`` into ``out`` (.mp4, .gif or a folder/ of PNGs) through the renderer,
     offscreen. Frame 0 is the initial state; each later frame advances the simulation by
     ``clip.speed / clip.fps`` seconds. ``still`` also saves the frame at fraction ``still_at``
@@ -132,13 +132,17 @@ def record(clip: Clip, out: str | Path, *, still: str | Path | None = None, stil
 
     Validates everything before stepping; raises ConfigError for bad input and
     :class:`~taichi_sim.render.RenderUnavailable` when no Vulkan is usable. Needs
-    :func:`taichi_sim.init`. Nothing partial is left on disk on failure.
+    :func:`taichi_sim.init`. Nothing partial is left on disk on failure. ``warn`` (a callable
+    taking a line) hears, before the first frame, what the built scene warns of
+    (:meth:`~taichi_sim.scene.scene.Scene.start_warning`).
     """
     check_clip(clip)
     check_output(out, clip.size, clip.fps)
     start = time.perf_counter()
     session = Session(clip.scene, clip.integrators, params=clip.params, dt=clip.dt, seed=clip.seed,
                       integrator_options=clip.integrator_options)
+    if warn is not None and session.scenes[0].start_warning():
+        warn(session.scenes[0].start_warning())
     if clip.curves:
         session.set_curves(clip.curves)
     session.options.strain = clip.strain
