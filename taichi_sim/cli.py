@@ -44,7 +44,7 @@ def cmd_list(args) -> int:
     print("Scenes (set parameters with --set NAME=VALUE):")
     for preset in SCENES.values():
         print(f"\n  {preset.name}: {preset.description}")
-        method = method_label(preset.default_integrator, preset.integrator_options.get(preset.default_integrator, {}))
+        method = method_label(preset.default_integrator, preset.options_for(preset.default_integrator))
         print(f"    default integrator {method}, default dt {preset.default_dt:g} s")
         for p in preset.params:
             default = str(p.default).lower() if isinstance(p.default, bool) else p.default
@@ -98,7 +98,7 @@ def cmd_simulate(args) -> int:
         if name in options:
             raise ConfigError(f"--option {name} repeats a value given by its own flag; give it once")
         options[name] = value
-    options = {**preset.integrator_options.get(integrator_name, {}), **options}  # the scene's, unless told
+    options = {**preset.options_for(integrator_name), **options}  # the scene's, unless told
     adaptive = check_options(integrator_name, options).adaptive
     dt = args.dt if args.dt is not None or adaptive else preset.default_dt
     check_run_args(dt, args.steps, args.t_end, adaptive=adaptive)
@@ -127,8 +127,9 @@ def cmd_simulate(args) -> int:
 
     runtime.init(arch=args.arch, precision=args.precision)
     scene = build_scene(args.scene, params, seed=args.seed)
-    if scene.start_warning():
-        print(f"taichi-sim: warning: {scene.start_warning()}", file=sys.stderr)
+    start_warning = scene.start_warning()
+    if start_warning:
+        print(f"taichi-sim: warning: {start_warning}", file=sys.stderr)
     explicit_dt = scene.explicit_step
     if args.dt is None and not adaptive and step_limited(integrator_name) and explicit_dt < dt:
         # a fine cloth's particles are light: its explicit stable step is shorter than the preset's;

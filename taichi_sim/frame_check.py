@@ -4,7 +4,8 @@ Two questions, each answered for every saved frame (``x_history``, or the final 
 whether any two triangles of the cloth intersect (:func:`~taichi_sim.geometry.self_intersections`,
 exact predicates), and whether any vertex lies inside one of the scene's objects
 (:func:`~taichi_sim.geometry.inside.inside_objects`: spheres, capsules and boxes where the run
-kept their centres with the frames, the ground plane always; a collider mesh is not checked).
+kept their centres with the frames, the ground plane always; a collider mesh is not checked;
+pinned vertices, which no collider moves, are left out).
 """
 from __future__ import annotations
 
@@ -16,9 +17,6 @@ import numpy as np
 from .errors import ConfigError
 from .geometry import inside_objects, self_intersections
 
-# m: a vertex counts as inside an object only deeper than this. A vertex resting on a surface in
-# f32 rounds to within about 1e-7 m of it at a metre from the origin.
-INSIDE_TOLERANCE = 1e-6
 _OBJECT_KEYS = ("sphere_radius", "capsule_radius", "capsule_half_axis", "box_half_extents",
                 "plane_point", "plane_normal")
 _MOVING = ("sphere", "capsule", "box")
@@ -31,7 +29,7 @@ def load_run(path: str) -> dict[str, np.ndarray]:
     if os.path.isfile(path) and not zipfile.is_zipfile(path):
         raise ConfigError(f"{path} is not a run's npz (not a zip archive): give a file "
                           "written by `taichi-sim simulate --out RUN.npz`")
-    wanted = ("triangles", "x", "x_history", "t_history", "t", "scene", *_OBJECT_KEYS,
+    wanted = ("triangles", "x", "x_history", "t_history", "t", "scene", "pinned", *_OBJECT_KEYS,
               *(f"{kind}_center" for kind in _MOVING), *(f"{kind}_center_history" for kind in _MOVING))
     try:
         with np.load(path) as data:
@@ -76,6 +74,8 @@ def check_run(arrays: dict, progress=lambda frames: frames) -> tuple[list[str], 
     name = str(arrays.get("scene", "run"))
     counts, flat = [], 0
     inside, kinds_seen, unchecked = [], set(), []
+    # pinned vertices stay where their pins put them: no collider moves them
+    free = ~np.asarray(arrays["pinned"], bool) if "pinned" in arrays else slice(None)
     for k, x in enumerate(progress(frames)):
         try:
             report = self_intersections(x, arrays["triangles"])
@@ -84,7 +84,7 @@ def check_run(arrays: dict, progress=lambda frames: frames) -> tuple[list[str], 
         counts.append(report.count)
         flat = max(flat, len(report.degenerate))
         objects, unchecked = objects_at(arrays, k, history)
-        found = {kind: int(mask.sum()) for kind, mask in inside_objects(x, objects, INSIDE_TOLERANCE).items()}
+        found = {kind: int(mask.sum()) for kind, mask in inside_objects(x[free], objects).items()}
         kinds_seen.update(found)
         inside.append({kind: n for kind, n in found.items() if n})
     counts = np.asarray(counts)

@@ -262,6 +262,8 @@ def apply_scene_file(args, command: str) -> SceneFile | None:
     is a scene name."""
     import sys
 
+    from .scene.presets import scene_preset
+
     found = None
     if is_scene_file(getattr(args, "scene", None)):
         found = load_scene_file(args.scene)
@@ -271,10 +273,14 @@ def apply_scene_file(args, command: str) -> SceneFile | None:
         same_method = args.integrator is None or args.integrator == found.integrator
         if args.integrator is None and not getattr(args, "side_by_side", None):
             args.integrator = found.integrator
-        if found.options and getattr(args, "side_by_side", None):
-            listed = ", ".join(f"{k} = {_option_text(v)}" for k, v in found.options.items())
-            print(f"taichi-sim: warning: {found.where('integrator', next(iter(found.options)))}: --side-by-side "
-                  f"runs each method with its default options; the file's {listed} are not used", file=sys.stderr)
+        # options the scene gives that method itself (a written template's) are not lost
+        own = scene_preset(found.scene).options_for(found.integrator)
+        dropped = {k: v for k, v in found.options.items() if own.get(k) != v}
+        if dropped and getattr(args, "side_by_side", None):
+            listed = ", ".join(f"{k} = {_option_text(v)}" for k, v in dropped.items())
+            print(f"taichi-sim: warning: {found.where('integrator', next(iter(dropped)))}: --side-by-side "
+                  f"runs each method with the scene's options or its defaults; the file's {listed} are not used",
+                  file=sys.stderr)
         elif same_method:
             cli_options = {name for name, _ in args.integrator_options}
             args.integrator_options = [(k, _option_text(v)) for k, v in found.options.items()
@@ -330,7 +336,7 @@ def scene_file_text(preset) -> str:
         choices = f" (one of: {', '.join(p.choices)})" if p.choices else ""
         lines.append(f"{assignment:<{width}}  # {unit}{p.meaning}{choices}")
     lines += ["", "[integrator]", f"name = {_toml_value(preset.default_integrator)}"]
-    chosen = preset.integrator_options.get(preset.default_integrator, {})
+    chosen = preset.options_for(preset.default_integrator)
     lines += [f"{k} = {_toml_value(v)}  # this scene's choice" for k, v in chosen.items()]
     shown = [f"{k} = {_toml_value(v)}" for k, v in integrator_class(preset.default_integrator).options().items()
              if isinstance(v, (bool, int, float, str)) and k not in chosen]  # None: chosen automatically

@@ -13,8 +13,8 @@ from taichi_sim.cli import _session_args, main
 from taichi_sim.cli_parser import build_parser
 from taichi_sim.errors import ConfigError
 from taichi_sim.export import FORMATS
-from taichi_sim.scene import SCENES, Param
-from taichi_sim.scene_file import apply_scene_file, key_line, load_scene_file
+from taichi_sim.scene import SCENES, Param, scene_preset
+from taichi_sim.scene_file import apply_scene_file, key_line, load_scene_file, scene_file_text
 
 EXAMPLES = sorted((Path(__file__).resolve().parent.parent / "examples" / "scenes").glob("*.toml"))
 
@@ -237,7 +237,13 @@ def test_record_and_demo_take_a_scene_file_with_its_integrator_options(f64, tmp_
     args = parsed(tmp_path, FULL, "--side-by-side", "euler,rk4", command="demo")
     assert args.integrator is None and args.side_by_side == ["euler", "rk4"] and args.integrator_options == []
     err = capsys.readouterr().err  # the options it cannot apply are said, never dropped silently
-    assert f"{tmp_path / 'scene.toml'}:7: --side-by-side runs each method with its default options" in err
+    assert f"{tmp_path / 'scene.toml'}:7: --side-by-side runs each method with the scene's options or its " \
+        "defaults; the file's substeps = 3, iterations = 2 are not used" in err
+    stiff = tmp_path / "stiff.toml"  # the template's own choice is the scene's: nothing to warn of
+    stiff.write_text(scene_file_text(scene_preset("cloth-stiff")))
+    parsed_args = build_parser().parse_args(["demo", str(stiff), "--side-by-side", "xpbd,rk4"])
+    apply_scene_file(parsed_args, "demo")
+    assert "not used" not in capsys.readouterr().err
     args = parsed(tmp_path, FULL, "--side-by-side", "euler,rk4", "--option", "substeps=2", "--out", "x.gif",
                   command="record")
     with pytest.raises(ConfigError, match="--option .* --side-by-side"):

@@ -168,6 +168,11 @@ def test_a_cloth_that_starts_inside_an_object_is_reported_before_the_run(f64, tm
     assert ts.build_scene("cloth-fold", dict(across, capsule_z=0.3)).start_warning() == ""  # beside it
     assert "inside the ground plane" in ts.build_scene("cloth", {"nx": 4, "ny": 4, "plane": True,
                                                                  "plane_height": 2.0}).start_warning()
+    plain = ts.build_scene("cloth", {"nx": 4, "ny": 4})
+    corner = plain.x0[np.flatnonzero(plain.arrays["pinned"])[0]]  # a pinned corner: no collider moves it
+    held = {"nx": 4, "ny": 4, "sphere": True, "sphere_radius": 0.1, "sphere_x": corner[0], "sphere_y": corner[1],
+            "sphere_z": corner[2]}
+    assert ts.build_scene("cloth", held).start_warning() == ""
     args = ["simulate", "cloth-fold", *[a for k, v in across.items() for a in ("--set", f"{k}={v}")],
             "--integrator", "symplectic_euler", "--steps", "1", "--quiet", "--out", str(tmp_path / "fold.npz")]
     assert main(args) == 0

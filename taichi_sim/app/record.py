@@ -141,8 +141,9 @@ def record(clip: Clip, out: str | Path, *, still: str | Path | None = None, stil
     start = time.perf_counter()
     session = Session(clip.scene, clip.integrators, params=clip.params, dt=clip.dt, seed=clip.seed,
                       integrator_options=clip.integrator_options)
-    if warn is not None and session.scenes[0].start_warning():
-        warn(session.scenes[0].start_warning())
+    start_warning = session.scenes[0].start_warning() if warn is not None else ""
+    if start_warning:
+        warn(start_warning)
     if clip.curves:
         session.set_curves(clip.curves)
     session.options.strain = clip.strain

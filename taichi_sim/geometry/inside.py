@@ -13,9 +13,12 @@ from __future__ import annotations
 import numpy as np
 
 KINDS = ("sphere", "capsule", "box", "plane")
+# m: the depth below which a point does not count as inside. A vertex resting on a surface in
+# f32 rounds to within about 1e-7 m of it at a metre from the origin.
+INSIDE_TOLERANCE = 1e-6
 
 
-def inside_objects(x: np.ndarray, arrays: dict, tolerance: float = 1e-9) -> dict[str, np.ndarray]:
+def inside_objects(x: np.ndarray, arrays: dict, tolerance: float = INSIDE_TOLERANCE) -> dict[str, np.ndarray]:
     """Object kind -> (N,) bool mask of the points ``x`` ((N, 3), m) inside any object of that
     kind; only the kinds ``arrays`` has."""
     x = np.asarray(x, np.float64).reshape(-1, 3)

@@ -27,6 +27,11 @@ class ScenePreset:
     explicit_dt: float | None = None  # s: an explicit method's step when not told (Scene.explicit_dt)
     integrator_options: dict[str, dict[str, Any]] = field(default_factory=dict, hash=False)
 
+    def options_for(self, integrator: str) -> dict[str, Any]:
+        """The keyword options this scene runs ``integrator`` with unless told otherwise (a
+        new dict; empty for most)."""
+        return dict(self.integrator_options.get(integrator, {}))
+
     def param(self, name: str) -> Param:
         return next(p for p in self.params if p.name == name)
 

@@ -78,12 +78,18 @@ class Scene:
         "" (also for a scene without a cloth mesh). Read it before a run, on the scene as built:
         the first steps push those vertices out, and a cloth caught across an object folds
         through itself (a fold started through a capsule intersected in 180 of its 181
-        frames). Spheres, capsules, boxes and the plane are checked; a collider mesh is not."""
+        frames). Spheres, capsules, boxes and the plane are checked, not a collider mesh; pinned
+        vertices are left out (no collider moves them)."""
         from ..geometry.inside import inside_objects
 
         if self.mesh is None:
             return ""
-        found = [(kind, int(mask.sum())) for kind, mask in inside_objects(self.x0, self.arrays).items()
+        objects = self.arrays
+        for part in self.parts:  # where the objects start, whenever this is asked
+            if hasattr(part, "centers_at"):
+                objects.update(part.centers_at(0.0))
+        free = ~np.asarray(objects["pinned"], bool)  # no collider moves a pinned vertex
+        found = [(kind, int(mask.sum())) for kind, mask in inside_objects(self.x0[free], objects).items()
                  if mask.any()]
         if not found:
             return ""

@@ -44,7 +44,9 @@ class SceneAttachment:
         self.has_self_contact = contact is not None and contact.self_contact
         self.pins = DrivenPins(pins, contact, scene.system.particle_count) if drives else None
         self.drives_pins = drives
-        self.pauses_object_faces = self.has_self_contact
+        # the objects' face pass would move vertices past the self-contact bounds; it waits only
+        # where the solve meets the objects itself (option ``contact``)
+        self.pauses_object_faces = self.has_self_contact and contact.has_objects
         self.replaces_parts = frozenset(({SelfCollision.name} if follows else set())
                                         | ({KinematicPins.name} if drives else set()))
         # Not with contact in the solve: its penalty energy is not in E, and a vertex pushed
