@@ -70,9 +70,7 @@ def run_arrays(scene: Scene, result: RunResult, *, integrator: Integrator, dt: f
         data["substeps"] = np.int64(integrator.stats.substeps)
     for name, value in scene.arrays.items():
         data[name] = np.asarray(value)
-    for part in scene.parts:  # the objects where they were at the run's end (a diverged run's state)
-        if hasattr(part, "centers_at"):
-            data.update(part.centers_at(result.t))
+    data.update(scene.object_centers(result.t))  # at the run's end (a diverged run's state)
     for name, value in scene.params.items():
         data[f"param_{name}"] = np.asarray(value)
     return data

@@ -262,18 +262,14 @@ class _History:
         self.scene = scene
         self.frames: list[np.ndarray] = []
         self.times: list[float] = []
-        self.objects = [part for part in scene.parts if hasattr(part, "centers_at")]
         self.centers: list[dict[str, np.ndarray]] = []
-
-    def _centers(self, t: float) -> dict[str, np.ndarray]:
-        return {k: v for part in self.objects for k, v in part.centers_at(t).items()}
 
     def keep(self, t: float) -> None:
         if self.times and self.times[-1] == t:
             return  # the end of a run that ends on a saving step
         self.frames.append(np.asarray(self.scene.state.x.to_numpy(), np.float64))
         self.times.append(t)
-        self.centers.append(self._centers(t))
+        self.centers.append(self.scene.object_centers(t))
 
     def arrays(self, t_final: float) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
         """The frames up to ``t_final`` (a diverged run ends at the state it returns), with
@@ -285,7 +281,7 @@ class _History:
         times = times[kept]
         if not len(times) or times[-1] != t_final:
             frames.append(np.asarray(self.scene.state.x.to_numpy(), np.float64))
-            centers.append(self._centers(t_final))
+            centers.append(self.scene.object_centers(t_final))
             times = np.append(times, t_final)
         objects = {f"{key}_history": np.stack([c[key] for c in centers]) for key in (centers[0] if centers else {})}
         return np.stack(frames), times, objects

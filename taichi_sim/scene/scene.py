@@ -73,6 +73,11 @@ class Scene:
         caller sets none of its own (a new dict; empty for most scenes and methods)."""
         return dict(self.integrator_options.get(integrator, {}))
 
+    def object_centers(self, t: float) -> dict[str, np.ndarray]:
+        """Where the spheres, capsules and boxes are at time ``t`` (s), as the npz's keys:
+        ``{"sphere_center": (K, 3), ...}`` (m); empty without such objects."""
+        return {k: v for part in self.parts if hasattr(part, "centers_at") for k, v in part.centers_at(t).items()}
+
     def start_warning(self) -> str:
         """A line naming the objects the cloth starts inside, with how many vertices each, or
         "" (also for a scene without a cloth mesh). Read it before a run, on the scene as built:
@@ -84,10 +89,7 @@ class Scene:
 
         if self.mesh is None:
             return ""
-        objects = self.arrays
-        for part in self.parts:  # where the objects start, whenever this is asked
-            if hasattr(part, "centers_at"):
-                objects.update(part.centers_at(0.0))
+        objects = {**self.arrays, **self.object_centers(0.0)}  # where they start, whenever asked
         free = ~np.asarray(objects["pinned"], bool)  # no collider moves a pinned vertex
         found = [(kind, int(mask.sum())) for kind, mask in inside_objects(self.x0[free], objects).items()
                  if mask.any()]

@@ -1,5 +1,6 @@
 """What the cloth's self-contact stage asks of an object collider: where its surface is."""
 
+import numpy as np
 import taichi as ti
 
 from ...collide.objects import FAR
@@ -12,12 +13,23 @@ class Obstacle:
 
     A collider using it has ``count`` objects on ``path`` (:class:`~.path.PathFields`) and the
     ``ti.func``s ``distance(k, q)`` (signed, m, negative inside) and ``normal(k, q)`` (outward
-    unit) at q, a point in object k's frame, and ``surface_velocity(k, t, r)`` (m/s)."""
+    unit) at q, a point in object k's frame, and ``surface_velocity(k, t, r)`` (m/s); in Python,
+    its ``paths`` (:class:`~.path.SpherePath`), the time ``t`` it was last moved to, and the
+    ``key`` of its npz keys (``sphere``, ``capsule``, ``box``)."""
 
     is_obstacle = True  # (the ScenePart flag the builder reads to hand it to self-contact)
     # ``count``, ``path``, ``friction`` and the per-object ``distance``/``normal``/``surface_velocity``
     # above, which the VBD solve's contacts read object by object (a mesh has none of them)
     shape_functions = True
+
+    def centers(self) -> np.ndarray:
+        """(K, 3) float64: the centres (m) now."""
+        return self.centers_at(self.t)[f"{self.key}_center"]
+
+    def centers_at(self, t: float) -> dict[str, np.ndarray]:
+        """``{"sphere_center": (K, 3)}`` (or ``capsule_center``, ``box_center``): the centres (m)
+        at time t (s) on the paths as they are now (a run keeps them with its saved frames)."""
+        return {f"{self.key}_center": np.asarray([p.at(t)[0] for p in self.paths], np.float64).reshape(-1, 3)}
 
     @ti.func
     def nearest_surface(self, x, t, reach):

@@ -124,15 +124,6 @@ class _TranslatingShapes(FaceContact, Obstacle, ScenePart):
     def energy_sources(self) -> list:
         return [MovingSource(f"moving {self.key}", self.fastest_speed())]
 
-    def centers(self) -> np.ndarray:
-        """(K, 3) float64: the centres (m) now."""
-        return self.centers_at(self.t)[f"{self.key}_center"]
-
-    def centers_at(self, t: float) -> dict[str, np.ndarray]:
-        """``{"capsule_center": (K, 3)}`` (or ``box_center``): the centres (m) at time t (s) on
-        the paths as they are now (a run keeps them with its saved frames)."""
-        return {f"{self.key}_center": np.asarray([p.at(t)[0] for p in self.paths], np.float64).reshape(-1, 3)}
-
     def fastest_speed(self) -> float:
         return max(p.fastest_speed() for p in self.paths)
 

@@ -43,7 +43,7 @@ class SphereColliders(FaceContact, Obstacle, ScenePart):
             share the faces' pushes), needed with a mesh.
     """
 
-    name = "spheres"
+    name, key = "spheres", "sphere"
     order = 10
 
     def __init__(self, paths: list[SpherePath], radii: list[float], frictions: list[float], free,
@@ -120,15 +120,6 @@ class SphereColliders(FaceContact, Obstacle, ScenePart):
 
     def energy_sources(self) -> list:
         return [MovingSource("moving sphere", self.fastest_speed())]
-
-    def centers(self) -> np.ndarray:
-        """(K, 3) float64: the centres (m) now."""
-        return self.centers_at(self.t)["sphere_center"]
-
-    def centers_at(self, t: float) -> dict[str, np.ndarray]:
-        """``{"sphere_center": (K, 3)}``: the centres (m) at time t (s) on the paths as they are
-        now (a run keeps them with its saved frames)."""
-        return {"sphere_center": np.asarray([p.at(t)[0] for p in self.paths], np.float64).reshape(-1, 3)}
 
     def fastest_speed(self) -> float:
         """The largest speed (m/s) any sphere's surface reaches: its centre's plus |omega| r."""
