@@ -1,11 +1,15 @@
 """`taichi-sim check`: judge a saved run's frames on positions alone, with no solver code.
 
-Two questions, each answered for every saved frame (``x_history``, or the final ``x``):
+Three questions, each answered for every saved frame (``x_history``, or the final ``x``):
 whether any two triangles of the cloth intersect (:func:`~taichi_sim.geometry.self_intersections`,
-exact predicates), and whether any vertex lies inside one of the scene's objects
+exact predicates); whether any vertex lies inside one of the scene's objects
 (:func:`~taichi_sim.geometry.inside.inside_objects`: spheres, capsules and boxes where the run
 kept their centres with the frames, the ground plane always; a collider mesh is not checked;
-pinned vertices, which no collider moves, are left out).
+pinned vertices, which no collider moves, are left out); and whether an object reaches into a
+face between its vertices: points on each triangle (:func:`~taichi_sim.geometry.inside.face_samples`,
+25 a triangle) deeper inside a sphere, capsule or box than ``FACE_SHARE`` of its thinnest size
+(triangles with a pinned corner are left out: a pin inside an object drags its triangles in,
+which no collider can undo).
 """
 from __future__ import annotations
 
@@ -16,6 +20,7 @@ import numpy as np
 
 from .errors import ConfigError
 from .geometry import inside_objects, self_intersections
+from .geometry.inside import FACE_DIVISIONS, FACE_SHARE, face_samples, object_depths
 
 _OBJECT_KEYS = ("sphere_radius", "capsule_radius", "capsule_half_axis", "box_half_extents",
                 "plane_point", "plane_normal")
@@ -73,9 +78,12 @@ def check_run(arrays: dict, progress=lambda frames: frames) -> tuple[list[str], 
     frames, times, history = frames_of(arrays)
     name = str(arrays.get("scene", "run"))
     counts, flat = [], 0
-    inside, kinds_seen, unchecked = [], set(), []
+    inside, kinds_seen, unchecked, faces = [], set(), [], []
     # pinned vertices stay where their pins put them: no collider moves them
     free = ~np.asarray(arrays["pinned"], bool) if "pinned" in arrays else slice(None)
+    face_tris = np.asarray(arrays["triangles"]).reshape(-1, 3)
+    if "pinned" in arrays:
+        face_tris = face_tris[~np.asarray(arrays["pinned"], bool)[face_tris].any(axis=1)]
     for k, x in enumerate(progress(frames)):
         try:
             report = self_intersections(x, arrays["triangles"])
@@ -87,6 +95,7 @@ def check_run(arrays: dict, progress=lambda frames: frames) -> tuple[list[str], 
         found = {kind: int(mask.sum()) for kind, mask in inside_objects(x[free], objects).items()}
         kinds_seen.update(found)
         inside.append({kind: n for kind, n in found.items() if n})
+        faces.append(_deepest_face_point(x, face_tris, objects))
     counts = np.asarray(counts)
     # zero-area triangles have no inside to pass through: left out, and said so
     note = f" ({flat} zero-area triangle(s) in some frame, not checked)" if flat else ""
@@ -107,10 +116,45 @@ def check_run(arrays: dict, progress=lambda frames: frames) -> tuple[list[str], 
         most = ", ".join(f"{n} inside the {_object_name(kind)}" for kind, n in inside[worst].items())
         lines.append(f"{name}: {len(bad)} of {len(inside)} frame(s) have vertices inside an object; first at "
                      f"t = {times[bad[0]]:.6g} s, most ({most}) at t = {times[worst]:.6g} s")
+    face_bad = [k for k, found in enumerate(faces) if found is not None and found[1] > FACE_SHARE]
+    face_kinds = sorted({found[0] for found in faces if found is not None})
+    if face_kinds and not face_bad:
+        kinds = " or ".join(_object_name(kind) for kind in face_kinds)
+        lines.append(f"{name}: no face reaches into the {kinds} in any frame ({_face_note()})")
+    elif face_bad:
+        worst = max(face_bad, key=lambda k: faces[k][2])
+        kind, _, depth = faces[worst]
+        lines.append(f"{name}: {len(face_bad)} of {len(faces)} frame(s) have a face reaching into an object "
+                     f"({_face_note()}); first at t = {times[face_bad[0]]:.6g} s, deepest {1000 * depth:.3g} mm "
+                     f"inside the {_object_name(kind)} at t = {times[worst]:.6g} s")
     if unchecked:
         lines.append(f"{name}: the {' and '.join(_object_name(k) for k in unchecked)} not checked: the file keeps "
                      f"no centres with its frames (saved by an older version)")
-    return lines, not counts.any() and not bad
+    return lines, not counts.any() and not bad and not face_bad
+
+
+def _face_note() -> str:
+    points = (FACE_DIVISIONS + 1) * (FACE_DIVISIONS + 2) // 2 - 3
+    return f"{points} points a triangle, deeper than {100 * FACE_SHARE:g} % of the object's thinnest size"
+
+
+def _deepest_face_point(x, triangles, objects):
+    """(object kind, depth as a share of that object's thinnest size, depth (m)) of the face
+    point deepest inside a sphere, capsule or box by that share; None without such objects."""
+    if len(triangles) == 0:
+        return None
+    points = face_samples(x, triangles).reshape(-1, 3)
+    best = None
+    for kind, (depth, thinnest) in object_depths(points, objects).items():
+        if depth.size == 0:
+            continue
+        share = depth / thinnest[None]
+        flat = int(np.argmax(share))
+        row, column = np.unravel_index(flat, share.shape)
+        found = (kind, float(share[row, column]), float(depth[row, column]))
+        if best is None or found[1] > best[1]:
+            best = found
+    return best
 
 
 def _object_name(kind: str) -> str:

@@ -181,8 +181,11 @@ def test_check_command_finds_vertices_inside_the_objects_where_they_were_at_each
     assert main(["simulate", "cloth", "--set", "nx=6", "--set", "ny=6", "--set", "sphere=1", "--set", "sphere_motion=drop",
                  "--set", "plane=1", "--steps", "200", "--save-every", "100", "--out", str(out), "--quiet"]) == 0
     assert main(["check", str(out)]) == 0
-    assert capsys.readouterr().out.splitlines() == ["cloth: 3 frame(s), no triangles intersect",
-                                                    "cloth: no vertex inside the ground plane or spheres in any frame"]
+    assert capsys.readouterr().out.splitlines() == [
+        "cloth: 3 frame(s), no triangles intersect",
+        "cloth: no vertex inside the ground plane or spheres in any frame",
+        "cloth: no face reaches into the spheres in any frame (25 points a triangle, deeper than 1 % of the "
+        "object's thinnest size)"]
     data = dict(np.load(out))
     centres, radius = data["sphere_center_history"][:, 0], float(data["sphere_radius"][0])
     assert centres.shape == (3, 3) and centres[2, 1] == pytest.approx(centres[0, 1] - 0.1)  # 0.5 m/s for 0.2 s
@@ -197,9 +200,39 @@ def test_check_command_finds_vertices_inside_the_objects_where_they_were_at_each
         return code, capsys.readouterr().out
 
     code, text = check_edited(0, below)
-    assert code == 0 and "cloth: no vertex inside the ground plane or spheres in any frame" in text
+    # (the vertex is clear of the sphere there, but the faces it drags down reach into it)
+    assert "cloth: no vertex inside the ground plane or spheres in any frame" in text
+    assert code == 1 and "cloth: 1 of 3 frame(s) have a face reaching into an object" in text
     code, text = check_edited(2, below)
     assert code == 1 and ("cloth: 1 of 3 frame(s) have vertices inside an object; first at t = 0.2 s, most "
                           "(1 inside the spheres) at t = 0.2 s") in text
     code, text = check_edited(1, [0.0, -0.01, 0.0])
     assert code == 1 and "first at t = 0.1 s, most (1 inside the ground plane)" in text
+
+
+@pytest.mark.parametrize("kind", ["box", "sphere", "capsule"])
+def test_check_command_finds_an_object_reaching_into_a_face_between_its_vertices(tmp_path, capsys, kind):
+    """A 1 m triangle over an object 10 cm across: in the second frame the object reaches 20 mm
+    above the triangle's plane under its middle, no corner anywhere near it."""
+    x = np.array([[-0.5, 0.0, -0.3], [0.5, 0.0, -0.3], [0.0, 0.0, 0.6]])
+    sizes = {"box": {"box_half_extents": np.array([[0.05, 0.05, 0.05]])},
+             "sphere": {"sphere_radius": np.array([0.05])},
+             "capsule": {"capsule_radius": np.array([0.05]), "capsule_half_axis": np.array([[0.05, 0.0, 0.0]])}}[kind]
+    centres = np.array([[[0.0, -0.2, 0.0]], [[0.0, -0.03, 0.0]]])  # clear, then 20 mm through
+    np.savez(tmp_path / "run.npz", scene="one", triangles=np.array([[0, 1, 2]]), x=x, t=0.1,
+             x_history=np.stack([x, x]), t_history=np.array([0.0, 0.1]), pinned=np.zeros(3, bool),
+             **sizes, **{f"{kind}_center": centres[-1], f"{kind}_center_history": centres})
+    assert main(["check", str(tmp_path / "run.npz")]) == 1
+    name = {"box": "boxes", "sphere": "spheres", "capsule": "capsules"}[kind]
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[1] == f"one: no vertex inside the {name} in any frame"
+    # the sampled points lie on a grid: the deepest found is within a grid step's rise of 20 mm
+    prefix = ("one: 1 of 2 frame(s) have a face reaching into an object (25 points a triangle, deeper than "
+              "1 % of the object's thinnest size); first at t = 0.1 s, deepest ")
+    assert lines[2].startswith(prefix) and lines[2].endswith(f" mm inside the {name} at t = 0.1 s")
+    depth = float(lines[2][len(prefix):].split()[0])
+    assert 5.0 < depth <= 20.0
+    np.savez(tmp_path / "clear.npz", scene="one", triangles=np.array([[0, 1, 2]]), x=x, t=0.1,
+             x_history=np.stack([x, x]), t_history=np.array([0.0, 0.1]), pinned=np.zeros(3, bool),
+             **sizes, **{f"{kind}_center": centres[0], f"{kind}_center_history": centres[[0, 0]]})
+    assert main(["check", str(tmp_path / "clear.npz")]) == 0

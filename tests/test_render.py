@@ -443,7 +443,7 @@ def test_record_warns_of_a_cloth_that_starts_inside_an_object(own_windows, tmp_p
     out = tmp_path / "inside.gif"
     assert main(["record", "cloth", "--set", "nx=4", "--set", "ny=4", "--set", "sphere=1", "--set", "sphere_y=1.0",
                  "--seconds", "0.25", "--fps", "4", "--size", "64x48", "--out", str(out), "--quiet"]) == 0
-    assert "warning: the cloth starts inside an object (4 inside the sphere, of 16 vertices)" in capsys.readouterr().err
+    assert "warning: the cloth starts inside an object (4 inside the sphere, of 16 vertices; " in capsys.readouterr().err
     assert out.exists()
 
 

@@ -164,7 +164,7 @@ def test_points_inside_each_kind_of_object_are_found_and_points_on_a_surface_are
 def test_a_cloth_that_starts_inside_an_object_is_reported_before_the_run(f64, tmp_path, capsys):
     across = {"nx": 8, "ny": 8, "capsule": True, "capsule_y": 0.12, "capsule_radius": 0.1}
     warning = ts.build_scene("cloth-fold", across).start_warning()
-    assert "starts inside an object (6 inside the capsule, of 64 vertices)" in warning
+    assert "starts inside an object (6 inside the capsule, of 64 vertices; " in warning
     assert ts.build_scene("cloth-fold", dict(across, capsule_z=0.3)).start_warning() == ""  # beside it
     assert "inside the ground plane" in ts.build_scene("cloth", {"nx": 4, "ny": 4, "plane": True,
                                                                  "plane_height": 2.0}).start_warning()
@@ -173,6 +173,13 @@ def test_a_cloth_that_starts_inside_an_object_is_reported_before_the_run(f64, tm
     held = {"nx": 4, "ny": 4, "sphere": True, "sphere_radius": 0.1, "sphere_x": corner[0], "sphere_y": corner[1],
             "sphere_z": corner[2]}
     assert ts.build_scene("cloth", held).start_warning() == ""
+    # an object between the vertices, through a triangle: only the faces tell
+    tri = plain.mesh.triangles_np[5]
+    centroid = plain.x0[tri].mean(axis=0)
+    through = {"nx": 4, "ny": 4, "sphere": True, "sphere_radius": 0.05, "sphere_x": centroid[0],
+               "sphere_y": centroid[1], "sphere_z": centroid[2]}
+    assert "starts inside an object (1 of 18 triangles reaching into the sphere)" in \
+        ts.build_scene("cloth", through).start_warning()
     args = ["simulate", "cloth-fold", *[a for k, v in across.items() for a in ("--set", f"{k}={v}")],
             "--integrator", "symplectic_euler", "--steps", "1", "--quiet", "--out", str(tmp_path / "fold.npz")]
     assert main(args) == 0

@@ -354,7 +354,7 @@ def test_friction_holds_a_vertex_on_a_slope_and_lets_it_slide_past_its_angle(f64
     ("contact_radius", 0.0), ("contact_radius", -1.0), ("contact_stiffness", 0.0),
     ("bound_fraction", 0.5), ("bound_fraction", 0.0), ("friction_epsilon", float("nan")),
     ("contact_refresh", -1), ("self_contact", "yes"), ("contact", 1), ("contact_pieces", 0),
-    ("contact_pieces", 2.5),
+    ("contact_pieces", 2.5), ("object_faces", "no"),
 ])
 def test_bad_contact_options_are_refused_by_name(f64, option, value):
     scene = ts.build_scene("cloth", {"nx": 3, "ny": 3})

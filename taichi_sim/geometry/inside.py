@@ -16,6 +16,13 @@ KINDS = ("sphere", "capsule", "box", "plane")
 # m: the depth below which a point does not count as inside. A vertex resting on a surface in
 # f32 rounds to within about 1e-7 m of it at a metre from the origin.
 INSIDE_TOLERANCE = 1e-6
+# Points a side of the grid of points :func:`face_samples` puts on a triangle (25 points inside
+# it and on its edges, the corners left out).
+FACE_DIVISIONS = 6
+# A face point counts as inside an object deeper than this share of the object's thinnest size.
+# The objects' face pass lets a face resting on a curved surface dip 0.5 % in (its
+# ALLOWED_OVERLAP); an object that passes between the vertices goes in by its whole size.
+FACE_SHARE = 0.01
 
 
 def inside_objects(x: np.ndarray, arrays: dict, tolerance: float = INSIDE_TOLERANCE) -> dict[str, np.ndarray]:
@@ -55,3 +62,50 @@ def _segment_distance(x: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray
     length2 = float(ab @ ab)
     s = np.zeros(len(x)) if length2 == 0 else np.clip((x - a) @ ab / length2, 0.0, 1.0)
     return np.linalg.norm(x - (a + s[:, None] * ab), axis=1)
+
+
+def object_depths(x: np.ndarray, arrays: dict) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Object kind -> ((N, K) how deep each point of ``x`` ((N, 3), m) lies inside each object of
+    that kind (m; negative outside: minus the distance), (K,) each object's thinnest size (m):
+    a sphere's or capsule's radius, a box's least half extent); spheres, capsules and boxes
+    only (a flat plane is entered by a face only where a corner enters it)."""
+    x = np.asarray(x, np.float64).reshape(-1, 3)
+    out = {}
+    if "sphere_center" in arrays:
+        centers, radii = _rows(arrays["sphere_center"]), np.ravel(arrays["sphere_radius"]).astype(np.float64)
+        out["sphere"] = (radii[None] - np.linalg.norm(x[:, None] - centers[None], axis=2), radii)
+    if "capsule_center" in arrays:
+        centers, half = _rows(arrays["capsule_center"]), _rows(arrays["capsule_half_axis"])
+        radii = np.ravel(arrays["capsule_radius"]).astype(np.float64)
+        distance = np.stack([_segment_distance(x, c - h, c + h) for c, h in zip(centers, half)], axis=1)
+        out["capsule"] = (radii[None] - distance.reshape(len(x), len(radii)), radii)
+    if "box_center" in arrays:
+        centers, half = _rows(arrays["box_center"]), _rows(arrays["box_half_extents"])
+        over = np.abs(x[:, None] - centers[None]) - half[None]
+        outside = np.linalg.norm(np.maximum(over, 0.0), axis=2)
+        inside = np.minimum(over.max(axis=2), 0.0)
+        out["box"] = (-(outside + inside), half.min(axis=1))
+    return out
+
+
+def face_samples(x: np.ndarray, triangles: np.ndarray, divisions: int = FACE_DIVISIONS) -> np.ndarray:
+    """(T, P, 3) points on each triangle ((T, 3) ids into ``x``, (n, 3) m): the barycentric grid
+    of ``divisions`` steps a side, less the corners (P = (d + 1)(d + 2)/2 - 3)."""
+    steps = np.arange(divisions + 1)
+    grid = np.array([(i, j, divisions - i - j) for i in steps for j in steps if i + j <= divisions], float)
+    grid = grid[(grid == divisions).sum(axis=1) == 0] / divisions  # the corners are the vertices' test
+    return np.einsum("pk,tkd->tpd", grid, np.asarray(x, np.float64)[np.asarray(triangles)])
+
+
+def faces_inside(x: np.ndarray, triangles: np.ndarray, arrays: dict, share: float = FACE_SHARE) -> dict[str, np.ndarray]:
+    """Object kind -> (T,) bool mask of the triangles ((T, 3) ids into ``x``, (n, 3) m) with a
+    point of :func:`face_samples` deeper inside an object of that kind than ``share`` of the
+    object's thinnest size; spheres, capsules and boxes that ``arrays`` has."""
+    triangles = np.asarray(triangles).reshape(-1, 3)
+    points = face_samples(x, triangles)
+    per = points.shape[1]
+    out = {}
+    for kind, (depth, thinnest) in object_depths(points.reshape(-1, 3), arrays).items():
+        deep = (depth > share * thinnest[None]).any(axis=1) if depth.shape[1] else np.zeros(len(depth), bool)
+        out[kind] = deep.reshape(len(triangles), per).any(axis=1)
+    return out

@@ -84,21 +84,28 @@ class Scene:
         the first steps push those vertices out, and a cloth caught across an object folds
         through itself (a fold started through a capsule intersected in 180 of its 181
         frames). Spheres, capsules, boxes and the plane are checked, not a collider mesh; pinned
-        vertices are left out (no collider moves them)."""
-        from ..geometry.inside import inside_objects
+        vertices are left out (no collider moves them), and so are their triangles. Triangles an
+        object reaches into between their vertices (as `check` finds them:
+        :func:`~taichi_sim.geometry.inside.faces_inside`) are named too."""
+        from ..geometry.inside import faces_inside, inside_objects
 
         if self.mesh is None:
             return ""
         objects = {**self.arrays, **self.object_centers(0.0)}  # where they start, whenever asked
-        free = ~np.asarray(objects["pinned"], bool)  # no collider moves a pinned vertex
-        found = [(kind, int(mask.sum())) for kind, mask in inside_objects(self.x0[free], objects).items()
+        pinned = np.asarray(objects["pinned"], bool)  # no collider moves a pinned vertex
+        found = [(kind, int(mask.sum())) for kind, mask in inside_objects(self.x0[~pinned], objects).items()
                  if mask.any()]
-        if not found:
+        triangles = self.mesh.triangles_np[~pinned[self.mesh.triangles_np].any(axis=1)]
+        faces = [(kind, int(mask.sum())) for kind, mask in faces_inside(self.x0, triangles, objects).items()
+                 if mask.any()]
+        if not found and not faces:
             return ""
-        where = ", ".join(f"{count} inside the {'ground plane' if kind == 'plane' else kind}"
-                          for kind, count in found)
-        return (f"the cloth starts inside an object ({where}, of {len(self.x0)} vertices): the first "
-                f"steps push those vertices out and the cloth may fold through itself (`taichi-sim "
+        where = [f"{count} inside the {'ground plane' if kind == 'plane' else kind}" for kind, count in found]
+        if found:
+            where[-1] += f", of {len(self.x0)} vertices"
+        where += [f"{count} of {len(self.mesh.triangles_np)} triangles reaching into the {kind}" for kind, count in faces]
+        return (f"the cloth starts inside an object ({'; '.join(where)}): the first "
+                f"steps push it out and the cloth may fold through itself (`taichi-sim "
                 f"check` on the saved frames tells); move the object or the cloth")
 
     def part(self, name: str):

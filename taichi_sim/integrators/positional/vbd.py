@@ -102,6 +102,11 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, ContactPieces, Integrator):
             the vertices (each piece a detection and its sweeps; :mod:`.vbd_pieces`; a scene's
             scripted pins may need more, up to 256); 1: one piece, the guess cut to the bounds,
             which holds back a collapsing cloth (docs/vbd.md, "The fold's pace").
+        object_faces: the cloth's triangles against the objects in the solve too
+            (:mod:`.vbd_faces`; default True), where the scene's ``object_faces`` is on: a box's
+            edge or a thin object cannot come between the vertices into a face. Off, the
+            objects meet vertices only, which costs less where the cloth lies across a box's
+            edges (docs/vbd.md).
         energy_cap: on a closed scene (no wind, turbulence, moving object, kinematic pin or
             emitter) without contact in the solve, shorten a substep that would end with more
             energy (J) than it started with toward its start until it does not
@@ -134,7 +139,7 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, ContactPieces, Integrator):
                  penalty_growth: float = 1e5, contact: bool = True, self_contact: bool | None = None,
                  contact_radius: float | None = None, contact_stiffness: float = 100.0,
                  bound_fraction: float = 0.4, friction_epsilon: float = 0.01, contact_refresh: int = 0,
-                 contact_pieces: int = 16, energy_cap: bool = True):
+                 contact_pieces: int = 16, object_faces: bool = True, energy_cap: bool = True):
         super().__init__(system)
         self.iterations = positive_int("iterations", iterations)
         self.substeps = positive_int("substeps", substeps)
@@ -148,7 +153,7 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, ContactPieces, Integrator):
         self.penalty = positive_option("penalty", penalty)
         self.penalty_growth = positive_option("penalty_growth", penalty_growth, allow_zero=True)
         for name, flag in (("contact", contact), ("self_contact", True if self_contact is None else self_contact),
-                           ("energy_cap", energy_cap)):
+                           ("object_faces", object_faces), ("energy_cap", energy_cap)):
             if not isinstance(flag, (bool, np.bool_)):
                 raise ConfigError(f"{name} must be True or False, got {flag!r}")
         check_contact_options(contact_radius, contact_stiffness, bound_fraction, friction_epsilon, contact_refresh)
@@ -157,7 +162,7 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, ContactPieces, Integrator):
         self.energy_cap = bool(energy_cap)
         self.cap_active = False  # set by attach_scene on a closed scene (read by the kernels)
         self.capped = ti.field(ti.i32, shape=())  # substeps the cap shortened
-        self.contact_options = dict(objects=bool(contact), radius=contact_radius,
+        self.contact_options = dict(objects=bool(contact), object_faces=bool(object_faces), radius=contact_radius,
                                     stiffness=float(contact_stiffness), bound_fraction=float(bound_fraction),
                                     friction_epsilon=float(friction_epsilon), refresh=int(contact_refresh))
         self.contact: SolveContact | None = None  # set by attach_scene when the scene has contact
@@ -399,7 +404,8 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, ContactPieces, Integrator):
             stopped = 0
             for i in range(self.system.particle_count):
                 if self.system.free[i]:
-                    kept = self.contact.limit(i, ti.Vector.zero(y.x.dtype, 3), self.delta[i], self.start_x[i], t)
+                    kept = self.contact.limit(i, ti.Vector.zero(y.x.dtype, 3), self.delta[i], self.start_x[i], t,
+                                              self.start_x)
                     stopped += int(self.contact.outside_ball(i, kept, self.start_x[i]))
             if ti.static(self.has_self_contact):
                 if stopped > 0:
@@ -412,7 +418,7 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, ContactPieces, Integrator):
                     if ti.static(self.has_self_contact):
                         self.contact.count_overshoot(i, self.delta[i], self.start_x[i])
                     self.delta[i] = self.contact.limit(i, ti.Vector.zero(y.x.dtype, 3), self.delta[i],
-                                                       self.start_x[i], t)
+                                                       self.start_x[i], t, self.start_x)
         for i in range(self.system.particle_count):
             self.point.x[i] = self.start_x[i] + self.delta[i]
             self.point.v[i] = self.delta[i] / dt
@@ -493,7 +499,7 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, ContactPieces, Integrator):
                 old = delta
                 delta -= H.inverse() @ r
                 if ti.static(self.has_contact):
-                    delta = self.contact.limit(i, old, delta, self.start_x[i], t)
+                    delta = self.contact.limit(i, old, delta, self.start_x[i], t, self.point.x)
                 self.delta[i] = delta
                 self.point.x[i] = self.start_x[i] + delta
                 self.point.v[i] = delta / dt
@@ -508,7 +514,7 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, ContactPieces, Integrator):
                 old = delta
                 delta = omega * (delta - self.earlier[i]) + self.earlier[i]
                 if ti.static(self.has_contact):
-                    delta = self.contact.limit(i, old, delta, self.start_x[i], t)
+                    delta = self.contact.limit(i, old, delta, self.start_x[i], t, self.point.x)
                 self.delta[i] = delta
                 self.point.x[i] = self.start_x[i] + delta
                 self.point.v[i] = delta / dt

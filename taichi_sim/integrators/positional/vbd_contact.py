@@ -12,6 +12,7 @@ from ...collide.closest_points import closest_barycentric, segment_parameters
 from ...collide.hash_grid import PrimitiveHash, cell_order
 from ...collide.mesh_check import check_contact_mesh
 from ...errors import ConfigError
+from .vbd_faces import ObjectFaces
 
 CONTACTS_PER_VERTEX = 64  # contact pairs a vertex keeps between refreshes; more are counted, not kept
 PAIRS_PER_VERTEX = 16  # room in the pair list per vertex
@@ -21,7 +22,7 @@ OBJECT_CONTACT = 2  # flag of a vertex within the contact radius of an object
 
 
 @ti.data_oriented
-class SolveContact:
+class SolveContact(ObjectFaces):
     """What :class:`~.vbd.VBD` adds to vertex i's block when contact is in the solve.
 
     Objects (the ground plane, spheres, capsules, boxes, where they are at the substep's end):
@@ -49,11 +50,13 @@ class SolveContact:
             ``Obstacle`` shape functions: spheres, capsules, boxes; its mesh).
         delta: the integrator's (n,) displacement field x - x0 (m) (read for the slip).
         objects: put the scene's objects in the solve.
+        object_faces: with ``objects``, the cloth's triangles against them too (vbd_faces).
         self_contact: put the cloth against itself in the solve (needs a mesh).
         radius: contact radius r (m).
     """
 
-    def __init__(self, scene, delta, *, objects: bool, self_contact: bool, radius: float, stiffness: float,
+    def __init__(self, scene, delta, *, objects: bool, object_faces: bool, self_contact: bool, radius: float,
+                 stiffness: float,
                  bound_fraction: float, friction_epsilon: float, self_friction: float, refresh: int):
         system = scene.system
         real, n = runtime.real(), system.particle_count
@@ -70,6 +73,7 @@ class SolveContact:
         self.refreshes = 0  # detections run since construction
         # the step the penalty's stiffness is scaled by (s): the whole substep's, also in its pieces
         self.penalty_dt = ti.field(runtime.real(), shape=())
+        self._init_object_faces(scene, object_faces)  # the cloth's triangles against the objects (vbd_faces)
         if not self.self_contact:
             return
         mesh = scene.mesh
@@ -263,6 +267,7 @@ class SolveContact:
                         n = collider.normal(c, q)
                         moved = slip - dt * collider.surface_velocity(c, t, q)
                         f, H = self._push(f, H, d, n, k, 1.0, moved, collider.friction[c], dt)
+            f, H = self.face_terms(i, x, dt, t, f, H)
         if ti.static(self.self_contact):
             k = self.stiffness * self.mean_mass / (self.penalty_dt[None] * self.penalty_dt[None])
             for s in range(ti.min(self.vertex_pair_count[i], self.per_vertex)):
@@ -302,10 +307,12 @@ class SolveContact:
         return f, H
 
     @ti.func
-    def limit(self, i, old, new, start, t):
+    def limit(self, i, old, new, start, t, x):
         """The displacement (m, from the substep's start ``start``) vertex i may take instead of
         ``new``, coming from ``old``: inside its ball around the refresh point plus the shift,
-        then no further than ``bound_fraction`` of its distance to the nearest object."""
+        then no further than ``bound_fraction`` of its distance to the nearest object, nor of
+        the distance of any triangle it is a corner of to an object (its other corners where
+        ``x``, an (n,) vec3 field, has them)."""
         out = new
         if ti.static(self.self_contact):
             centre = self.ref_x[i] - start + self.shift[None]
@@ -325,6 +332,7 @@ class SolveContact:
                 for c in range(collider.count):
                     q = p - collider.path.center(c, t)
                     scale = ti.min(scale, self._approach_scale(collider.distance(c, q), collider.normal(c, q), step))
+            scale = self.face_scale(i, x, p, step, t, scale)
             out = old + scale * step
         return out
 

@@ -116,7 +116,7 @@ def segment_crosses_triangle(e0, e1, a, b, c):
 
 
 @ti.func
-def box_separation(half, a, b, c):
+def box_separation(half, a, b, c, axes=13):
     """A triangle (a, b, c) against the axis-aligned box of ``half`` extents about the origin,
     by the separating axes of the two (the box's three axes, the face's normal, and the nine
     crosses of their edges; Akenine-Moller 2001): (signed separation (m), the barycentric
@@ -124,10 +124,12 @@ def box_separation(half, a, b, c):
 
     The separation is the largest gap between the two along any of those axes. Apart, that is
     a lower bound on their distance (the plane across that gap keeps them apart, all a march
-    needs); overlapping, it is minus the shortest push along an axis that separates them."""
+    needs); overlapping, it is minus the shortest push along an axis that separates them.
+    ``axes`` < 13 tries only the first ones (4: the box's axes and the face's normal), a
+    cheaper and looser bound apart."""
     best = 0.0 * a[0] - 1e30
     axis_out = 0.0 * a
-    for axis in range(13):  # a dynamic loop: one copy of the body, not thirteen
+    for axis in range(axes):  # a dynamic loop: one copy of the body, not thirteen
         u = 0.0 * a
         if axis < 3:
             u[axis] = 1.0
@@ -219,6 +221,28 @@ class FaceContact:
             self.face_contacts_total += pushed
             if pushed == 0:
                 break
+
+    def curvature_radius(self, k: int) -> float:
+        """The smallest radius of curvature (m) of object k's surface: 0 for a shape with edges
+        and corners (the default), its radius for a sphere or a capsule. A face whose corners
+        lie on a surface of radius R dips into it by at most rho^2 / (2 R), rho the face's
+        circumradius, and cannot pass it whole while rho < R."""
+        return 0.0
+
+    @ti.func
+    def separating_plane(self, k, a, b, c):
+        """(Gap (m), unit normal from the object) of a plane with object k on one side and
+        triangle (a, b, c) (its frame) ``gap`` beyond it on the other, when the gap is > 0:
+        ``triangle_contact``'s by default; a shape may return a cheaper, looser one."""
+        d, w, n, z = self.triangle_contact(k, a, b, c)
+        return d, n
+
+    @ti.func
+    def flat_side(self, k, a, b, c):
+        """Whether triangle (a, b, c) (object k's frame) lies where one flat side of the object
+        is nearest to each of its corners, so that its nearest point to the object is one of
+        them (the corners' own contact); False by default."""
+        return False
 
     @ti.func
     def end_overlap(self, k, a, b, c, side):

@@ -199,6 +199,9 @@ class CapsuleColliders(_TranslatingShapes):
     def thinnest(capsule: Capsule) -> float:
         return capsule.radius
 
+    def curvature_radius(self, k: int) -> float:
+        return float(self.shapes[k].radius)
+
     def size_arrays(self) -> dict:
         return {"capsule_radius": np.asarray([c.radius for c in self.shapes], float),
                 "capsule_half_axis": np.asarray([c.half_axis for c in self.shapes], float)}
@@ -295,6 +298,35 @@ class BoxColliders(_TranslatingShapes):
     def end_overlap(self, k, a, b, c, side):
         gap, _, n = box_separation(self.half[k], a, b, c)
         return -gap, n
+
+    @ti.func
+    def separating_plane(self, k, a, b, c):
+        # the box's axes and the face's normal separate most faces near a box (a fold falling on
+        # it, a face over one side); the edges' nine crosses only where those four do not
+        gap, _, n = box_separation(self.half[k], a, b, c, 4)
+        if gap <= 0.0:
+            gap, _, n = box_separation(self.half[k], a, b, c)
+        return gap, n
+
+    @ti.func
+    def flat_side(self, k, a, b, c):
+        # each corner beyond the same side's plane and within its outline on the other two axes
+        # (a prism over that side, where the side is the nearest part of the box): the triangle
+        # lies in the prism too, and its height over the side is least at a corner
+        half = self.half[k]
+        out = False
+        for axis in ti.static(range(3)):
+            for sign in ti.static((-1.0, 1.0)):
+                beyond = (sign * a[axis] >= half[axis]) and (sign * b[axis] >= half[axis]) \
+                    and (sign * c[axis] >= half[axis])
+                within = True
+                for other in ti.static(range(3)):
+                    if ti.static(other != axis):
+                        within = within and ti.abs(a[other]) <= half[other] and ti.abs(b[other]) <= half[other] \
+                            and ti.abs(c[other]) <= half[other]
+                if beyond and within:
+                    out = True
+        return out
 
     @ti.func
     def distance(self, k, q):

@@ -135,6 +135,9 @@ class SphereColliders(FaceContact, Obstacle, ScenePart):
             self._faces(state, self.start.x, t, h)
             self.start.end(state, t)
 
+    def curvature_radius(self, k: int) -> float:
+        return float(self.radius[k])
+
     @ti.func
     def triangle_contact(self, k, a, b, c):
         return sphere_to_triangle(self.radius[k], a, b, c)
