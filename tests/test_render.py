@@ -139,6 +139,23 @@ def test_falling_cloth_frames_change_and_strain_colours_differ(window):
     assert (np.abs(strained - plain).sum(axis=2) > 30).mean() > 0.01
 
 
+def test_ggui_vertex_staging_starts_zeroed(window):
+    """GGUI 1.7.4 leaves a mesh's texture coordinates in its staging array unset; garbage NaN
+    there dropped the cloth's surface from random frames. Memory just freed full of NaN is what
+    the next staging array of that size gets."""
+    import sys
+
+    import taichi as ti
+
+    vertices = ti.Vector.field(3, ti.f32, 64)
+    for name in ("taichi.ui.scene", "taichi.ui.canvas"):
+        for _ in range(5):
+            poison = np.full((64, 12), np.nan, np.float32)
+            del poison
+            vbo = sys.modules[name].get_vbo_field_v2(vertices)
+            assert vbo.shape == (64, 12) and not np.isnan(vbo).any(), name
+
+
 def test_non_finite_positions_never_reach_the_staging_fields(window):
     scene = ts.build_scene("pendulum", {"particle_count": 5})
     drawer = SceneDrawer(describe(scene))

@@ -100,6 +100,7 @@ def open_window(title: str, size: tuple[int, int], *, visible: bool = False):
         raise RenderUnavailable(f"rendering needs Vulkan and no Vulkan driver is installed (no ICD "
                                 f"file in {ICD_DIRS[0]}): {INSTALL_HINT}")
     watch_imgui_ini()  # destroying the window writes it: take_back_imgui_ini() after
+    zero_ggui_vertex_staging()
     try:
         with _quiet_stderr():
             return ti.ui.Window(title, tuple(int(s) for s in size), vsync=visible, show_window=visible)
@@ -107,6 +108,34 @@ def open_window(title: str, size: tuple[int, int], *, visible: bool = False):
         reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise RenderUnavailable(f"rendering needs Vulkan and it is not usable here ({reason}): "
                                 f"{INSTALL_HINT}") from None
+
+
+def zero_ggui_vertex_staging() -> None:
+    """Make GGUI's per-frame vertex staging arrays start zeroed (idempotent).
+
+    GGUI 1.7.4 allocates each declared mesh's, particles' and lines' staging array
+    uninitialised (``np.ndarray``) and fills only the attributes it was given: a mesh's texture
+    coordinates keep whatever the memory held before, and a NaN there drops the whole mesh from
+    the frame. Seen as a cloth drawn now and then without its surface (a few frames in a hundred
+    on Mesa's software Vulkan, more when the colours change every frame).
+    """
+    import sys
+
+    import taichi.ui  # noqa: F401  (loads the modules patched below)
+
+    for name in ("taichi.ui.scene", "taichi.ui.canvas"):
+        module = sys.modules.get(name)
+        allocate = getattr(module, "get_vbo_field_v2", None)
+        if allocate is None or getattr(allocate, "zero_filled", False):
+            continue
+
+        def zero_filled(vertices, _allocate=allocate):
+            vbo = _allocate(vertices)
+            vbo.fill(0.0)
+            return vbo
+
+        zero_filled.zero_filled = True
+        module.get_vbo_field_v2 = zero_filled
 
 
 def vulkan_problem() -> str | None:
