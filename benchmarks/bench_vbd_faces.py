@@ -19,6 +19,7 @@ import statistics
 import time
 
 import numpy as np
+import taichi as ti
 
 import taichi_sim as ts
 from taichi_sim.frame_check import check_run
@@ -36,6 +37,7 @@ def run(scene_name: str, params: dict, object_faces: bool, t_end: float, start: 
     for k in range(steps):
         begin = time.perf_counter()
         stepper.step()
+        ti.sync()  # a GPU step's kernels end here, not at the launch
         if k / 60 >= start:
             walls.append(time.perf_counter() - begin)
         frames.append(scene.state.to_numpy()[0])
@@ -58,19 +60,20 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=2)
     parser.add_argument("--no-box", action="store_true", help="the scene as it is, without the box")
     parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE")
+    parser.add_argument("--arch", choices=("cpu", "gpu"), default="cpu")
     args = parser.parse_args()
     params = {"nx": args.n, "ny": args.n, **({} if args.no_box else BOX)}
     for item in args.set:
         name, _, value = item.partition("=")
         params[name] = value  # text, parsed as `simulate --set` parses it
-    ts.init(arch="cpu", precision="f32")
+    ts.init(arch=args.arch, precision="f32")
     rates: dict[bool, list[float]] = {True: [], False: []}
     reports = {}
     for _ in range(args.repeats):
         for faces in (True, False):
             rate, reports[faces] = run(args.scene, params, faces, args.t_end, args.start)
             rates[faces].append(rate)
-    print(f"{args.scene} {args.n} x {args.n}, {args.t_end} s, {params}")
+    print(f"{args.scene} {args.n} x {args.n}, {args.t_end} s, {params}, {ts.runtime.backend()}")
     for faces in (True, False):
         label = "object_faces=1 (default)" if faces else "object_faces=0 (vertices only)"
         print(f"  {label}: {statistics.median(rates[faces]):.2f} steps/s from {args.start} s "

@@ -20,7 +20,7 @@ import numpy as np
 
 from .errors import ConfigError
 from .geometry import inside_objects, self_intersections
-from .geometry.inside import FACE_DIVISIONS, FACE_SHARE, face_samples, object_depths
+from .geometry.inside import FACE_DIVISIONS, FACE_SHARE, face_depths
 
 _OBJECT_KEYS = ("sphere_radius", "capsule_radius", "capsule_half_axis", "box_half_extents",
                 "plane_point", "plane_normal")
@@ -143,17 +143,11 @@ def _deepest_face_point(x, triangles, objects):
     point deepest inside a sphere, capsule or box by that share; None without such objects."""
     if len(triangles) == 0:
         return None
-    points = face_samples(x, triangles).reshape(-1, 3)
     best = None
-    for kind, (depth, thinnest) in object_depths(points, objects).items():
-        if depth.size == 0:
-            continue
-        share = depth / thinnest[None]
-        flat = int(np.argmax(share))
-        row, column = np.unravel_index(flat, share.shape)
-        found = (kind, float(share[row, column]), float(depth[row, column]))
-        if best is None or found[1] > best[1]:
-            best = found
+    for kind, (shares, depths) in face_depths(x, triangles, objects).items():
+        k = int(np.argmax(shares))
+        if best is None or shares[k] > best[1]:
+            best = (kind, float(shares[k]), float(depths[k]))
     return best
 
 

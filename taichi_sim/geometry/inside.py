@@ -97,15 +97,32 @@ def face_samples(x: np.ndarray, triangles: np.ndarray, divisions: int = FACE_DIV
     return np.einsum("pk,tkd->tpd", grid, np.asarray(x, np.float64)[np.asarray(triangles)])
 
 
-def faces_inside(x: np.ndarray, triangles: np.ndarray, arrays: dict, share: float = FACE_SHARE) -> dict[str, np.ndarray]:
-    """Object kind -> (T,) bool mask of the triangles ((T, 3) ids into ``x``, (n, 3) m) with a
-    point of :func:`face_samples` deeper inside an object of that kind than ``share`` of the
-    object's thinnest size; spheres, capsules and boxes that ``arrays`` has."""
+def face_depths(x: np.ndarray, triangles: np.ndarray, arrays: dict) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Object kind -> ((T,) share, (T,) depth in m): for each triangle ((T, 3) ids into ``x``,
+    (n, 3) m), how deep the deepest point of :func:`face_samples` lies inside an object of that
+    kind, as a share of that object's thinnest size and in metres (0 outside them all);
+    spheres, capsules and boxes that ``arrays`` has."""
     triangles = np.asarray(triangles).reshape(-1, 3)
     points = face_samples(x, triangles)
     per = points.shape[1]
     out = {}
     for kind, (depth, thinnest) in object_depths(points.reshape(-1, 3), arrays).items():
-        deep = (depth > share * thinnest[None]).any(axis=1) if depth.shape[1] else np.zeros(len(depth), bool)
-        out[kind] = deep.reshape(len(triangles), per).any(axis=1)
+        count = depth.shape[1]
+        share = (depth / thinnest[None]).reshape(len(triangles), per, count)
+        depth = depth.reshape(len(triangles), per, count)
+        flat = share.reshape(len(triangles), -1)
+        if flat.shape[1] == 0:
+            out[kind] = (np.zeros(len(triangles)), np.zeros(len(triangles)))
+            continue
+        deepest = np.argmax(flat, axis=1)
+        rows = np.arange(len(triangles))
+        out[kind] = (np.maximum(flat[rows, deepest], 0.0),
+                     np.maximum(depth.reshape(len(triangles), -1)[rows, deepest], 0.0))
     return out
+
+
+def faces_inside(x: np.ndarray, triangles: np.ndarray, arrays: dict, share: float = FACE_SHARE) -> dict[str, np.ndarray]:
+    """Object kind -> (T,) bool mask of the triangles ((T, 3) ids into ``x``, (n, 3) m) with a
+    point of :func:`face_samples` deeper inside an object of that kind than ``share`` of the
+    object's thinnest size; spheres, capsules and boxes that ``arrays`` has."""
+    return {kind: shares > share for kind, (shares, _) in face_depths(x, triangles, arrays).items()}

@@ -5,31 +5,46 @@ capsule thinner than the cloth's spacing, can pass through a triangle whose corn
 out. With the objects' face pass after the step waiting (it would move vertices past the
 self-contact bounds, :attr:`~.vbd_scene.SceneAttachment.pauses_object_faces`), box edges
 poked 8-14 mm into a fold's faces. Here each intact triangle is an object's contact partner
-too, inside the solve, exactly as a vertex is:
+too, inside the solve, as a vertex is.
 
-- **Energy.** With d the triangle's separation from the object (the shape's
+**The query.** Before the first guess is bounded and before every sweep, one loop over the
+(triangle, object) pairs finds those within reach (twice the contact radius plus the step's
+largest guessed move) and keeps, per pair, what the sweep's vertex solves read:
+
+- the contact: the triangle's separation d from the object (the shape's
   ``triangle_contact``: exact for spheres and capsules, the separating axes' lower bound for a
-  box), n the unit direction from the object to the triangle and w the barycentric weights of
-  the triangle's nearest point, below the contact radius r the energy 1/2 k (r - d)^2, k =
-  ``stiffness`` m / dt^2 with m the cloth's mean particle mass (one k for the three corners:
-  the energy is the triangle's). Corner j's share of its gradient and Hessian is w_j (the
-  nearest point moves by w_j per unit move of corner j). A nearest point at a corner is that
-  vertex's own contact, already in its term, and is not counted again. Friction as for a
-  vertex, on the nearest point's slip.
-- **Bound.** The object lies behind the plane through its nearest point, normal n, and the
-  triangle d beyond it; a corner's move moves every point of the triangle by at most its own
-  length, so a move of vertex i that nears that plane by at most ``bound_fraction`` x d keeps
-  every incident triangle off the object, whatever the order the vertices are solved in
-  (conservative advancement, as for the vertices themselves).
+  box), n the unit direction from the object to the triangle, w the barycentric weights of the
+  triangle's nearest point and the object's surface velocity there;
+- a separating plane: the object lies behind it and every corner beyond it (the shape's
+  ``separating_plane``; a box's own sides first, cheaper than its thirteen axes).
+
+The shape's geometry runs once per pair and sweep, in one loop, instead of in every vertex
+solve of every incident triangle (the heavy code compiled into each kernel that solves a
+vertex made a cold start about five times longer on the CPU, and minutes on CUDA).
+
+- **Energy.** Within a sweep the separation is the query's, moved with the corners along n:
+  d(x) = n . (sum_j w_j x_j) - (n . the nearest point at the query), as VBD's collision
+  queries do. Below the contact radius r the energy 1/2 k (r - d)^2, k = ``stiffness`` m / dt^2
+  with m the cloth's mean particle mass (one k for the three corners: the energy is the
+  triangle's). Corner j's share of its gradient and Hessian is w_j. A nearest point at a
+  corner is that vertex's own contact, already in its term, and is not counted again. Friction
+  as for a vertex, on the nearest point's slip.
+- **Bound.** A move of vertex i that nears the pair's plane by at most ``bound_fraction`` of
+  its own distance to it keeps it beyond; with every corner beyond, the whole triangle is,
+  and the object, behind the plane, cannot meet it, whatever the order the vertices are solved
+  in (conservative advancement, as for the vertices themselves). A pair out of reach at the
+  query is bounded by a ball: the object is at least the triangle's lower bound below away
+  from every point of it, and a corner that moves by no more than ``bound_fraction`` of that
+  keeps the triangle off.
 
 What is left out, because the corners' own terms and bounds already do its work:
 
 - a triangle no point of which can be within reach: the object's signed distance at the
   triangle's centroid, less the centroid's distance to its farthest corner, is a lower bound
   on the triangle's distance (a distance to a convex set changes no faster than the point);
-- a triangle lying over one flat side of a box (each corner beyond that side's plane and within
-  its outline: :meth:`~taichi_sim.scene.colliders.faces.FaceContact.flat_side`): its nearest
-  point is a corner, and each corner's bound keeps it beyond the plane, so the triangle too;
+- the energy of a triangle lying over one flat side of a box (each corner beyond that side's
+  plane and within its outline: :meth:`~taichi_sim.scene.colliders.faces.FaceContact.flat_side`):
+  its nearest point is a corner (its plane still bounds the corners);
 - a sphere or capsule of radius R round enough for the cloth: a face with its corners on it
   dips in at most rho^2 / (2 R) (rho its circumradius) and cannot pass it whole. Below
   ``DIP`` x the contact radius (rho the rest mesh's largest, grown by ``FACE_STRETCH``) the
@@ -37,6 +52,8 @@ What is left out, because the corners' own terms and bounds already do its work:
 """
 import numpy as np
 import taichi as ti
+
+from ... import runtime
 
 # A nearest point with a corner's weight above this is at that corner: the vertex's own term.
 AT_CORNER = 1.0 - 1e-6
@@ -57,20 +74,31 @@ def largest_circumradius(x: np.ndarray, triangles: np.ndarray) -> float:
     return float(np.max(ab * bc * ca / np.maximum(4.0 * area, 1e-300)))
 
 
+# A pair's state after a query: out of reach (FAR), else the sum of the parts it holds: a
+# separating plane (none where the triangle meets the object), an energy (none where the nearest
+# point is a corner's or the triangle lies over a flat side).
+FAR, PLANE, ENERGY = 0, 1, 2
+
+
 @ti.data_oriented
 class ObjectFaces:
     """Mixin of :class:`~.vbd_contact.SolveContact` (reads its ``obstacles``, ``radius``,
-    ``fraction``, ``delta``, ``stiffness``, ``penalty_dt`` and ``_push``): the triangle terms
-    and bounds of the module's docstring, for the obstacles whose collider tests faces (the
-    scene's ``object_faces`` setting, on by default for a cloth), unless vbd's ``object_faces``
-    option is off."""
+    ``fraction``, ``delta``, ``stiffness``, ``penalty_dt`` and ``_push``): the query, triangle
+    terms and bounds of the module's docstring, for the obstacles whose collider tests faces
+    (the scene's ``object_faces`` setting, on by default for a cloth), unless vbd's
+    ``object_faces`` option is off."""
 
     def _init_object_faces(self, scene, enabled: bool) -> None:
         mesh = scene.mesh
-        self.face_obstacles, self.faces_needed = [], []
+        # (collider, needed: (count,) i32, pairs: (triangles, count) struct) per face-testing kind
+        self.face_pairs = []
         if mesh is not None and enabled:
             rest = scene.rest_x if scene.rest_x is not None else scene.state.to_numpy()[0]
             dip = FACE_STRETCH ** 2 * largest_circumradius(rest, mesh.triangles_np) ** 2 / 2.0
+            real = runtime.real()
+            vec = ti.types.vector(3, real)
+            pair = ti.types.struct(state=ti.i32, plane_normal=vec, plane_offset=real, normal=vec, weights=vec,
+                                   offset=real, surface_velocity=vec)
             for collider in self.obstacles:
                 if getattr(collider, "mesh", None) is None:
                     continue  # the scene's object_faces is off
@@ -78,31 +106,85 @@ class ObjectFaces:
                 needed = [collider.curvature_radius(k) == 0.0 or dip / collider.curvature_radius(k) >= DIP * self.radius
                           for k in range(collider.count)]
                 if any(needed):
-                    field = ti.field(ti.i32, shape=collider.count)
-                    field.from_numpy(np.asarray(needed, np.int32))
-                    self.face_obstacles.append(collider)
-                    self.faces_needed.append(field)
-        self.has_object_faces = bool(self.face_obstacles)
-        self.face_pairs = list(zip(self.face_obstacles, self.faces_needed))
+                    flags = ti.field(ti.i32, shape=collider.count)
+                    flags.from_numpy(np.asarray(needed, np.int32))
+                    pairs = pair.field(shape=(max(1, mesh.triangle_count), collider.count))
+                    self.face_pairs.append((collider, flags, pairs))
+        self.has_object_faces = bool(self.face_pairs)
         if not self.has_object_faces:
             return
         self.face_mesh = mesh
+        self.face_reach = ti.field(runtime.real(), shape=())  # the query's reach this step (m)
+        n = scene.system.particle_count
+        self.face_anchor = ti.Vector.field(3, runtime.real(), shape=n)  # each vertex at the last query (m)
+        # how far from its anchor each vertex may move and keep its triangles out of reach at the
+        # last query off the objects (m)
+        self.face_room = ti.field(runtime.real(), shape=n)
         free = scene.system.free.to_numpy().astype(bool)
         mass = scene.system.mass.to_numpy()
         self.face_mass = float(mass[free].mean()) if free.any() else 1.0
 
     @ti.func
-    def _corners(self, tri, x, i, p, centre):
-        """Triangle ``tri``'s corners in an object's frame (centre ``centre``), vertex i at
-        ``p`` and the others where ``x`` has them, and the corner index of i (-1: not one)."""
-        a, b, c = x[tri[0]] - centre, x[tri[1]] - centre, x[tri[2]] - centre
+    def measure_face_reach(self, delta):
+        """Set the step's query reach from its guessed moves ``delta`` (an (n,) field, m): far
+        enough that a pair out of it leaves each corner room for its guess (a top-level
+        statement and loop of the kernel)."""
+        if ti.static(self.has_object_faces):
+            self.face_reach[None] = 2.0 * self.radius
+            for i in range(delta.shape[0]):
+                ti.atomic_max(self.face_reach[None], 2.0 * self.radius + delta[i].norm() / self.fraction)
+
+    @ti.func
+    def query_faces(self, x, t):
+        """Each (triangle, object) pair's contact and plane at positions x (an (n,) field, m)
+        and time t (s), for the vertex solves until the next query (a loop of the kernel)."""
+        if ti.static(self.has_object_faces):
+            mesh = self.face_mesh
+            reach = self.face_reach[None]
+            for i in range(x.shape[0]):
+                self.face_anchor[i] = x[i]
+                self.face_room[i] = ti.math.inf
+            for collider, needed, pairs in ti.static(self.face_pairs):
+                for face, o in ti.ndrange(mesh.triangle_count, collider.count):
+                    state = FAR
+                    tri = mesh.triangles[face]
+                    centre = collider.path.center(o, t)
+                    a, b, c = x[tri[0]] - centre, x[tri[1]] - centre, x[tri[2]] - centre
+                    # (nested ifs: Taichi evaluates both sides of an ``and``)
+                    if needed[o] and mesh.is_intact(face):
+                        lower = self._lower_bound(collider, o, a, b, c)
+                        if lower >= reach:  # the corners' room keeps it off
+                            for j in ti.static(range(3)):
+                                ti.atomic_min(self.face_room[tri[j]], lower)
+                        else:
+                            gap, n = collider.separating_plane(o, a, b, c)
+                            if gap > 0.0:
+                                state = PLANE
+                                pairs[face, o].plane_normal = n
+                                # the object's side: behind the nearest corner by the gap
+                                pairs[face, o].plane_offset = ti.min(n.dot(a), ti.min(n.dot(b), n.dot(c))) - gap + n.dot(centre)
+                            if not collider.flat_side(o, a, b, c):
+                                d, w, n, z = collider.triangle_contact(o, a, b, c)
+                                if w.max() < AT_CORNER:
+                                    state += ENERGY
+                                    pairs[face, o].normal = n
+                                    pairs[face, o].weights = w
+                                    pairs[face, o].offset = (w[0] * a + w[1] * b + w[2] * c).dot(n) - d + n.dot(centre)
+                                    pairs[face, o].surface_velocity = collider.surface_velocity(o, t, z)
+                    pairs[face, o].state = state
+
+    @ti.func
+    def _corners(self, tri, x, i, p):
+        """Triangle ``tri``'s corners, vertex i at ``p`` and the others where ``x`` has them,
+        and the corner index of i (-1: not one)."""
+        a, b, c = x[tri[0]], x[tri[1]], x[tri[2]]
         slot = -1
         if tri[0] == i:
-            a, slot = p - centre, 0
+            a, slot = p, 0
         elif tri[1] == i:
-            b, slot = p - centre, 1
+            b, slot = p, 1
         elif tri[2] == i:
-            c, slot = p - centre, 2
+            c, slot = p, 2
         return a, b, c, slot
 
     @ti.func
@@ -115,52 +197,44 @@ class ObjectFaces:
     @ti.func
     def face_terms(self, i, x, dt, t, f, H):
         """Add the contact force (N) and PSD block (N/m) on vertex i of every intact triangle
-        it is a corner of, against every face-testing object at time t (s), at positions x."""
+        it is a corner of, against every face-testing object, at positions x (the last query's
+        contacts moved with the corners)."""
         if ti.static(self.has_object_faces):
-            f, H, unused = self._each_face(i, x, x[i], t, self.radius, dt, f, H, 1.0, f, False)
+            k = self.stiffness * self.face_mass / (self.penalty_dt[None] * self.penalty_dt[None])
+            mesh = self.face_mesh
+            for collider, needed, pairs in ti.static(self.face_pairs):
+                for o in range(collider.count):
+                    for s in range(mesh.offsets[i], mesh.offsets[i + 1]):
+                        face = mesh.incident[s]
+                        if pairs[face, o].state >= ENERGY:
+                            tri = mesh.triangles[face]
+                            a, b, c, slot = self._corners(tri, x, i, x[i])
+                            w, n = pairs[face, o].weights, pairs[face, o].normal
+                            d = (w[0] * a + w[1] * b + w[2] * c).dot(n) - pairs[face, o].offset
+                            if d < self.radius and w[slot] > 0.0:
+                                slip = (w[0] * self.delta[tri[0]] + w[1] * self.delta[tri[1]]
+                                        + w[2] * self.delta[tri[2]]) - dt * pairs[face, o].surface_velocity
+                                f, H = self._push(f, H, d, n, k, w[slot], slip, collider.friction[o], dt)
         return f, H
 
     @ti.func
     def face_scale(self, i, x, p, step, t, scale):
-        """The share (<= ``scale``) of vertex i's ``step`` (m) from ``p`` (the others where
-        ``x`` has them) that keeps each incident triangle off each object by the bound."""
+        """The share (<= ``scale``) of vertex i's ``step`` (m) from ``p`` that keeps each
+        incident triangle off each object: beyond the pair's plane, and for the pairs out of
+        reach at the query, within ``bound_fraction`` of the room they left it (from its anchor:
+        a triangle whose corners each moved less than its lower bound cannot have reached the
+        object)."""
         if ti.static(self.has_object_faces):
-            # a triangle farther than |step| / bound_fraction cannot limit the step
-            zero = ti.Vector.zero(x.dtype, 3)
-            force, block, scale = self._each_face(i, x, p, t, step.norm() / self.fraction, 0.0, zero,
-                                                  zero.outer_product(zero), scale, step, True)
+            mesh = self.face_mesh
+            for collider, needed, pairs in ti.static(self.face_pairs):
+                for o in range(collider.count):
+                    for s in range(mesh.offsets[i], mesh.offsets[i + 1]):
+                        face = mesh.incident[s]
+                        if pairs[face, o].state % 2 == PLANE:
+                            n = pairs[face, o].plane_normal
+                            scale = ti.min(scale, self._approach_scale(p.dot(n) - pairs[face, o].plane_offset, n, step))
+            length = step.norm()
+            left = self.fraction * self.face_room[i] - (p - self.face_anchor[i]).norm()
+            if length > left:
+                scale = ti.min(scale, ti.max(left, 0.0) / length)
         return scale
-
-    @ti.func
-    def _each_face(self, i, x, p, t, reach, dt, f, H, scale, step, bound: ti.template()):
-        """Visit every intact triangle of vertex i (at ``p``, the others where ``x`` has them)
-        that may lie within ``reach`` (m) of a face-testing object at time t (s): add its
-        contact to (f, H), or (``bound``) cut ``scale`` so that ``step`` keeps it off."""
-        k = self.stiffness * self.face_mass / (self.penalty_dt[None] * self.penalty_dt[None])
-        mesh = self.face_mesh
-        for collider, needed in ti.static(self.face_pairs):
-            for o in range(collider.count):
-                if not needed[o]:
-                    continue
-                centre = collider.path.center(o, t)
-                for s in range(mesh.offsets[i], mesh.offsets[i + 1]):
-                    face = mesh.incident[s]
-                    if not mesh.is_intact(face):
-                        continue
-                    tri = mesh.triangles[face]
-                    a, b, c, slot = self._corners(tri, x, i, p, centre)
-                    # (nested ifs: Taichi evaluates both sides of an ``and``)
-                    if self._lower_bound(collider, o, a, b, c) >= reach:
-                        continue
-                    if collider.flat_side(o, a, b, c):
-                        continue
-                    if ti.static(bound):
-                        gap, n = collider.separating_plane(o, a, b, c)
-                        scale = ti.min(scale, self._approach_scale(gap, n, step))
-                    else:
-                        d, w, n, z = collider.triangle_contact(o, a, b, c)
-                        if d < self.radius and w.max() < AT_CORNER and w[slot] > 0.0:
-                            slip = (w[0] * self.delta[tri[0]] + w[1] * self.delta[tri[1]]
-                                    + w[2] * self.delta[tri[2]]) - dt * collider.surface_velocity(o, t, z)
-                            f, H = self._push(f, H, d, n, k, w[slot], slip, collider.friction[o], dt)
-        return f, H, scale
