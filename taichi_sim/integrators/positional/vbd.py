@@ -211,8 +211,8 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, ContactPieces, Integrator):
 
     @property
     def serial(self) -> bool:
-        """Whether a substep's sweeps run as one serial task (else one kernel per sweep, each
-        colour a parallel loop): below SERIAL_WORK particles plus springs, and with self-contact
+        """Whether a substep's sweeps run as one serial task (else each colour a parallel loop:
+        one kernel per sweep, or per colour where the solve meets objects): below SERIAL_WORK particles plus springs, and with self-contact
         in the solve below SERIAL_CONTACT_PARTICLES particles too; never on a GPU. Assigning it
         overrides the rule."""
         if self._serial is not None:
