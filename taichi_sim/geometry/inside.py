@@ -101,22 +101,18 @@ def face_depths(x: np.ndarray, triangles: np.ndarray, arrays: dict) -> dict[str,
     """Object kind -> ((T,) share, (T,) depth in m): for each triangle ((T, 3) ids into ``x``,
     (n, 3) m), how deep the deepest point of :func:`face_samples` lies inside an object of that
     kind, as a share of that object's thinnest size and in metres (0 outside them all);
-    spheres, capsules and boxes that ``arrays`` has."""
+    spheres, capsules and boxes that ``arrays`` has at least one of."""
     triangles = np.asarray(triangles).reshape(-1, 3)
     points = face_samples(x, triangles)
-    per = points.shape[1]
     out = {}
+    rows = np.arange(len(triangles))
     for kind, (depth, thinnest) in object_depths(points.reshape(-1, 3), arrays).items():
-        count = depth.shape[1]
-        share = (depth / thinnest[None]).reshape(len(triangles), per, count)
-        depth = depth.reshape(len(triangles), per, count)
-        flat = share.reshape(len(triangles), -1)
-        if flat.shape[1] == 0:
-            out[kind] = (np.zeros(len(triangles)), np.zeros(len(triangles)))
-            continue
-        deepest = np.argmax(flat, axis=1)
-        rows = np.arange(len(triangles))
-        out[kind] = (np.maximum(flat[rows, deepest], 0.0),
+        if depth.shape[1] == 0:
+            continue  # no object of this kind
+        # (T, P x K): every sample point of a triangle against every object of the kind
+        share = (depth / thinnest[None]).reshape(len(triangles), -1)
+        deepest = np.argmax(share, axis=1)
+        out[kind] = (np.maximum(share[rows, deepest], 0.0),
                      np.maximum(depth.reshape(len(triangles), -1)[rows, deepest], 0.0))
     return out
 

@@ -14,6 +14,7 @@ import contextlib
 import glob
 import os
 import platform
+import sys
 from pathlib import Path
 
 INSTALL_HINT = ("install a Vulkan driver, e.g. on Debian/Ubuntu `sudo apt-get install "
@@ -116,11 +117,8 @@ def zero_ggui_vertex_staging() -> None:
     GGUI 1.7.4 allocates each declared mesh's, particles' and lines' staging array
     uninitialised (``np.ndarray``) and fills only the attributes it was given: a mesh's texture
     coordinates keep whatever the memory held before, and a NaN there drops the whole mesh from
-    the frame. Seen as a cloth drawn now and then without its surface (a few frames in a hundred
-    on Mesa's software Vulkan, more when the colours change every frame).
+    the frame: a cloth drawn now and then without its surface (docs/design.md).
     """
-    import sys
-
     import taichi.ui  # noqa: F401  (loads the modules patched below)
 
     for name in ("taichi.ui.scene", "taichi.ui.canvas"):

@@ -211,9 +211,9 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, ContactPieces, Integrator):
 
     @property
     def serial(self) -> bool:
-        """Whether a substep's sweeps run as one serial task (else each colour a parallel loop:
-        one kernel per sweep, or per colour where the solve meets objects): below SERIAL_WORK particles plus springs, and with self-contact
-        in the solve below SERIAL_CONTACT_PARTICLES particles too; never on a GPU. Assigning it
+        """Whether a substep's sweeps run as one serial task (else each colour a parallel loop,
+        :meth:`_sweep`): below SERIAL_WORK particles plus springs, and with self-contact in the
+        solve below SERIAL_CONTACT_PARTICLES particles too; never on a GPU. Assigning it
         overrides the rule."""
         if self._serial is not None:
             return self._serial
@@ -264,7 +264,7 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, ContactPieces, Integrator):
                 omega = 1.0
                 for sweep in range(self.iterations):
                     omega = self._omega(sweep, omega)
-                    kernels["sweep"](dt, t_end, omega, sweep)
+                    self._sweep(kernels, dt, t_end, omega, sweep)
                 bad = kernels["end"](dt)
             use_acceleration = int(self.warm_start)
             if self.contact is None:
@@ -344,10 +344,9 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, ContactPieces, Integrator):
                                 vbd._solve_vertex(vbd.order[q], dt, t)
                         vbd._after_colours(dt, t, omega, sweep)
 
-        # The parallel sweep: one launch for all colours (unrolled), or one launch per colour
-        # where the vertex solve meets objects: unrolled, it is compiled once per colour, and
-        # with a box's geometry that took 96 s before a cloth's first step on the CPU (minutes
-        # on CUDA). A launch per colour costs about 10 us on a GPU (docs/vbd.md).
+        # The parallel sweep (_sweep): all colours in one launch (unrolled: the vertex solve
+        # compiled once per colour), or, where the solve meets objects and their geometry makes
+        # it large, the query, one launch per colour and the tail (docs/vbd.md).
         @ti.kernel
         def sweep_unrolled(dt: float, t: float, omega: float, index: ti.i32):
             for c in ti.static(range(vbd.colour_count)):
@@ -372,10 +371,8 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, ContactPieces, Integrator):
         def end(dt: float) -> ti.i32:
             return vbd._finish(y, dt)
 
-        kernels = {"substep": substep, "begin": begin, "sweeps": sweeps, "sweep_unrolled": sweep_unrolled,
-                   "query": query, "colour": colour, "after_colours": after_colours, "end": end}
-        kernels["sweep"] = lambda dt, t, omega, index: vbd._sweep(kernels, dt, t, omega, index)
-        return kernels
+        return {"substep": substep, "begin": begin, "sweeps": sweeps, "sweep_unrolled": sweep_unrolled,
+                "query": query, "colour": colour, "after_colours": after_colours, "end": end}
 
     def _sweep(self, kernels: dict, dt: float, t: float, omega: float, index: int) -> None:
         """One parallel sweep (sweep ``index``, Chebyshev weight ``omega``): the objects' contacts

@@ -9,7 +9,7 @@ too, inside the solve, as a vertex is.
 
 **The query.** Before the first guess is bounded and before every sweep, one loop over the
 (triangle, object) pairs finds those within reach (twice the contact radius plus the step's
-largest guessed move) and keeps, per pair, what the sweep's vertex solves read:
+largest guessed move over ``bound_fraction``) and keeps, per pair, what the sweep's vertex solves read:
 
 - the contact: the triangle's separation d from the object (the shape's
   ``triangle_contact``: exact for spheres and capsules, the separating axes' lower bound for a
@@ -19,8 +19,8 @@ largest guessed move) and keeps, per pair, what the sweep's vertex solves read:
   ``separating_plane``; a box's own sides first, cheaper than its thirteen axes).
 
 The shape's geometry runs once per pair and sweep, in one loop, instead of in every vertex
-solve of every incident triangle (the heavy code compiled into each kernel that solves a
-vertex made a cold start about five times longer on the CPU, and minutes on CUDA).
+solve of every incident triangle: compiled into each kernel that solves a vertex, it made the
+first step wait for the compiler many times longer (docs/vbd.md).
 
 - **Energy.** Within a sweep the separation is the query's, moved with the corners along n:
   d(x) = n . (sum_j w_j x_j) - (n . the nearest point at the query), as VBD's collision
@@ -74,7 +74,7 @@ def largest_circumradius(x: np.ndarray, triangles: np.ndarray) -> float:
     return float(np.max(ab * bc * ca / np.maximum(4.0 * area, 1e-300)))
 
 
-# A pair's state after a query: out of reach (FAR), else the sum of the parts it holds: a
+# A pair's state after a query: out of reach (FAR), else the bits of the parts it holds: a
 # separating plane (none where the triangle meets the object), an energy (none where the nearest
 # point is a corner's or the triangle lies over a flat side).
 FAR, PLANE, ENERGY = 0, 1, 2
@@ -166,7 +166,7 @@ class ObjectFaces:
                             if not collider.flat_side(o, a, b, c):
                                 d, w, n, z = collider.triangle_contact(o, a, b, c)
                                 if w.max() < AT_CORNER:
-                                    state += ENERGY
+                                    state |= ENERGY
                                     pairs[face, o].normal = n
                                     pairs[face, o].weights = w
                                     pairs[face, o].offset = (w[0] * a + w[1] * b + w[2] * c).dot(n) - d + n.dot(centre)
@@ -206,7 +206,7 @@ class ObjectFaces:
                 for o in range(collider.count):
                     for s in range(mesh.offsets[i], mesh.offsets[i + 1]):
                         face = mesh.incident[s]
-                        if pairs[face, o].state >= ENERGY:
+                        if pairs[face, o].state & ENERGY:
                             tri = mesh.triangles[face]
                             a, b, c, slot = self._corners(tri, x, i, x[i])
                             w, n = pairs[face, o].weights, pairs[face, o].normal
@@ -230,7 +230,7 @@ class ObjectFaces:
                 for o in range(collider.count):
                     for s in range(mesh.offsets[i], mesh.offsets[i + 1]):
                         face = mesh.incident[s]
-                        if pairs[face, o].state % 2 == PLANE:
+                        if pairs[face, o].state & PLANE:
                             n = pairs[face, o].plane_normal
                             scale = ti.min(scale, self._approach_scale(p.dot(n) - pairs[face, o].plane_offset, n, step))
             length = step.norm()

@@ -106,6 +106,6 @@ class ContactPieces:
             else:
                 for sweep in range(done, done + count):
                     omega = self._omega(sweep, omega)
-                    kernels["sweep"](dt, t_end, omega, sweep)
+                    self._sweep(kernels, dt, t_end, omega, sweep)
             done += count
         return kernels["end"](dt)
