@@ -15,6 +15,7 @@ os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "0")  # keep stdout for our 
 
 import numpy as np  # noqa: E402
 import taichi as ti  # noqa: E402
+from taichi.lang import impl as _taichi_impl  # noqa: E402
 
 from . import frontend_cache
 from .errors import ConfigError
@@ -112,6 +113,50 @@ def serial_loops(items: int, break_even: int | None = None) -> bool:
         return False
     limit = SERIAL_WORK if break_even is None else break_even
     return _current["threads"] <= 1 or items * (_current["threads"] - 1) < limit
+
+
+class _WithoutCfgOptimisation:
+    """The context manager :func:`without_cfg_optimisation` returns (one, nestable)."""
+
+    def __init__(self):
+        self.depth = 0
+        self.config = None
+        self.was = True
+
+    def __enter__(self):
+        if self.depth == 0:
+            program = _taichi_impl.get_runtime().prog
+            if program is not None:
+                self.config = program.config()
+                self.was = self.config.cfg_optimization
+                self.config.cfg_optimization = False
+        self.depth += 1
+        return self
+
+    def __exit__(self, *exc):
+        self.depth -= 1
+        if self.depth == 0 and self.config is not None:
+            self.config.cfg_optimization = self.was
+            self.config = None
+        return False
+
+
+_WITHOUT_CFG = _WithoutCfgOptimisation()
+
+
+def without_cfg_optimisation() -> _WithoutCfgOptimisation:
+    """A block in which kernels launched for the first time compile without Taichi's
+    control-flow-graph optimisation (store-to-load forwarding and dead-store elimination over
+    the whole kernel).
+
+    That pass grows faster than the kernel: in the large, branchy kernels of the self-contact
+    stage and of the objects' face contact it is half of the compile, and LLVM's optimisation,
+    which runs after it in any case, leaves their code as fast without it. In the force loops it
+    pays (``implicit_euler`` steps half as fast again without it), so it stays on everywhere
+    else (docs/design.md, "Compile time"). A kernel already compiled keeps its code; the setting
+    is part of Taichi's cache key, so a cached kernel is never taken for the other kind. Entering
+    and leaving costs a few microseconds, so it wraps a whole stage, not each launch."""
+    return _WITHOUT_CFG
 
 
 _AT_EXIT = {"registered": False}

@@ -190,6 +190,13 @@ class SelfCollision(CandidatePairs, KeepsOutOfObjects, ScenePart):
                 f"pair(s) dropped: the cloth may intersect itself (taichi-sim check FILE.npz tells)")
 
     def __call__(self, state, t: float, h: float) -> bool:
+        # The stage's kernels are large and branchy: Taichi's whole-kernel CFG pass was half
+        # of their compile and bought no speed (runtime.without_cfg_optimisation).
+        with runtime.without_cfg_optimisation():
+            self._stage(state, t, h)
+        return False  # the state changed, the system did not
+
+    def _stage(self, state, t: float, h: float) -> None:
         # The step's start: kept from the last stage when this step follows it, else estimated
         # as x - h v (exact for symplectic Euler) after a reset, a jump or the first step.
         if self.t_end is None or abs((t - h) - self.t_end) > 1e-9 * max(1.0, abs(t)):
@@ -213,7 +220,6 @@ class SelfCollision(CandidatePairs, KeepsOutOfObjects, ScenePart):
         self._fail_safe(state, h, rounds_clean=clean)
         self._keep_end(state)
         self.t_end = t
-        return False  # the state changed, the system did not
 
     def _fail_safe(self, state, h: float, rounds_clean: bool) -> None:
         """Rigid impact zones (Provot 1997; Bridson et al. 2002, section 7.4): while some pair

@@ -215,12 +215,15 @@ class FaceContact:
     def _faces(self, state, x_start, t: float, h: float) -> None:
         if self.mesh is None or self.faces_paused:
             return
-        for round_ in range(MAX_FACE_ROUNDS):
-            self.rounds_run += 1  # numbers the rounds of every step, so no reset is needed
-            pushed = self._face_round(state, x_start, t, h, int(round_ == 0), self.rounds_run)
-            self.face_contacts_total += pushed
-            if pushed == 0:
-                break
+        # _face_round is large and branchy: Taichi's whole-kernel CFG pass was half of its
+        # compile and bought no speed (runtime.without_cfg_optimisation).
+        with runtime.without_cfg_optimisation():
+            for round_ in range(MAX_FACE_ROUNDS):
+                self.rounds_run += 1  # numbers the rounds of every step, so no reset is needed
+                pushed = self._face_round(state, x_start, t, h, int(round_ == 0), self.rounds_run)
+                self.face_contacts_total += pushed
+                if pushed == 0:
+                    break
 
     def curvature_radius(self, k: int) -> float:
         """The smallest radius of curvature (m) of object k's surface: 0 for a shape with edges

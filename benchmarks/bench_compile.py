@@ -1,0 +1,107 @@
+"""Benchmark: what compiling without Taichi's CFG pass saves where the toolkit does it, and what
+it costs at run time (``runtime.without_cfg_optimisation``; docs/design.md, "Compile time").
+
+Each case runs in a fresh process with an empty kernel cache, as shipped ("lean") and with the
+pass kept on everywhere ("full"), the two alternating for ``--repeats`` rounds. Reported: the
+first step (nearly all of it compiling) and the median step after a warm-up, medians over the
+rounds.
+
+    .venv/bin/python benchmarks/bench_compile.py [--repeats 2] [--cases self-contact,faces]
+"""
+import argparse
+import contextlib
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+
+CASES = ("self-contact", "faces")
+
+
+def build(case: str):
+    import taichi_sim as ts
+
+    if case == "self-contact":  # a folding cloth with the self-contact stage
+        scene = ts.build_scene("cloth-fold", {"nx": 16, "ny": 16, "self_collision": True})
+        return scene, "symplectic_euler", 1e-3, 400, 100
+    # a cloth falling onto a box and a capsule: their face contact (and the corners' collide)
+    from taichi_sim.scene import cloth as topo
+    from taichi_sim.scene.builder import SceneBuilder
+    from taichi_sim.scene.colliders import SpherePath
+
+    n, size = 24, 0.5
+    b = SceneBuilder()
+    b.add_particles(topo.grid_positions(n, n, size, size, origin=(-size / 2, 0.2, -size / 2),
+                                        u_axis=(1, 0, 0), v_axis=(0, 0, 1)), 0.01)
+    ends, kind = topo.grid_springs(n, n)
+    b.add_springs(ends, stiffness=5.0, damping=0.0, kind=kind)
+    b.add_triangles(topo.grid_triangles(n, n))
+    b.add_box(SpherePath((0.0, 0.0, 0.0)), (0.1, 0.1, 0.1))
+    b.add_capsule(SpherePath((0.15, 0.05, 0.0)), 0.05, (0.1, 0.0, 0.0))
+    scene = b.finalize(name="faces", params={}, default_dt=1e-3, default_integrator="symplectic_euler")
+    return scene, "symplectic_euler", 1e-3, 300, 30
+
+
+def child(case: str, lean: bool) -> dict:
+    """One measurement in this (fresh) process."""
+    import taichi as ti
+
+    import taichi_sim as ts
+    from taichi_sim import runtime
+
+    if not lean:
+        runtime.without_cfg_optimisation = contextlib.nullcontext
+    ts.init(arch="cpu", precision="f64")
+    scene, integrator, dt, warmup, steps = build(case)
+    stepper = ts.Stepper(scene, integrator, dt)
+    start = time.perf_counter()
+    stepper.step()
+    ti.sync()
+    first = time.perf_counter() - start
+    for _ in range(warmup):
+        stepper.step()
+    ti.sync()
+    times = []
+    for _ in range(3):
+        start = time.perf_counter()
+        for _ in range(steps):
+            stepper.step()
+        ti.sync()
+        times.append((time.perf_counter() - start) / steps)
+    return {"first_s": first, "step_ms": 1e3 * statistics.median(times)}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=2)
+    parser.add_argument("--cases", default=",".join(CASES))
+    parser.add_argument("--child", nargs=2, help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.child:
+        print(json.dumps(child(args.child[0], args.child[1] == "lean")))
+        return
+    cases = [c for c in args.cases.split(",") if c]
+    unknown = [c for c in cases if c not in CASES]
+    if unknown or args.repeats < 1:
+        parser.error(f"--cases from {', '.join(CASES)}; --repeats >= 1")
+    print(f"{'case':14s} {'kind':5s} {'first step (s)':>15s} {'step (ms)':>10s}")
+    for case in cases:
+        results = {"lean": [], "full": []}
+        for _ in range(args.repeats):
+            for kind in ("full", "lean"):
+                with tempfile.TemporaryDirectory() as cache:
+                    env = {**os.environ, "TI_OFFLINE_CACHE_FILE_PATH": cache}
+                    out = subprocess.run([sys.executable, __file__, "--child", case, kind], env=env,
+                                         capture_output=True, text=True, check=True)
+                    results[kind].append(json.loads(out.stdout.strip().splitlines()[-1]))
+        for kind in ("full", "lean"):
+            first = statistics.median(r["first_s"] for r in results[kind])
+            step = statistics.median(r["step_ms"] for r in results[kind])
+            print(f"{case:14s} {kind:5s} {first:15.2f} {step:10.3f}", flush=True)
+
+
+if __name__ == "__main__":
+    main()
