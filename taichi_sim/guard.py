@@ -13,6 +13,10 @@ Besides the non-finite values the integrators report, a run has *diverged* when
           m |g| L,   L = the scene's size (the diagonal of its bounding box, which holds
           the wires beads are constrained to), at least 1 m;
 
+  and never below the energy the springs get from rounding alone, sum k (eps L)^2 / 2 with eps
+  the precision's machine epsilon (a scene at rest with no weight and unstretched springs has
+  S = 0 otherwise, and its first step's rounding, 1e-35 J, read as a blow-up);
+
   a scene without sources cannot gain energy at all, so a rise of ten times everything it had
   is not an inaccuracy but a blow-up;
 * **reach**: a particle is farther from the centre of the scene's bounding box at the reference
@@ -37,6 +41,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import runtime
 from .errors import ConfigError
 from .part import LaunchSource, MovingSource
 
@@ -104,13 +109,11 @@ def scene_facts(scene) -> SceneFacts:
     pinned = np.asarray(static.get("pinned", np.zeros(len(mass), bool)), bool)
     moving = mass[~pinned] if (~pinned).any() else mass
     k = rest = np.zeros(0)
+    live = np.zeros(0, bool)
     if scene.springs is not None:
-        springs = scene.springs
-        k = springs.stiffness.to_numpy().astype(np.float64)
-        rest = springs.rest.to_numpy().astype(np.float64)
-    live = (k > 0) & (rest > 0)
-    if scene.springs is not None and scene.springs.tearable:
-        live &= scene.springs.alive.to_numpy().astype(bool)
+        arrays = scene.springs.arrays()
+        k, rest = arrays["stiffness"], arrays["rest_length"]
+        live = (k > 0) & (rest > 0) & arrays.get("alive", True)
     return SceneFacts(moving_mass=float(moving.sum()), smallest_mass=float(moving.min()),
                       spring_stiffness_sum=float(k[live].sum()),
                       softest=float(k[live].min()) if live.any() else math.inf,
@@ -225,8 +228,9 @@ class Guard:
         self.scale = None
         if health.energy is not None and math.isfinite(health.energy):
             weight = self.facts.moving_mass * self.gravity
+            rounding = 0.5 * self.facts.spring_stiffness_sum * (runtime.epsilon() * self.size) ** 2
             self.scale = max(abs(health.energy) + health.kinetic + health.spring_energy + weight * self.size,
-                             1e-300)
+                             rounding, 1e-300)
         moving = max(self.facts.moving_mass, 1e-300)
         self.fastest0 = math.sqrt(2.0 * health.kinetic / max(self.facts.smallest_mass, 1e-300))
         self._moving_mass = moving

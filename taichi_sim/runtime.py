@@ -273,6 +273,11 @@ def np_real():
     return np.float64 if precision() == "f64" else np.float32
 
 
+def epsilon() -> float:
+    """The current precision's machine epsilon (the spacing of its floats just above 1)."""
+    return float(np.finfo(np_real()).eps)
+
+
 def machine_epsilon() -> float:
     """Unit round-off scale of the current precision: numpy's eps of its float dtype."""
     return float(np.finfo(np_real()).eps)

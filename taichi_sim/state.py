@@ -3,7 +3,7 @@
 import numpy as np
 import taichi as ti
 
-from . import runtime
+from . import field_io, runtime
 
 
 @ti.data_oriented
@@ -31,7 +31,9 @@ class State:
 
     def to_numpy(self) -> tuple[np.ndarray, np.ndarray | None]:
         """(x, v) as float arrays of shape (n, 3); v is None for a first-order state."""
-        return self.x.to_numpy(), (self.v.to_numpy() if self.second_order else None)
+        if self.second_order:
+            return field_io.read(self.x, self.v)  # one kernel for both
+        return self.x.to_numpy(), None
 
     def from_numpy(self, x: np.ndarray, v: np.ndarray | None = None) -> None:
         """Set positions (and velocities; default zero) from (n, 3) arrays."""

@@ -17,7 +17,8 @@ LAYERS = (
     ("stepping a state", {"integrators"}),
     ("what is simulated", {"scene", "forces", "systems", "state", "mesh", "memory"}),
     ("between steps", {"collide"}),
-    ("foundations", {"runtime", "frontend_cache", "errors", "loops", "atomic", "geometry", "part"}),
+    ("foundations", {"runtime", "frontend_cache", "errors", "loops", "atomic", "geometry", "part",
+                     "field_io"}),
 )
 #: ``import taichi_sim`` gives the public face, which hands on run() and the Stepper.
 FACE_LAYER = "running a scene"

@@ -2,7 +2,7 @@
 import numpy as np
 import taichi as ti
 
-from ... import runtime
+from ... import field_io, runtime
 from ..base import ForceTerm
 from .jacobian import SpringJacobians
 from .topology import incidence
@@ -128,13 +128,14 @@ class Springs(SpringJacobians, ForceTerm):
 
     def arrays(self) -> dict:
         """Spring data as numpy arrays (the npz schema's spring keys)."""
-        tearing = {"alive": self.alive.to_numpy().astype(bool),
-                   "tear_strain": self.tear_strain.to_numpy().astype(np.float64)} if self.tearable else {}
+        fields = (self.rest, self.stiffness, self.damping) + ((self.alive, self.tear_strain) if self.tearable else ())
+        rest, stiffness, damping, *torn = field_io.read(*fields)  # one kernel, not one per field
+        tearing = {"alive": torn[0].astype(bool), "tear_strain": torn[1].astype(np.float64)} if torn else {}
         return tearing | {
             "springs": self.ends_np.astype(np.int64),
-            "rest_length": self.rest.to_numpy().astype(np.float64),
-            "stiffness": self.stiffness.to_numpy().astype(np.float64),
-            "spring_damping": self.damping.to_numpy().astype(np.float64),
+            "rest_length": rest.astype(np.float64),
+            "stiffness": stiffness.astype(np.float64),
+            "spring_damping": damping.astype(np.float64),
             "spring_kind": self.kind_np.astype(np.int64),
         }
 

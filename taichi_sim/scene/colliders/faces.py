@@ -14,9 +14,10 @@ The shapes' distances to a triangle: exact from the features for spheres and cap
 (:func:`sphere_to_triangle`, :func:`segment_to_triangle`), a lower bound from the separating
 axes for boxes (:func:`box_separation`, exact as an overlap).
 """
+import numpy as np
 import taichi as ti
 
-from ... import runtime
+from ... import field_io, runtime
 from ...collide.closest_points import closest_barycentric, inside, segment_parameters
 from ...collide.friction import inelastic_friction
 
@@ -207,10 +208,9 @@ class FaceContact:
         self.bound = ti.Vector.field(3, real, shape=self.count)
         self.left = ti.field(real, shape=self.count)
         self.allowed = ti.field(real, shape=self.count)
-        for k in range(self.count):
-            self.bound[k] = [float(v) for v in bounds[k]]
-            self.left[k] = LEFT_TO_VERTICES * float(thinnest[k])
-            self.allowed[k] = ALLOWED_OVERLAP * float(thinnest[k])
+        thinnest = np.asarray(thinnest, np.float64)
+        field_io.write((self.bound, np.asarray(bounds, np.float64)), (self.left, LEFT_TO_VERTICES * thinnest),
+                       (self.allowed, ALLOWED_OVERLAP * thinnest))
 
     def _faces(self, state, x_start, t: float, h: float) -> None:
         if self.mesh is None or self.faces_paused:

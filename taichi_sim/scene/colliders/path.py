@@ -5,7 +5,7 @@ from dataclasses import dataclass
 import numpy as np
 import taichi as ti
 
-from ... import runtime
+from ... import field_io, runtime
 
 
 @dataclass(frozen=True)
@@ -63,14 +63,16 @@ class PathFields:
         self.angular_frequency = ti.field(real, shape=count)
         self.omega = ti.Vector.field(3, real, shape=count)
 
+    def values(self, paths) -> list:
+        """(field, values) pairs that place ``paths`` in these fields, for :func:`field_io.write`
+        (an owner writes them with its own fields, in one kernel)."""
+        return [(self.center0, [p.center0 for p in paths]), (self.linear, [p.velocity for p in paths]),
+                (self.axis, [p.axis for p in paths]), (self.amplitude, [p.amplitude for p in paths]),
+                (self.angular_frequency, [2 * math.pi * p.frequency for p in paths]),
+                (self.omega, [p.angular_velocity() for p in paths])]
+
     def upload(self, paths) -> None:
-        npr = runtime.np_real()
-        self.center0.from_numpy(np.asarray([p.center0 for p in paths], npr))
-        self.linear.from_numpy(np.asarray([p.velocity for p in paths], npr))
-        self.axis.from_numpy(np.asarray([p.axis for p in paths], npr))
-        self.amplitude.from_numpy(np.asarray([p.amplitude for p in paths], npr))
-        self.angular_frequency.from_numpy(np.asarray([2 * math.pi * p.frequency for p in paths], npr))
-        self.omega.from_numpy(np.asarray([p.angular_velocity() for p in paths], npr))
+        field_io.write(*self.values(paths))
 
     @ti.func
     def center(self, k, t):

@@ -5,7 +5,7 @@ from dataclasses import dataclass
 import numpy as np
 import taichi as ti
 
-from ... import runtime
+from ... import field_io, runtime
 from ...collide.friction import inelastic_friction
 from ...geometry import primitives
 from ...part import MovingSource, PartSpec, ScenePart, SolidMesh
@@ -81,15 +81,21 @@ class _TranslatingShapes(FaceContact, Obstacle, ScenePart):
         self.paths = [s.path for s in shapes]
         self.free = free
         self.path = PathFields(K)
-        self.path.upload(self.paths)
         self.friction = ti.field(real, shape=K)
         self.touch = ti.field(real, shape=K)
-        self.friction.from_numpy(np.asarray([s.friction for s in shapes], runtime.np_real()))
-        self.touch.from_numpy(np.asarray([TOUCH_FRACTION * self.thinnest(s) for s in shapes], runtime.np_real()))
+        # with the shape's own fields (its subclass's __init__ allocated them): one kernel
+        field_io.write(*self.path.values(self.paths), *self.shape_values(shapes),
+                       (self.friction, [s.friction for s in shapes]),
+                       (self.touch, [TOUCH_FRACTION * self.thinnest(s) for s in shapes]))
         self.start = StepStart(free.shape[0])
         self.serial = runtime.serial_loops(free.shape[0] * K)
         self._init_faces(mesh, system, [self.bounding_box(s) for s in shapes], [self.thinnest(s) for s in shapes])
         self.move_to(0.0)
+
+    def shape_values(self, shapes) -> list:
+        """(field, values) pairs of the shape's own fields (its sizes), written with the
+        paths' in one kernel."""
+        return []
 
     def restore(self) -> None:
         self.start.restore()
@@ -191,9 +197,10 @@ class CapsuleColliders(_TranslatingShapes):
         real = runtime.real()
         self.radius = ti.field(real, shape=len(capsules))
         self.half_axis = ti.Vector.field(3, real, shape=len(capsules))
-        self.radius.from_numpy(np.asarray([c.radius for c in capsules], runtime.np_real()))
-        self.half_axis.from_numpy(np.asarray([c.half_axis for c in capsules], runtime.np_real()))
         super().__init__(capsules, free, mesh, system)
+
+    def shape_values(self, capsules) -> list:
+        return [(self.radius, [c.radius for c in capsules]), (self.half_axis, [c.half_axis for c in capsules])]
 
     @staticmethod
     def thinnest(capsule: Capsule) -> float:
@@ -270,8 +277,10 @@ class BoxColliders(_TranslatingShapes):
 
     def __init__(self, boxes: list[Box], free, mesh=None, system=None):
         self.half = ti.Vector.field(3, runtime.real(), shape=len(boxes))
-        self.half.from_numpy(np.asarray([b.half_extents for b in boxes], runtime.np_real()))
         super().__init__(boxes, free, mesh, system)
+
+    def shape_values(self, boxes) -> list:
+        return [(self.half, [b.half_extents for b in boxes])]
 
     @staticmethod
     def thinnest(box: Box) -> float:

@@ -4,7 +4,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import taichi as ti
 
-from ... import runtime
+from ... import field_io, runtime
 from ...collide.friction import inelastic_friction
 from ...geometry.primitives import unit_sphere
 from ...part import MovingSource, PartSpec, ScenePart, SolidMesh
@@ -56,14 +56,12 @@ class SphereColliders(FaceContact, Obstacle, ScenePart):
         self.path = PathFields(K)
         self.radius = ti.field(real, shape=K)
         self.friction = ti.field(real, shape=K)
-        self.radius.from_numpy(np.asarray(radii, runtime.np_real()))
-        self.friction.from_numpy(np.asarray(frictions, runtime.np_real()))
+        self.touch = ti.field(real, shape=K)
+        field_io.write(*self.path.values(self.paths), (self.radius, radii), (self.friction, frictions),
+                       (self.touch, [TOUCH_FRACTION * r for r in radii]))
         self.start = StepStart(free.shape[0])
         self.serial = runtime.serial_loops(free.shape[0] * K)
         self.paths0 = tuple(self.paths)
-        self.path.upload(self.paths)
-        self.touch = ti.field(real, shape=K)
-        self.touch.from_numpy(np.asarray([TOUCH_FRACTION * r for r in radii], runtime.np_real()))
         self._init_faces(mesh if continuous else None, system, [(r, r, r) for r in radii], radii)
         self.move_to(0.0)
 

@@ -1,0 +1,131 @@
+"""Several Taichi fields read into numpy, or written from it, by one kernel.
+
+Taichi's ``Field.to_numpy`` and ``from_numpy`` compile a kernel for each field they are given
+(about 0.1 s the first time a scene of that size and make-up is built, a few tens of
+milliseconds to load from the kernel cache); a part that reads or writes several fields at once
+does it here with one kernel for all of them (docs/design.md, "Compile time"). The values travel
+through one buffer, float32 when every field is f32 and float64 otherwise (which holds every
+f32, f64 and i32 value exactly); where a float64 buffer is needed on a backend that may lack
+float64 (Vulkan, Metal), each field is copied by Taichi's own kernel instead.
+"""
+
+import math
+
+import numpy as np
+import taichi as ti
+from taichi.lang.matrix import MatrixField
+
+from . import runtime
+
+
+def _layout(fields) -> tuple:
+    """Per field: (offset into the buffer, the field's shape, its element's shape)."""
+    rows, offset = [], 0
+    for field in fields:
+        shape = tuple(int(s) for s in field.shape)
+        if not shape:
+            raise ValueError("field_io needs fields with at least one index (not shape ())")
+        element = ()
+        if isinstance(field, MatrixField):  # a vector field is one of n x 1 (ndim 1)
+            element = (field.n, field.m) if field.ndim == 2 else (field.n,)
+        rows.append((offset, shape, element))
+        offset += math.prod(shape) * math.prod(element)
+    return tuple(rows), offset
+
+
+@ti.func
+def _flat(index, shape: ti.template()):
+    """Row-major position of ``index`` in a field of ``shape``."""
+    flat = 0
+    for d in ti.static(range(len(shape))):
+        flat = flat * shape[d] + index[d]
+    return flat
+
+
+@ti.kernel
+def _gather(fields: ti.template(), layout: ti.template(), out: ti.types.ndarray(ndim=1), real: ti.template()):
+    for k in ti.static(range(len(fields))):
+        offset, shape, element = ti.static(layout[k])
+        width = ti.static(math.prod(element))
+        for index in ti.grouped(fields[k]):
+            at = offset + _flat(index, shape) * width
+            value = fields[k][index]
+            if ti.static(len(element) == 0):
+                out[at] = ti.cast(value, real)
+            elif ti.static(len(element) == 1):
+                for c in ti.static(range(element[0])):
+                    out[at + c] = ti.cast(value[c], real)
+            else:
+                for r, c in ti.static(ti.ndrange(element[0], element[1])):
+                    out[at + r * element[1] + c] = ti.cast(value[r, c], real)
+
+
+@ti.kernel
+def _scatter(fields: ti.template(), layout: ti.template(), data: ti.types.ndarray(ndim=1)):
+    for k in ti.static(range(len(fields))):
+        offset, shape, element = ti.static(layout[k])
+        width = ti.static(math.prod(element))
+        for index in ti.grouped(fields[k]):
+            at = offset + _flat(index, shape) * width
+            if ti.static(len(element) == 0):
+                fields[k][index] = ti.cast(data[at], fields[k].dtype)
+            elif ti.static(len(element) == 1):
+                for c in ti.static(range(element[0])):
+                    fields[k][index][c] = ti.cast(data[at + c], fields[k].dtype)
+            else:
+                for r, c in ti.static(ti.ndrange(element[0], element[1])):
+                    fields[k][index][r, c] = ti.cast(data[at + r * element[1] + c], fields[k].dtype)
+
+
+def _numpy_dtype(field):
+    return np.dtype(ti.lang.util.to_numpy_type(field.dtype))
+
+
+def _buffer_dtype(fields):
+    """float32 when every field is (exact, and no conversion for an f32 scene), else float64."""
+    return np.dtype(np.float32) if all(field.dtype == ti.f32 for field in fields) else np.dtype(np.float64)
+
+
+def _one_kernel(buffer_dtype) -> bool:
+    """Whether the backend has the buffer's type: float32 everywhere, float64 surely on the CPU
+    and CUDA."""
+    if not runtime.is_initialized():
+        return False
+    return buffer_dtype == np.float32 or runtime.cpu_backend() or runtime.backend() == "cuda"
+
+
+def read(*fields) -> tuple[np.ndarray, ...]:
+    """Copies of ``fields``' values, one numpy array each of shape (field shape + element
+    shape) in the field's own dtype, as ``to_numpy`` gives, read by one kernel launch."""
+    layout, size = _layout(fields)
+    dtype = _buffer_dtype(fields)
+    if not _one_kernel(dtype):
+        return tuple(field.to_numpy() for field in fields)
+    buffer = np.empty(size, dtype)
+    _gather(tuple(fields), layout, buffer, ti.f32 if dtype == np.float32 else ti.f64)
+    out = []
+    for field, (offset, shape, element) in zip(fields, layout):
+        count = math.prod(shape) * math.prod(element)
+        out.append(buffer[offset:offset + count].reshape(shape + element).astype(_numpy_dtype(field), copy=False))
+    return tuple(out)
+
+
+def write(*pairs) -> None:
+    """Write each ``(field, values)`` pair, ``values`` anything numpy reads as an array of the
+    field's shape plus its element's shape, with one kernel launch (as ``from_numpy`` each)."""
+    fields = tuple(field for field, _ in pairs)
+    layout, size = _layout(fields)
+    dtype = _buffer_dtype(fields)
+    buffer = np.empty(size, dtype)
+    for (field, values), (offset, shape, element) in zip(pairs, layout):
+        values = np.asarray(values, dtype)
+        if values.shape != shape + element:
+            raise ValueError(f"field_io.write: values of shape {values.shape} for a field of shape "
+                             f"{shape + element}")
+        buffer[offset:offset + values.size] = values.ravel()
+    if not _one_kernel(dtype):
+        for field, (offset, shape, element) in zip(fields, layout):
+            count = math.prod(shape) * math.prod(element)
+            field.from_numpy(buffer[offset:offset + count].reshape(shape + element).astype(_numpy_dtype(field)))
+        return
+    _scatter(fields, layout, buffer)
