@@ -1,9 +1,9 @@
 """Several Taichi fields read into numpy, or written from it, by one kernel.
 
-Taichi's ``Field.to_numpy`` and ``from_numpy`` compile a kernel for each field they are given
-(about 0.1 s the first time a scene of that size and make-up is built, a few tens of
-milliseconds to load from the kernel cache); a part that reads or writes several fields at once
-does it here with one kernel for all of them (docs/design.md, "Compile time"). The values travel
+Taichi's ``Field.to_numpy`` and ``from_numpy`` compile a kernel for each field they are given,
+the first time a scene of that size and make-up is built, and load it from the kernel cache
+in every later process; a part that reads or writes several fields at once does it here with
+one kernel for all of them (docs/design.md, "Compile time"). The values travel
 through one buffer, float32 when every field is f32 and float64 otherwise (which holds every
 f32, f64 and i32 value exactly); where a float64 buffer is needed on a backend that may lack
 float64 (Vulkan, Metal), each field is copied by Taichi's own kernel instead.

@@ -15,7 +15,7 @@ Besides the non-finite values the integrators report, a run has *diverged* when
 
   and never below the energy the springs get from rounding alone, sum k (eps L)^2 / 2 with eps
   the precision's machine epsilon (a scene at rest with no weight and unstretched springs has
-  S = 0 otherwise, and its first step's rounding, 1e-35 J, read as a blow-up);
+  S = 0 otherwise, and its first step's rounding read as a blow-up);
 
   a scene without sources cannot gain energy at all, so a rise of ten times everything it had
   is not an inaccuracy but a blow-up;
