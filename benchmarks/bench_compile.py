@@ -1,12 +1,15 @@
 """Benchmark: what compiling without Taichi's CFG pass saves where the toolkit does it, and what
 it costs at run time (``runtime.without_cfg_optimisation``; docs/design.md, "Compile time").
 
-Each case runs in a fresh process with an empty kernel cache, as shipped ("lean") and with the
-pass kept on everywhere ("full"), the two alternating for ``--repeats`` rounds. Reported: the
-first step (nearly all of it compiling) and the median step after a warm-up, medians over the
-rounds.
+Each case runs in a fresh process with an empty kernel cache, in each of ``--kinds``,
+alternating for ``--repeats`` rounds: "full" keeps the pass on everywhere, "lean" is the code as
+shipped (off in the self-contact stage and the face rounds), "off" turns it off everywhere
+(``TI_CFG_OPTIMIZATION=0``). Reported: the first step (nearly all of it compiling) and the
+median step after a warm-up, medians over the rounds.
 
     .venv/bin/python benchmarks/bench_compile.py [--repeats 2] [--cases self-contact,faces]
+        [--kinds full,lean]
+    .venv/bin/python benchmarks/bench_compile.py --cases rk4,implicit --kinds full,off
 """
 import argparse
 import contextlib
@@ -18,7 +21,8 @@ import sys
 import tempfile
 import time
 
-CASES = ("self-contact", "faces")
+CASES = ("self-contact", "faces", "rk4", "implicit")
+KINDS = ("full", "lean", "off")
 
 
 def build(case: str):
@@ -27,6 +31,10 @@ def build(case: str):
     if case == "self-contact":  # a folding cloth with the self-contact stage
         scene = ts.build_scene("cloth-fold", {"nx": 16, "ny": 16, "self_collision": True})
         return scene, "symplectic_euler", 1e-3, 400, 100
+    if case == "rk4":  # the force loops, fused into one kernel per step
+        return ts.build_scene("cloth", {"nx": 64, "ny": 64}), "rk4", 1e-4, 20, 20
+    if case == "implicit":  # Newton and its linear solves
+        return ts.build_scene("cloth", {"nx": 24, "ny": 24}), "implicit_euler", 5e-3, 20, 20
     # a cloth falling onto a box and a capsule: their face contact (and the corners' collide)
     from taichi_sim.scene import cloth as topo
     from taichi_sim.scene.builder import SceneBuilder
@@ -45,14 +53,14 @@ def build(case: str):
     return scene, "symplectic_euler", 1e-3, 300, 30
 
 
-def child(case: str, lean: bool) -> dict:
+def child(case: str, kind: str) -> dict:
     """One measurement in this (fresh) process."""
     import taichi as ti
 
     import taichi_sim as ts
     from taichi_sim import runtime
 
-    if not lean:
+    if kind == "full":
         runtime.without_cfg_optimisation = contextlib.nullcontext
     ts.init(arch="cpu", precision="f64")
     scene, integrator, dt, warmup, steps = build(case)
@@ -77,27 +85,34 @@ def child(case: str, lean: bool) -> dict:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=2)
-    parser.add_argument("--cases", default=",".join(CASES))
+    parser.add_argument("--cases", default="self-contact,faces")
+    parser.add_argument("--kinds", default="full,lean")
     parser.add_argument("--child", nargs=2, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child:
-        print(json.dumps(child(args.child[0], args.child[1] == "lean")))
+        print(json.dumps(child(*args.child)))
         return
     cases = [c for c in args.cases.split(",") if c]
-    unknown = [c for c in cases if c not in CASES]
-    if unknown or args.repeats < 1:
-        parser.error(f"--cases from {', '.join(CASES)}; --repeats >= 1")
+    kinds = [k for k in args.kinds.split(",") if k]
+    if not cases or any(c not in CASES for c in cases):
+        parser.error(f"--cases: from {', '.join(CASES)}")
+    if not kinds or any(k not in KINDS for k in kinds):
+        parser.error(f"--kinds: from {', '.join(KINDS)}")
+    if args.repeats < 1:
+        parser.error("--repeats: at least 1")
     print(f"{'case':14s} {'kind':5s} {'first step (s)':>15s} {'step (ms)':>10s}")
     for case in cases:
-        results = {"lean": [], "full": []}
+        results = {kind: [] for kind in kinds}
         for _ in range(args.repeats):
-            for kind in ("full", "lean"):
+            for kind in kinds:
                 with tempfile.TemporaryDirectory() as cache:
                     env = {**os.environ, "TI_OFFLINE_CACHE_FILE_PATH": cache}
+                    if kind == "off":
+                        env["TI_CFG_OPTIMIZATION"] = "0"
                     out = subprocess.run([sys.executable, __file__, "--child", case, kind], env=env,
                                          capture_output=True, text=True, check=True)
                     results[kind].append(json.loads(out.stdout.strip().splitlines()[-1]))
-        for kind in ("full", "lean"):
+        for kind in kinds:
             first = statistics.median(r["first_s"] for r in results[kind])
             step = statistics.median(r["step_ms"] for r in results[kind])
             print(f"{case:14s} {kind:5s} {first:15.2f} {step:10.3f}", flush=True)
