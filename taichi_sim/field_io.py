@@ -29,7 +29,7 @@ def _layout(fields) -> tuple:
         if isinstance(field, MatrixField):  # a vector field is one of n x 1 (ndim 1)
             element = (field.n, field.m) if field.ndim == 2 else (field.n,)
         rows.append((offset, shape, element))
-        offset += math.prod(shape) * math.prod(element)
+        offset += math.prod(shape + element)
     return tuple(rows), offset
 
 
@@ -77,6 +77,12 @@ def _scatter(fields: ti.template(), layout: ti.template(), data: ti.types.ndarra
                     fields[k][index][r, c] = ti.cast(data[at + r * element[1] + c], fields[k].dtype)
 
 
+def _views(buffer: np.ndarray, layout: tuple):
+    """Each field's part of ``buffer``, shaped as its values (field shape + element shape)."""
+    for offset, shape, element in layout:
+        yield buffer[offset:offset + math.prod(shape + element)].reshape(shape + element)
+
+
 def _numpy_dtype(field):
     return np.dtype(ti.lang.util.to_numpy_type(field.dtype))
 
@@ -103,11 +109,7 @@ def read(*fields) -> tuple[np.ndarray, ...]:
         return tuple(field.to_numpy() for field in fields)
     buffer = np.empty(size, dtype)
     _gather(tuple(fields), layout, buffer, ti.f32 if dtype == np.float32 else ti.f64)
-    out = []
-    for field, (offset, shape, element) in zip(fields, layout):
-        count = math.prod(shape) * math.prod(element)
-        out.append(buffer[offset:offset + count].reshape(shape + element).astype(_numpy_dtype(field), copy=False))
-    return tuple(out)
+    return tuple(view.astype(_numpy_dtype(field), copy=False) for field, view in zip(fields, _views(buffer, layout)))
 
 
 def write(*pairs) -> None:
@@ -117,15 +119,14 @@ def write(*pairs) -> None:
     layout, size = _layout(fields)
     dtype = _buffer_dtype(fields)
     buffer = np.empty(size, dtype)
-    for (field, values), (offset, shape, element) in zip(pairs, layout):
+    views = list(_views(buffer, layout))
+    for (field, values), view in zip(pairs, views):
         values = np.asarray(values, dtype)
-        if values.shape != shape + element:
-            raise ValueError(f"field_io.write: values of shape {values.shape} for a field of shape "
-                             f"{shape + element}")
-        buffer[offset:offset + values.size] = values.ravel()
+        if values.shape != view.shape:
+            raise ValueError(f"field_io.write: values of shape {values.shape} for a field of shape {view.shape}")
+        view[...] = values
     if not _one_kernel(dtype):
-        for field, (offset, shape, element) in zip(fields, layout):
-            count = math.prod(shape) * math.prod(element)
-            field.from_numpy(buffer[offset:offset + count].reshape(shape + element).astype(_numpy_dtype(field)))
+        for field, view in zip(fields, views):
+            field.from_numpy(view.astype(_numpy_dtype(field)))
         return
     _scatter(fields, layout, buffer)

@@ -4,6 +4,8 @@ import math
 import numpy as np
 
 import taichi_sim as ts
+from taichi_sim.scene import cloth as topo
+from taichi_sim.scene.builder import SceneBuilder
 from taichi_sim.scene.cloth import fixed_particle_cloth
 
 
@@ -113,3 +115,16 @@ def swinging(scene) -> None:
     v[:, 1] = 0.5 * np.sin(np.arange(len(v)))
     v[scene.static_arrays["pinned"]] = 0.0
     scene.state.from_numpy(scene.x0, v)
+
+
+def cloth_builder(n=16, size=0.5, height=0.0, stiffness=5.0, mass=0.01):
+    """A free horizontal n x n cloth of side ``size`` (m) at ``height``, soft enough for
+    symplectic Euler at h = 10 ms."""
+    x = topo.grid_positions(n, n, size, size, origin=(-size / 2, height, -size / 2),
+                            u_axis=(1, 0, 0), v_axis=(0, 0, 1))
+    b = SceneBuilder()
+    b.add_particles(x, mass)
+    ends, kind = topo.grid_springs(n, n)
+    b.add_springs(ends, stiffness=stiffness, damping=0.0, kind=kind)
+    b.add_triangles(topo.grid_triangles(n, n))
+    return b

@@ -3,26 +3,12 @@ import math
 
 import numpy as np
 import pytest
-from helpers import step_checked
+from helpers import cloth_builder, step_checked
 
 import taichi_sim as ts
 from taichi_sim.cli import main
-from taichi_sim.scene import cloth as topo
 from taichi_sim.scene.builder import SceneBuilder
 from taichi_sim.scene.colliders import SpherePath
-
-
-def cloth_builder(n=16, size=0.5, height=0.0, stiffness=5.0, mass=0.01):
-    """A free horizontal n x n cloth of side ``size`` (m) at ``height``, soft enough for
-    symplectic Euler at h = 10 ms."""
-    x = topo.grid_positions(n, n, size, size, origin=(-size / 2, height, -size / 2),
-                            u_axis=(1, 0, 0), v_axis=(0, 0, 1))
-    b = SceneBuilder()
-    b.add_particles(x, mass)
-    ends, kind = topo.grid_springs(n, n)
-    b.add_springs(ends, stiffness=stiffness, damping=0.0, kind=kind)
-    b.add_triangles(topo.grid_triangles(n, n))
-    return b
 
 
 def advance(scene, dt, steps, integrator="symplectic_euler", check=None):

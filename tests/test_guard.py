@@ -3,6 +3,7 @@ import math
 
 import numpy as np
 import pytest
+from helpers import cloth_builder
 
 import taichi_sim as ts
 from taichi_sim.errors import ConfigError
@@ -164,16 +165,8 @@ def test_a_weightless_cloth_at_rest_is_not_diverged_by_its_rounding(f64):
     # No gravity, unstretched springs, at rest: the energy scale's other terms are all zero, and
     # the first step's rounding (about 1e-35 J) read as a blow-up before the springs' rounding
     # energy, sum k (eps L)^2 / 2, bounded the scale from below.
-    from taichi_sim.scene import cloth as topo
-    from taichi_sim.scene.builder import SceneBuilder
-
-    n = 4
-    b = SceneBuilder()
-    b.add_particles(topo.grid_positions(n, n, 0.3, 0.3, origin=(-0.15, 0.12, -0.15), u_axis=(1, 0, 0),
-                                        v_axis=(0, 0, 1)), 0.01)
-    ends, kind = topo.grid_springs(n, n)
-    b.add_springs(ends, stiffness=5.0, damping=0.0, kind=kind)
-    scene = b.finalize(name="t", params={}, default_dt=1e-3, default_integrator="symplectic_euler")
+    scene = cloth_builder(n=4, size=0.3, height=0.12).finalize(name="t", params={}, default_dt=1e-3,
+                                                               default_integrator="symplectic_euler")
     result = ts.run(scene, "symplectic_euler", dt=1e-3, steps=50, progress=False)
     assert result.status.value == "ok", result.message
     # the floor stays at rounding's size: any real gain of energy is still a blow-up

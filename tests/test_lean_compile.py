@@ -1,12 +1,11 @@
 """Kernels compiled without Taichi's CFG pass: the switch, and the stages that use it."""
 import numpy as np
+from helpers import cloth_builder
 from taichi.lang import impl
 
 import taichi_sim as ts
 from taichi_sim import runtime
 from taichi_sim.collide import SelfCollision
-from taichi_sim.scene import cloth as topo
-from taichi_sim.scene.builder import SceneBuilder
 from taichi_sim.scene.colliders import SpherePath
 from taichi_sim.scene.colliders.faces import FaceContact
 
@@ -46,13 +45,7 @@ def spy(monkeypatch, obj, name: str) -> list:
 
 
 def test_the_self_contact_stage_and_the_face_rounds_compile_without_the_pass(f64, monkeypatch):
-    n = 4
-    b = SceneBuilder()
-    b.add_particles(topo.grid_positions(n, n, 0.3, 0.3, origin=(-0.15, 0.12, -0.15),
-                                        u_axis=(1, 0, 0), v_axis=(0, 0, 1)), 0.01)
-    ends, kind = topo.grid_springs(n, n)
-    b.add_springs(ends, stiffness=5.0, damping=0.0, kind=kind)
-    b.add_triangles(topo.grid_triangles(n, n))
+    b = cloth_builder(n=4, size=0.3, height=0.12)
     b.add_box(SpherePath((0.0, 0.0, 0.0)), (0.1, 0.1, 0.1))
     b.set_gravity(9.8)
     b.enable_self_collision(0.005, 0.0, 2)
