@@ -160,13 +160,25 @@ def _echo_cases(sleeps):
             for i, s in enumerate(sleeps)]
 
 
+def _last_first_cases(folder, count):
+    """``count`` cases that, run all at once, end last-first, a second apart: each starts its
+    wait for the end once the next one has (a chain of marks), not after a guessed sleep."""
+    from taichi_sim.bench.sweep import Case
+
+    marks = [str(folder / f"ended-{i}") for i in range(count)] + [""]
+    return [Case("tests.sweep_cases:echo_after",
+                 {"value": i, "wait_for": marks[i + 1], "mark": marks[i], "gap": 1.0}, {"n": i})
+            for i in range(count)]
+
+
 def test_the_table_is_in_plan_order_whatever_order_cases_end_in(tmp_path):
     from taichi_sim.bench.sweep import Study, Sweep
 
-    cases = _echo_cases([1.2, 0.6, 0.0])  # with three at once they end last-first
+    (tmp_path / "marks").mkdir()
+    cases = _last_first_cases(tmp_path / "marks", 3)  # with three at once they end last-first
     sweep = Sweep(Study("echo", 1), cases, tmp_path, jobs=3, quiet=True)
     rows = sweep.run(cases, "echo")
-    assert sweep.ran[0] == cases[2].key
+    assert sweep.ran == [cases[2].key, cases[1].key, cases[0].key]
     assert [r["value"] for r in rows] == [0, 1, 2] and [r["square"] for r in rows] == [0, 1, 4]
     assert table(tmp_path / "echo.csv") == [{k: str(v) for k, v in r.items() if k not in TIMES} for r in rows]
     assert max(r["concurrency"] for r in rows) == 3
