@@ -1,15 +1,23 @@
 """Benchmark: what compiling without Taichi's CFG pass saves where the toolkit does it, and what
 it costs at run time (``runtime.without_cfg_optimisation``; docs/design.md, "Compile time").
 
-Each case runs in a fresh process with an empty kernel cache, in each of ``--kinds``,
-alternating for ``--repeats`` rounds: "full" keeps the pass on everywhere, "lean" is the code as
-shipped (off in the self-contact stage and the face rounds), "off" turns it off everywhere
-(``TI_CFG_OPTIMIZATION=0``). Reported: the first step (nearly all of it compiling) and the
-median step after a warm-up, medians over the rounds.
+Each case runs in a fresh process, in each of ``--kinds``, alternating for ``--repeats`` rounds:
+"full" keeps the pass on everywhere, "lean" is the code as shipped, "off" turns it off
+everywhere (``TI_CFG_OPTIMIZATION=0``). Reported: the first step (nearly all of it compiling)
+and the median step after a warm-up, medians over the rounds; with two kinds, also the median,
+lowest and highest of the rounds' step-time ratios (second kind over first, each round's pair
+run back to back). Every process starts with an empty kernel cache, unless ``--warm``: then
+each (case, kind) keeps its cache from round to round, so the first round's first step is the
+compile and the later rounds cost little more than their steps.
+
+``--cases methods`` is one case per registered method on a grid cloth (``method:NAME``): the
+explicit ones on 64 x 64 at 1e-4 s, the implicit ones on 32 x 32 at 1/60 s, the positional ones
+on a stiff 64 x 64 cloth at 1/60 s.
 
     .venv/bin/python benchmarks/bench_compile.py [--repeats 2] [--cases self-contact,faces]
         [--kinds full,lean]
     .venv/bin/python benchmarks/bench_compile.py --cases rk4,implicit --kinds full,off
+    .venv/bin/python benchmarks/bench_compile.py --cases methods --kinds lean,off --repeats 5 --warm
 """
 import argparse
 import contextlib
@@ -23,11 +31,26 @@ import time
 
 CASES = ("self-contact", "faces", "rk4", "implicit")
 KINDS = ("full", "lean", "off")
+IMPLICIT = ("implicit_euler", "implicit_euler_linearised", "implicit_midpoint")
+POSITIONAL = ("projective_dynamics", "xpbd", "vbd")
+
+
+def method_cases() -> list[str]:
+    from taichi_sim.integrators import INTEGRATORS
+
+    return [f"method:{name}" for name in INTEGRATORS]
 
 
 def build(case: str):
     import taichi_sim as ts
 
+    if case.startswith("method:"):
+        method = case.split(":", 1)[1]
+        if method in IMPLICIT:
+            return ts.build_scene("cloth", {"nx": 32, "ny": 32}), method, 1 / 60, 5, 0
+        if method in POSITIONAL:
+            return ts.build_scene("cloth-stiff", {"nx": 64, "ny": 64}), method, 1 / 60, 5, 0
+        return ts.build_scene("cloth", {"nx": 64, "ny": 64}), method, 1e-4, 50, 0
     if case == "self-contact":  # a folding cloth with the self-contact stage
         scene = ts.build_scene("cloth-fold", {"nx": 16, "ny": 16, "self_collision": True})
         return scene, "symplectic_euler", 1e-3, 400, 100
@@ -69,16 +92,21 @@ def child(case: str, kind: str) -> dict:
     stepper.step()
     ti.sync()
     first = time.perf_counter() - start
+    start = time.perf_counter()
     for _ in range(warmup):
         stepper.step()
     ti.sync()
+    if not steps:  # as many steps as fill about 0.3 s
+        steps = max(1, round(0.3 / max((time.perf_counter() - start) / warmup, 1e-6)))
     times = []
-    for _ in range(3):
+    for _ in range(5 if steps else 3):
         start = time.perf_counter()
         for _ in range(steps):
             stepper.step()
         ti.sync()
         times.append((time.perf_counter() - start) / steps)
+    if stepper.failure is not None:
+        raise SystemExit(f"{case}: {stepper.failure.summary}")
     return {"first_s": first, "step_ms": 1e3 * statistics.median(times)}
 
 
@@ -87,35 +115,52 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=2)
     parser.add_argument("--cases", default="self-contact,faces")
     parser.add_argument("--kinds", default="full,lean")
+    parser.add_argument("--warm", action="store_true", help="keep each (case, kind)'s kernel cache across rounds")
     parser.add_argument("--child", nargs=2, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child:
         print(json.dumps(child(*args.child)))
         return
     cases = [c for c in args.cases.split(",") if c]
+    if "methods" in cases:
+        at = cases.index("methods")
+        cases[at:at + 1] = method_cases()
     kinds = [k for k in args.kinds.split(",") if k]
-    if not cases or any(c not in CASES for c in cases):
-        parser.error(f"--cases: from {', '.join(CASES)}")
+    if not cases or any(c not in CASES and c not in method_cases() for c in cases):
+        parser.error(f"--cases: from {', '.join(CASES)}, methods, method:NAME")
     if not kinds or any(k not in KINDS for k in kinds):
         parser.error(f"--kinds: from {', '.join(KINDS)}")
     if args.repeats < 1:
         parser.error("--repeats: at least 1")
-    print(f"{'case':14s} {'kind':5s} {'first step (s)':>15s} {'step (ms)':>10s}")
+    ratio_head = f"  {kinds[1]}/{kinds[0]} step: median (lowest-highest)" if len(kinds) == 2 else ""
+    print(f"{'case':34s} {'kind':5s} {'first step (s)':>15s} {'step (ms)':>10s}{ratio_head}")
     for case in cases:
         results = {kind: [] for kind in kinds}
-        for _ in range(args.repeats):
-            for kind in kinds:
-                with tempfile.TemporaryDirectory() as cache:
-                    env = {**os.environ, "TI_OFFLINE_CACHE_FILE_PATH": cache}
-                    if kind == "off":
-                        env["TI_CFG_OPTIMIZATION"] = "0"
-                    out = subprocess.run([sys.executable, __file__, "--child", case, kind], env=env,
-                                         capture_output=True, text=True, check=True)
-                    results[kind].append(json.loads(out.stdout.strip().splitlines()[-1]))
+        with contextlib.ExitStack() as stack:
+            kept = {kind: stack.enter_context(tempfile.TemporaryDirectory()) for kind in kinds}
+            for _ in range(args.repeats):
+                for kind in kinds:
+                    with tempfile.TemporaryDirectory() as fresh:
+                        results[kind].append(run_child(case, kind, kept[kind] if args.warm else fresh))
         for kind in kinds:
-            first = statistics.median(r["first_s"] for r in results[kind])
+            first = results[kind][0]["first_s"] if args.warm else statistics.median(r["first_s"] for r in results[kind])
             step = statistics.median(r["step_ms"] for r in results[kind])
-            print(f"{case:14s} {kind:5s} {first:15.2f} {step:10.3f}", flush=True)
+            ratio = ""
+            if len(kinds) == 2 and kind == kinds[1]:
+                ratios = [b["step_ms"] / a["step_ms"] for a, b in zip(results[kinds[0]], results[kinds[1]])]
+                ratio = f"  {statistics.median(ratios):.3f} ({min(ratios):.3f}-{max(ratios):.3f})"
+            print(f"{case:34s} {kind:5s} {first:15.2f} {step:10.3f}{ratio}", flush=True)
+
+
+def run_child(case: str, kind: str, cache: str) -> dict:
+    env = {**os.environ, "TI_OFFLINE_CACHE_FILE_PATH": cache}
+    if kind == "off":
+        env["TI_CFG_OPTIMIZATION"] = "0"
+    out = subprocess.run([sys.executable, __file__, "--child", case, kind], env=env,
+                         capture_output=True, text=True)
+    if out.returncode != 0:
+        raise SystemExit(f"{case} ({kind}) failed: {out.stderr.strip()[-500:]}")
+    return json.loads(out.stdout.strip().splitlines()[-1])
 
 
 if __name__ == "__main__":
