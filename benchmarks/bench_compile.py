@@ -96,10 +96,11 @@ def child(case: str, kind: str) -> dict:
     for _ in range(warmup):
         stepper.step()
     ti.sync()
-    if not steps:  # as many steps as fill about 0.3 s
+    sized = not steps
+    if sized:  # as many steps as fill about 0.3 s
         steps = max(1, round(0.3 / max((time.perf_counter() - start) / warmup, 1e-6)))
     times = []
-    for _ in range(5 if steps else 3):
+    for _ in range(5 if sized else 3):
         start = time.perf_counter()
         for _ in range(steps):
             stepper.step()
