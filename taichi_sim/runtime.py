@@ -151,9 +151,9 @@ def without_cfg_optimisation() -> _WithoutCfgOptimisation:
 
     That pass grows faster than the kernel: in the large, branchy kernels of the self-contact
     stage and of the objects' face contact it is half of the compile, and LLVM's optimisation,
-    which runs after it in any case, leaves their code as fast without it. Elsewhere it stays on
-    until a benchmark of every method's step shows it buys nothing there either (docs/design.md,
-    "Compile time", has the measurements so far). A kernel already compiled keeps its code; the setting
+    which runs after it in any case, leaves their code as fast without it. Elsewhere it stays on:
+    some methods step faster with it (``vbd`` in every round of the benchmark of every method;
+    docs/design.md, "Compile time"). A kernel already compiled keeps its code; the setting
     is part of Taichi's cache key, so a cached kernel is never taken for the other kind. Entering
     and leaving costs a few microseconds, so it wraps a whole stage, not each launch."""
     return _WITHOUT_CFG
