@@ -13,8 +13,9 @@ atomics, gravity, pinned particles, symplectic Euler), so the choice rests on nu
   growing size built one after the other in one Taichi program, each stepped ``--steps``
   times; the seconds of each scene's first step (compile or cache load, and the step) and of
   the rest. Run twice: the second run finds the first's kernels in the cache.
-* ``speed``: the step's time at the larger sizes, both sides in one process, alternated
-  rounds, medians after a warm-up.
+* ``speed``: the step's time at the larger sizes, both sides with parallel and with serial
+  loops (the package runs a grid cloth's loops on one thread below a break-even), in one
+  process, alternated rounds, medians after a warm-up.
 
     .venv/bin/python benchmarks/bench_ndarray.py            # both parts
     .venv/bin/python benchmarks/bench_ndarray.py --part speed --sizes 64,128,256
@@ -34,6 +35,7 @@ import numpy as np
 SIZE_SWEEP = (6, 8, 12, 16, 24, 32, 48, 64)
 SPEED_SIZES = (64, 128, 256)
 KINDS = ("field", "ndarray")
+LOOPS = ("parallel", "serial")
 
 
 def cloth_arrays(n: int, dtype) -> dict[str, np.ndarray]:
@@ -54,18 +56,11 @@ def cloth_arrays(n: int, dtype) -> dict[str, np.ndarray]:
     return {"x": x.astype(dtype), "ends": ends, "rest": rest.astype(dtype), "inv_mass": inv_mass.astype(dtype)}
 
 
-def child(kind: str, sizes: list[int], steps: int, precision: str, rounds: int) -> dict:
-    """Run in a process of its own: time ``steps`` steps of each size on the ``kind`` side
-    (the sizes part), or ``rounds`` rounds of both sides at each size (``kind`` "both": the
-    speed part)."""
-    import taichi as ti
-
-    import taichi_sim as ts
-
-    ts.init(precision=precision)
-    real = ti.f64 if precision == "f64" else ti.f32
-    dtype = np.float64 if precision == "f64" else np.float32
-    vec = ti.types.vector(3, real)
+def step_sides(ti, real, vec, serial: bool) -> dict:
+    """The two sides' cloth classes (``field``, ``ndarray``), their loops on one thread when
+    ``serial`` (as the package runs a grid cloth's loops below its break-even,
+    ``runtime.serial_loops``). Each class takes :func:`cloth_arrays` and has ``step(h)`` and
+    ``positions()``."""
     stiffness, damping, gravity = 2000.0, 0.02, -9.8
 
     # -- the step over ndarrays: compiled once per element type and dimension ------------------
@@ -73,8 +68,10 @@ def child(kind: str, sizes: list[int], steps: int, precision: str, rounds: int) 
     def forces_nd(x: ti.types.ndarray(dtype=vec, ndim=1), v: ti.types.ndarray(dtype=vec, ndim=1),
                   f: ti.types.ndarray(dtype=vec, ndim=1), ends: ti.types.ndarray(dtype=ti.i32, ndim=2),
                   rest: ti.types.ndarray(dtype=real, ndim=1)):
+        ti.loop_config(serialize=serial)
         for p in f:
             f[p] = vec(0.0, 0.0, 0.0)
+        ti.loop_config(serialize=serial)
         for s in rest:
             a, b = ends[s, 0], ends[s, 1]
             d = x[b] - x[a]
@@ -88,6 +85,7 @@ def child(kind: str, sizes: list[int], steps: int, precision: str, rounds: int) 
     def advance_nd(x: ti.types.ndarray(dtype=vec, ndim=1), v: ti.types.ndarray(dtype=vec, ndim=1),
                    f: ti.types.ndarray(dtype=vec, ndim=1), inv_mass: ti.types.ndarray(dtype=real, ndim=1),
                    h: real):
+        ti.loop_config(serialize=serial)
         for p in x:
             w = inv_mass[p]
             if w > 0:
@@ -109,8 +107,10 @@ def child(kind: str, sizes: list[int], steps: int, precision: str, rounds: int) 
 
         @ti.kernel
         def forces(self):
+            ti.loop_config(serialize=serial)
             for p in self.f:
                 self.f[p] = vec(0.0, 0.0, 0.0)
+            ti.loop_config(serialize=serial)
             for s in self.rest:
                 a, b = self.ends[s][0], self.ends[s][1]
                 d = self.x[b] - self.x[a]
@@ -123,6 +123,7 @@ def child(kind: str, sizes: list[int], steps: int, precision: str, rounds: int) 
 
         @ti.kernel
         def advance(self, h: real):
+            ti.loop_config(serialize=serial)
             for p in self.x:
                 w = self.inv_mass[p]
                 if w > 0:
@@ -155,13 +156,28 @@ def child(kind: str, sizes: list[int], steps: int, precision: str, rounds: int) 
         def positions(self):
             return self.x.to_numpy()
 
-    make = {"field": FieldCloth, "ndarray": NdarrayCloth}
+    return {"field": FieldCloth, "ndarray": NdarrayCloth}
+
+
+def child(kind: str, sizes: list[int], steps: int, precision: str, rounds: int) -> dict:
+    """Run in a process of its own: time ``steps`` steps of each size on the ``kind`` side
+    with parallel loops (the sizes part), or ``rounds`` rounds of both sides, with parallel
+    and with serial loops, at each size (``kind`` "both": the speed part)."""
+    import taichi as ti
+
+    import taichi_sim as ts
+
+    ts.init(precision=precision)
+    real = ti.f64 if precision == "f64" else ti.f32
+    dtype = np.float64 if precision == "f64" else np.float32
+    vec = ti.types.vector(3, real)
     h = 1e-4
     out: dict = {"sizes": [], "speed": {}}
     if kind in KINDS:
+        make = step_sides(ti, real, vec, serial=False)[kind]
         for n in sizes:
             t0 = time.perf_counter()
-            cloth = make[kind](cloth_arrays(n, dtype))
+            cloth = make(cloth_arrays(n, dtype))
             t1 = time.perf_counter()
             cloth.step(h)
             y = cloth.positions()
@@ -173,13 +189,15 @@ def child(kind: str, sizes: list[int], steps: int, precision: str, rounds: int) 
             out["sizes"].append({"n": n, "build": t1 - t0, "first": t2 - t1, "rest": t3 - t2,
                                  "y_min": float(y[:, 1].min())})
     if kind == "both":
-        cloths = {k: {n: make[k](cloth_arrays(n, dtype)) for n in sizes} for k in KINDS}
+        classes = {loops: step_sides(ti, real, vec, serial=loops == "serial") for loops in LOOPS}
+        variants = [(k, loops) for k in KINDS for loops in LOOPS]
+        cloths = {v: {n: classes[v[1]][v[0]](cloth_arrays(n, dtype)) for n in sizes} for v in variants}
         batch = 50
-        times: dict = {k: {n: [] for n in sizes} for k in KINDS}
+        times: dict = {v: {n: [] for n in sizes} for v in variants}
         for r in range(rounds + 1):  # round 0 warms up
             for n in sizes:
-                for k in (KINDS if r % 2 else KINDS[::-1]):
-                    cloth = cloths[k][n]
+                for v in (variants if r % 2 else variants[::-1]):
+                    cloth = cloths[v][n]
                     cloth.step(h)
                     ti.sync()
                     t = time.perf_counter()
@@ -187,8 +205,9 @@ def child(kind: str, sizes: list[int], steps: int, precision: str, rounds: int) 
                         cloth.step(h)
                     ti.sync()
                     if r:
-                        times[k][n].append((time.perf_counter() - t) / batch)
-        out["speed"] = {k: {str(n): statistics.median(v) for n, v in per.items()} for k, per in times.items()}
+                        times[v][n].append((time.perf_counter() - t) / batch)
+        out["speed"] = {"/".join(v): {str(n): statistics.median(t) for n, t in per.items()}
+                        for v, per in times.items()}
     return out
 
 
@@ -255,14 +274,18 @@ def main(argv=None) -> int:
         sizes = custom or list(SPEED_SIZES)
         with tempfile.TemporaryDirectory(prefix="bench_ndarray_speed_") as cache:
             speed = run_child("both", sizes, a.steps, a.precision, a.rounds, cache)["speed"]
-        print(f"## Step time, both sides in one process ({a.precision}, {a.rounds} alternated "
-              "rounds of 50 steps, medians after a warm-up round): microseconds")
+        print(f"## Step time, both sides and both loop schedules in one process ({a.precision}, "
+              f"{a.rounds} alternated rounds of 50 steps, medians after a warm-up round): microseconds")
         print()
-        print("| points a side | fields | ndarrays | ndarrays / fields |")
-        print("|---|---|---|---|")
+        print("| points a side | fields, parallel | fields, serial | ndarrays, parallel | "
+              "ndarrays, serial | each side's faster: ndarrays / fields |")
+        print("|---|---|---|---|---|---|")
         for n in sizes:
-            f, d = speed["field"][str(n)], speed["ndarray"][str(n)]
-            print(f"| {n} | {f * 1e6:.0f} | {d * 1e6:.0f} | {d / f:.2f} |")
+            us = {v: speed[v][str(n)] * 1e6 for v in speed}
+            best = {k: min(us[f"{k}/{loops}"] for loops in LOOPS) for k in KINDS}
+            print(f"| {n} | {us['field/parallel']:.0f} | {us['field/serial']:.0f} | "
+                  f"{us['ndarray/parallel']:.0f} | {us['ndarray/serial']:.0f} | "
+                  f"{best['ndarray'] / best['field']:.2f} |")
     return 0
 
 
