@@ -2,20 +2,26 @@
 step costs, for the same mass-spring cloth step written both ways.
 
 The package keeps every scene in Taichi fields, and its kernels take them as templates: a
-field's shape and its place in Taichi's memory tree are compiled into each kernel that touches
-it, so every new scene size (and every new scene in one program) compiles its kernels again,
-and the offline cache's key changes with the order in which fields were made. Kernels that take
-Taichi ndarrays are compiled once per element type and dimension and serve every size. This
-benchmark measures both sides of that trade on one small, complete step (spring forces with
-atomics, gravity, pinned particles, symplectic Euler), so the choice rests on numbers:
+field's shape and its place in Taichi's memory tree (the fields made so far, numbered in order)
+are compiled into each kernel that touches it, so every new scene size (and every new scene in
+one program) compiles its kernels again, and the offline cache's key changes with the order in
+which fields were made. Kernels that take Taichi ndarrays as arguments are compiled once per
+element type and dimension and serve every size. This benchmark measures both sides of that
+trade on one small, complete step (spring forces summed with atomics over a spring list,
+gravity, pinned particles, symplectic Euler), so the choice rests on numbers:
 
-* ``sizes``: in one fresh process per side, with an empty kernel cache of its own, scenes of
-  growing size built one after the other in one Taichi program, each stepped ``--steps``
-  times; the seconds of each scene's first step (compile or cache load, and the step) and of
-  the rest. Run twice: the second run finds the first's kernels in the cache.
+* ``sizes``: in one fresh process per run and side, scenes of growing size built one after the
+  other in one Taichi program, each stepped ``--steps`` times; the seconds of the builds (with
+  their upload kernels), of each scene's first step and read of its positions (compile or
+  cache load of the step and read kernels, and the step) and of the other steps. Three runs
+  per side share a kernel cache of their own: empty, then warm, then warm with the sizes in
+  reverse order (a cache key that depends on what was made before misses there).
 * ``speed``: the step's time at the larger sizes, both sides with parallel and with serial
   loops (the package runs a grid cloth's loops on one thread below a break-even), in one
-  process, alternated rounds, medians after a warm-up.
+  process, alternated rounds, medians after a warm-up; every cloth is checked finite after.
+
+The step is ``1e-3 / n`` s for n points a side, a third of the stable limit or less at every
+size. Both parts compare the two sides' positions.
 
     .venv/bin/python benchmarks/bench_ndarray.py            # both parts
     .venv/bin/python benchmarks/bench_ndarray.py --part speed --sizes 64,128,256
@@ -143,8 +149,7 @@ def step_sides(ti, real, vec, serial: bool) -> dict:
             self.x, self.v, self.f = (ti.Vector.ndarray(3, real, n) for _ in range(3))
             self.inv_mass, self.rest = ti.ndarray(real, n), ti.ndarray(real, m)
             self.ends = ti.ndarray(ti.i32, (m, 2))
-            self.x.from_numpy(arrays["x"])
-            self.v.fill(0.0)
+            self.x.from_numpy(arrays["x"])  # v and f: Taichi makes ndarrays zero-filled
             self.inv_mass.from_numpy(arrays["inv_mass"])
             self.rest.from_numpy(arrays["rest"])
             self.ends.from_numpy(arrays["ends"])
@@ -159,10 +164,17 @@ def step_sides(ti, real, vec, serial: bool) -> dict:
     return {"field": FieldCloth, "ndarray": NdarrayCloth}
 
 
-def child(kind: str, sizes: list[int], steps: int, precision: str, rounds: int) -> dict:
+def step_size(n: int) -> float:
+    """The step (s) for an n x n cloth: its stiffest mode's frequency grows as n (the mass per
+    point falls as 1 / n^2), so the step shrinks as 1 / n to stay well inside the stable limit."""
+    return 1e-3 / n
+
+
+def child(kind: str, sizes: list[int], steps: int, precision: str, rounds: int, out_dir: str) -> dict:
     """Run in a process of its own: time ``steps`` steps of each size on the ``kind`` side
-    with parallel loops (the sizes part), or ``rounds`` rounds of both sides, with parallel
-    and with serial loops, at each size (``kind`` "both": the speed part)."""
+    with parallel loops (the sizes part; positions saved as ``x_<n>.npy`` in ``out_dir``), or
+    ``rounds`` rounds of both sides, with parallel and with serial loops, at each size
+    (``kind`` "both": the speed part)."""
     import taichi as ti
 
     import taichi_sim as ts
@@ -171,23 +183,23 @@ def child(kind: str, sizes: list[int], steps: int, precision: str, rounds: int) 
     real = ti.f64 if precision == "f64" else ti.f32
     dtype = np.float64 if precision == "f64" else np.float32
     vec = ti.types.vector(3, real)
-    h = 1e-4
     out: dict = {"sizes": [], "speed": {}}
     if kind in KINDS:
         make = step_sides(ti, real, vec, serial=False)[kind]
         for n in sizes:
+            h = step_size(n)
             t0 = time.perf_counter()
             cloth = make(cloth_arrays(n, dtype))
             t1 = time.perf_counter()
             cloth.step(h)
-            y = cloth.positions()
+            x = cloth.positions()
             t2 = time.perf_counter()
             for _ in range(steps - 1):
                 cloth.step(h)
-            y = cloth.positions()
+            x = cloth.positions()
             t3 = time.perf_counter()
-            out["sizes"].append({"n": n, "build": t1 - t0, "first": t2 - t1, "rest": t3 - t2,
-                                 "y_min": float(y[:, 1].min())})
+            np.save(os.path.join(out_dir, f"x_{n}.npy"), x)
+            out["sizes"].append({"n": n, "build": t1 - t0, "first": t2 - t1, "rest": t3 - t2})
     if kind == "both":
         classes = {loops: step_sides(ti, real, vec, serial=loops == "serial") for loops in LOOPS}
         variants = [(k, loops) for k in KINDS for loops in LOOPS]
@@ -196,6 +208,7 @@ def child(kind: str, sizes: list[int], steps: int, precision: str, rounds: int) 
         times: dict = {v: {n: [] for n in sizes} for v in variants}
         for r in range(rounds + 1):  # round 0 warms up
             for n in sizes:
+                h = step_size(n)
                 for v in (variants if r % 2 else variants[::-1]):
                     cloth = cloths[v][n]
                     cloth.step(h)
@@ -208,18 +221,31 @@ def child(kind: str, sizes: list[int], steps: int, precision: str, rounds: int) 
                         times[v][n].append((time.perf_counter() - t) / batch)
         out["speed"] = {"/".join(v): {str(n): statistics.median(t) for n, t in per.items()}
                         for v, per in times.items()}
+        # every variant took the same steps from the same start: they should agree
+        final = {v: {n: cloths[v][n].positions() for n in sizes} for v in variants}
+        out["finite"] = all(bool(np.isfinite(x).all()) for per in final.values() for x in per.values())
+        out["gap"] = max(float(np.abs(final[v][n] - final[variants[0]][n]).max())
+                         for v in variants for n in sizes)
     return out
 
 
-def run_child(kind, sizes, steps, precision, rounds, cache_dir):
+def run_child(kind, sizes, steps, precision, rounds, cache_dir, out_dir) -> dict:
+    """``child`` in a fresh process whose Taichi kernel cache is ``cache_dir``; its answer comes
+    back through a file in ``out_dir`` (Taichi may print to stdout as the process ends)."""
     env = dict(os.environ, TI_OFFLINE_CACHE_FILE_PATH=cache_dir,
                TI_OFFLINE_CACHE_MAX_SIZE_OF_FILES=str(1 << 30))
     args = [sys.executable, __file__, "--child", kind, "--sizes", ",".join(map(str, sizes)),
-            "--steps", str(steps), "--precision", precision, "--rounds", str(rounds)]
+            "--steps", str(steps), "--precision", precision, "--rounds", str(rounds),
+            "--out-dir", out_dir]
     done = subprocess.run(args, env=env, capture_output=True, text=True)
-    if done.returncode:
-        raise SystemExit(f"bench_ndarray: the {kind} run failed:\n{done.stderr[-2000:]}")
-    return json.loads(done.stdout.strip().splitlines()[-1])
+    answer = os.path.join(out_dir, "answer.json")
+    if done.returncode or not os.path.exists(answer):
+        raise SystemExit(f"bench_ndarray: the {kind} run failed (exit {done.returncode}):\n"
+                         f"{done.stdout[-1000:]}{done.stderr[-2000:]}")
+    with open(answer) as f:
+        result = json.load(f)
+    os.remove(answer)
+    return result
 
 
 def cache_entries(folder: str) -> int:
@@ -234,6 +260,7 @@ def main(argv=None) -> int:
     p.add_argument("--rounds", type=int, default=7, help="timed rounds in the speed part")
     p.add_argument("--precision", choices=("f32", "f64"), default="f32")
     p.add_argument("--child", choices=KINDS + ("both",), help=argparse.SUPPRESS)
+    p.add_argument("--out-dir", help=argparse.SUPPRESS)
     a = p.parse_args(argv)
     try:
         custom = [int(v) for v in a.sizes.split(",")] if a.sizes else []
@@ -241,10 +268,14 @@ def main(argv=None) -> int:
         p.error(f"--sizes must be comma-separated integers, got {a.sizes!r}")
     if any(n < 3 for n in custom):
         p.error("--sizes: each cloth needs at least 3 points a side")
+    if len(set(custom)) != len(custom):
+        p.error("--sizes: each size once")
     if a.steps < 1 or a.rounds < 1:
         p.error("--steps and --rounds must be at least 1")
     if a.child:
-        print(json.dumps(child(a.child, custom, a.steps, a.precision, a.rounds)))
+        result = child(a.child, custom, a.steps, a.precision, a.rounds, a.out_dir)
+        with open(os.path.join(a.out_dir, "answer.json"), "w") as f:
+            json.dump(result, f)
         return 0
     if a.part in ("sizes", "both"):
         sizes = custom or list(SIZE_SWEEP)
@@ -252,28 +283,40 @@ def main(argv=None) -> int:
               f"{a.steps} steps each): seconds")
         print()
         print("| side | kernel cache | build (all) | first steps (all) | other steps (all) | "
-              "cache entries | total |")
+              "cache entries after | total |")
         print("|---|---|---|---|---|---|---|")
-        lowest = {}
-        for kind in KINDS:
-            with tempfile.TemporaryDirectory(prefix=f"bench_ndarray_{kind}_") as cache:
-                for label in ("empty", "warm"):
-                    rows = run_child(kind, sizes, a.steps, a.precision, a.rounds, cache)["sizes"]
-                    lowest[kind] = np.array([r["y_min"] for r in rows])
+        with tempfile.TemporaryDirectory(prefix="bench_ndarray_") as work:
+            for kind in KINDS:
+                cache = os.path.join(work, f"cache_{kind}")
+                runs = (("empty", sizes), ("warm", sizes), ("warm, sizes reversed", sizes[::-1]))
+                for i, (label, order) in enumerate(runs):
+                    out_dir = os.path.join(work, f"{kind}_{i}")
+                    os.makedirs(out_dir)
+                    rows = run_child(kind, order, a.steps, a.precision, a.rounds, cache, out_dir)["sizes"]
                     build = sum(r["build"] for r in rows)
                     first = sum(r["first"] for r in rows)
                     rest = sum(r["rest"] for r in rows)
                     print(f"| {kind} | {label} | {build:.2f} | {first:.2f} | {rest:.3f} | "
                           f"{cache_entries(cache)} | {build + first + rest:.2f} |", flush=True)
-        gap = float(np.abs(lowest["field"] - lowest["ndarray"]).max())
+            gap = 0.0
+            for name in sorted(os.listdir(work)):
+                if name.startswith("field_"):
+                    twin = os.path.join(work, "ndarray_" + name[len("field_"):])
+                    for x in os.listdir(os.path.join(work, name)):
+                        gap = max(gap, float(np.abs(np.load(os.path.join(work, name, x))
+                                                    - np.load(os.path.join(twin, x))).max()))
         print()
-        print(f"The two sides' lowest points after the steps differ by at most {gap:.1e} m "
-              "(the spring forces are summed with atomics, in no fixed order).")
+        print(f"The two sides' positions after the steps differ by at most {gap:.1e} m (each "
+              "run, each size).")
         print()
     if a.part in ("speed", "both"):
         sizes = custom or list(SPEED_SIZES)
-        with tempfile.TemporaryDirectory(prefix="bench_ndarray_speed_") as cache:
-            speed = run_child("both", sizes, a.steps, a.precision, a.rounds, cache)["speed"]
+        with tempfile.TemporaryDirectory(prefix="bench_ndarray_speed_") as work:
+            result = run_child("both", sizes, a.steps, a.precision, a.rounds, work, work)
+        if not result["finite"]:
+            raise SystemExit("bench_ndarray: a cloth of the speed part diverged (non-finite "
+                             "positions); its times would not be a step's")
+        speed = result["speed"]
         print(f"## Step time, both sides and both loop schedules in one process ({a.precision}, "
               f"{a.rounds} alternated rounds of 50 steps, medians after a warm-up round): microseconds")
         print()
@@ -286,6 +329,9 @@ def main(argv=None) -> int:
             print(f"| {n} | {us['field/parallel']:.0f} | {us['field/serial']:.0f} | "
                   f"{us['ndarray/parallel']:.0f} | {us['ndarray/serial']:.0f} | "
                   f"{best['ndarray'] / best['field']:.2f} |")
+        print()
+        print(f"Every cloth stayed finite; the four variants' positions differ by at most "
+              f"{result['gap']:.1e} m.")
     return 0
 
 
