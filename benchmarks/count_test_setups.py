@@ -80,7 +80,10 @@ def pytest_runtest_teardown(item):
 # -- the report -----------------------------------------------------------------------------------
 
 def report(folder: str) -> str:
-    rows = [json.loads(line) for path in glob.glob(os.path.join(folder, "*.jsonl")) for line in open(path)]
+    rows = []
+    for path in glob.glob(os.path.join(folder, "*.jsonl")):
+        with open(path) as f:
+            rows.extend(json.loads(line) for line in f)
     if not rows:
         raise SystemExit(f"count_test_setups: no records in {folder}")
     total = sum(r["seconds"] for r in rows)
