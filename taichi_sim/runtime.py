@@ -25,6 +25,12 @@ PRECISIONS = ("f32", "f64")
 
 _current: dict = {"arch": None, "precision": None, "backend": None, "threads": 1}
 
+GPU_BACKENDS = (ti.cuda, ti.metal, ti.vulkan)
+"""What ``arch="gpu"`` tries, in order, before the CPU. Taichi's own ``ti.gpu`` goes on to OpenGL
+after Vulkan, and probing OpenGL kills the process with a segmentation fault on a machine that
+has Mesa's EGL but no Vulkan driver (a common headless Linux set-up); the package is neither
+tested nor documented on OpenGL, so it is not asked."""
+
 SERIAL_WORK = 300_000
 """Items (particles plus springs) times spare threads below which a hot loop runs on one
 thread (:func:`serial_loops`). On the 2-vCPU development machine a parallel loop costs about
@@ -47,8 +53,8 @@ def init(arch: str = "cpu", precision: str = "f64", *, debug: bool = False,
     """Initialise Taichi for taichi_sim.
 
     Args:
-        arch: ``"cpu"`` (LLVM x64/arm64) or ``"gpu"`` (CUDA, Vulkan or Metal, whichever Taichi
-            finds first; it falls back to the CPU when no GPU is present).
+        arch: ``"cpu"`` (LLVM x64/arm64) or ``"gpu"`` (the first of :data:`GPU_BACKENDS` that
+            Taichi finds: CUDA, Metal, Vulkan; the CPU when there is none).
         precision: ``"f32"`` or ``"f64"``; the dtype of every state, parameter and scratch field.
         debug: Taichi debug mode (bounds checks; slow).
         offline_cache: keep compiled kernels on disk so the next process starts fast.
@@ -60,7 +66,7 @@ def init(arch: str = "cpu", precision: str = "f64", *, debug: bool = False,
         raise ConfigError(f"arch must be one of {', '.join(ARCHS)}, got {arch!r}")
     if precision not in PRECISIONS:
         raise ConfigError(f"precision must be one of {', '.join(PRECISIONS)}, got {precision!r}")
-    kwargs = dict(arch=ti.cpu if arch == "cpu" else ti.gpu,
+    kwargs = dict(arch=ti.cpu if arch == "cpu" else list(GPU_BACKENDS),
                   default_fp=ti.f64 if precision == "f64" else ti.f32,
                   default_ip=ti.i32, debug=debug, offline_cache=offline_cache,
                   log_level=ti.WARN, kernel_profiler=kernel_profiler)

@@ -183,6 +183,33 @@ def test_gpu_choice_in_one_line(backend, log, expected):
     assert describe_gpu_choice(backend, log) == expected
 
 
+def test_arch_gpu_never_probes_opengl(monkeypatch, capfd):
+    """On a machine with Mesa's EGL and no Vulkan driver, Taichi's probe of OpenGL (next in
+    its own GPU list) ends the process with a segmentation fault: --arch gpu must stop at
+    the backends the package supports and fall back to the CPU."""
+    import taichi as ti
+    from taichi.lang import misc
+
+    import taichi_sim as ts
+
+    asked = []
+
+    def no_gpu(arch):
+        asked.append(arch)
+        return arch == ti.cpu
+
+    monkeypatch.setattr(misc, "is_arch_supported", no_gpu)
+    try:
+        ts.init(arch="gpu", precision="f32")
+        backend = ts.runtime.backend()
+    finally:
+        monkeypatch.undo()
+        ts.init(arch="cpu", precision="f64")
+    assert ti.opengl not in asked and ti.gles not in asked, asked
+    assert ti.vulkan in asked and backend in ("x64", "arm64")
+    assert "no GPU backend available, running on the CPU" in capfd.readouterr().err
+
+
 def test_arch_gpu_says_what_it_chose_without_taichis_raw_log(capfd):
     import taichi_sim as ts
 

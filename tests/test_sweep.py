@@ -68,7 +68,10 @@ def test_a_study_stopped_with_ctrl_c_resumes_without_rerunning_finished_cases(tm
              for a in STUDY] + ["--out", str(tmp_path), "--jobs", "1"]
     command = [sys.executable, "-m", "taichi_sim", *study]
     env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
-    proc = subprocess.Popen(command, env=env, stderr=subprocess.PIPE, text=True)
+    # A suite started in the background of a script inherits SIGINT ignored (POSIX), and so
+    # would the study: give it Ctrl-C's default so that it reacts as it does at a terminal.
+    proc = subprocess.Popen(command, env=env, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     path = tmp_path / "extremes.csv"
     deadline = time.monotonic() + 120
     while not (path.exists() and cases_of(path)) and time.monotonic() < deadline:
