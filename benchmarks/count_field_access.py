@@ -23,6 +23,7 @@ import traceback
 _ROOTS = ("taichi_sim/", "tests/")
 _seen: set = set()
 _sites: collections.Counter = collections.Counter()
+_inside = [0]  # a vector field's write goes through its read (of host handles): count the outer call
 
 
 def _call_site() -> str:
@@ -42,10 +43,14 @@ def _record(cls, method: str, kind: str) -> None:
 
     def recorded(self, *args, **kwargs):
         key = (id(ti.lang.impl.get_runtime().prog), id(self), kind)
-        if key not in _seen:
+        if not _inside[0] and key not in _seen:
             _seen.add(key)
             _sites[(kind, _call_site())] += 1
-        return original(self, *args, **kwargs)
+        _inside[0] += 1
+        try:
+            return original(self, *args, **kwargs)
+        finally:
+            _inside[0] -= 1
 
     setattr(cls, method, recorded)
 
