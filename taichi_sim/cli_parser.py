@@ -104,7 +104,9 @@ def _add_view_options(p: argparse.ArgumentParser) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog="taichi-sim", description="Particle and mass-spring simulation on Taichi.")
+    parser = _Parser(prog="taichi-sim", description="Particle and mass-spring simulation on Taichi.",
+                     epilog="Without a command: the interactive launcher where a display exists, else a "
+                            "short showcase recorded into ./out/showcase/.")
     parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = parser.add_subparsers(dest="command", parser_class=_Parser)
 

@@ -174,19 +174,25 @@ def test_plugin_memory_and_launcher_session(f64):
     assert session.runners[0].integrator.name != "velocity_verlet"
 
 
-def test_an_installed_entry_point_is_listed_and_resolved(tmp_path, monkeypatch, capsys):
-    site = tmp_path / "site"
-    site.mkdir()
-    (site / "ep_verlet.py").write_text(textwrap.dedent(f"""
+def _write_example_subclass(path: Path, class_name: str, name: str, description: str) -> None:
+    """A module at ``path`` whose ``class_name`` is the example's method under its own ``name``."""
+    path.write_text(textwrap.dedent(f"""
         import importlib.util
-        spec = importlib.util.spec_from_file_location("ep_verlet_base", {str(EXAMPLE)!r})
+        spec = importlib.util.spec_from_file_location("{path.stem}_base", {str(EXAMPLE)!r})
         base = importlib.util.module_from_spec(spec)
         spec.loader.exec_module(base)
 
-        class EntryVerlet(base.VelocityVerlet):
-            name = "entry_verlet"
-            description = "velocity Verlet, installed by entry point"
+        class {class_name}(base.VelocityVerlet):
+            name = {name!r}
+            description = {description!r}
     """))
+
+
+def test_an_installed_entry_point_is_listed_and_resolved(tmp_path, monkeypatch, capsys):
+    site = tmp_path / "site"
+    site.mkdir()
+    _write_example_subclass(site / "ep_verlet.py", "EntryVerlet", "entry_verlet",
+                            "velocity Verlet, installed by entry point")
     info = site / "ep_verlet-0.1.dist-info"
     info.mkdir()
     (info / "METADATA").write_text("Metadata-Version: 2.1\nName: ep-verlet\nVersion: 0.1\n")
@@ -202,3 +208,16 @@ def test_an_installed_entry_point_is_listed_and_resolved(tmp_path, monkeypatch, 
         integrator_class("broken")
     assert math.isclose(integrator_class("entry_verlet").stability_constant, 2.0)
     sys.modules.pop("ep_verlet", None)
+
+
+def test_a_module_in_the_working_directory_is_found_without_it_on_the_path(tmp_path, monkeypatch, capsys):
+    # the installed `taichi-sim` script, unlike `python -m taichi_sim`, does not put the working
+    # directory on sys.path
+    _write_example_subclass(tmp_path / "cwd_verlet.py", "CwdVerlet", "cwd_verlet", "velocity Verlet, beside the user")
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(sys, "path", [p for p in sys.path if p and Path(p).resolve() != tmp_path.resolve()])
+    out = tmp_path / "r.npz"
+    assert main(["simulate", "spring", "--integrator", "cwd_verlet:CwdVerlet", "--steps", "5", "--out", str(out)]) == 0
+    assert "5 steps of cwd_verlet:CwdVerlet" in capsys.readouterr().out and out.exists()
+    assert Path(sys.path[-1]).resolve() == tmp_path.resolve()  # appended: it shadows no package
+    sys.modules.pop("cwd_verlet", None)

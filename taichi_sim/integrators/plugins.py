@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import importlib
 import importlib.util
+import os
 import sys
 from importlib.metadata import entry_points
 from pathlib import Path
@@ -95,11 +96,25 @@ def _import_module(spec: str, module_name: str):
         return importlib.import_module(module_name)
     except ModuleNotFoundError as exc:
         if exc.name and (module_name == exc.name or module_name.startswith(exc.name + ".")):
+            if _search_working_directory():  # `python -m taichi_sim` looks there, the console script not
+                return _import_module(spec, module_name)
             raise ConfigError(f"integrator {spec!r}: no module named {exc.name!r} on the Python path "
                               f"(or give the file: path/to/file.py:Class)") from None
         raise ConfigError(f"integrator {spec!r}: importing {module_name} failed: {_one_line(exc)}") from None
     except Exception as exc:
         raise ConfigError(f"integrator {spec!r}: importing {module_name} failed: {_one_line(exc)}") from None
+
+
+def _search_working_directory() -> bool:
+    """Append the working directory to ``sys.path`` when neither it nor ``''`` is there (True
+    when it was added), so that a plug-in module beside the user is found by the installed
+    ``taichi-sim`` as by ``python -m taichi_sim``; appended, so it never shadows a package."""
+    cwd = os.getcwd()
+    if "" in sys.path or any(os.path.abspath(entry or ".") == cwd for entry in sys.path):
+        return False
+    sys.path.append(cwd)
+    importlib.invalidate_caches()
+    return True
 
 
 def _import_file(spec: str, filename: str):
