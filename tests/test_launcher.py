@@ -83,7 +83,7 @@ def test_an_interactive_session_follows_the_clock(runtime):
     s = Session("spring", ["symplectic_euler"], dt=0.01, substeps=5, interactive=True)
     # A budget no frame can exceed: on a loaded machine one slow frame (a worker descheduled, a
     # late first launch) otherwise makes the pacer cut the next frames, correctly, and the clock
-    # falls behind (docs/first-contact.md, "Supported Pythons"). Cutting is the Pacer's tests'.
+    # falls behind (docs/first-contact.md, "Supported Pythons"). Cutting has tests of its own.
     s.pacer.budget = 60.0
     r = s.runners[0]
     for _ in range(60):

@@ -110,7 +110,7 @@ def _search_working_directory() -> bool:
     when it was added), so that a plug-in module beside the user is found by the installed
     ``taichi-sim`` as by ``python -m taichi_sim``; appended, so it never shadows a package."""
     cwd = os.getcwd()
-    if "" in sys.path or any(os.path.abspath(entry or ".") == cwd for entry in sys.path):
+    if "" in sys.path or any(os.path.abspath(entry) == cwd for entry in sys.path):
         return False
     sys.path.append(cwd)
     importlib.invalidate_caches()
