@@ -73,7 +73,7 @@ def _print_integrator(name: str, cls) -> None:
 
 def cmd_simulate(args) -> int:
     from . import io, runtime
-    from .convergence import check_max_residual
+    from .convergence import check_max_residual, check_tolerance, format_metres
     from .guard import GuardLimits
     from .integrators import check_options, create_integrator, integrator_class, method_label, parse_options
     from .run import check_run_args, planned_steps, run
@@ -91,9 +91,11 @@ def cmd_simulate(args) -> int:
     integrator_name = args.integrator or preset.default_integrator
     options = {name: getattr(args, name)
                for name in ("rtol", "atol", "linear_solver", "newton_iterations", "newton_tolerance",
-                            "max_step", "cg_tolerance", "substeps", "iterations", "tolerance",
+                            "max_step", "cg_tolerance", "substeps", "iterations", "pd_tolerance",
                             "chebyshev_rho")
                if getattr(args, name) is not None}
+    if "pd_tolerance" in options:
+        options["tolerance"] = options.pop("pd_tolerance")
     for name, value in parse_options(integrator_name, scene_assignments(args.integrator_options, "--option")).items():
         if name in options:
             raise ConfigError(f"--option {name} repeats a value given by its own flag; give it once")
@@ -107,6 +109,7 @@ def cmd_simulate(args) -> int:
     if args.save_every is not None and args.save_every < 1:
         raise ConfigError(f"--save-every must be >= 1, got {args.save_every}")
     check_max_residual(args.max_residual)
+    check_tolerance(args.tolerance)
     params = scene_assignments(args.assignments)
     resolved = resolve(preset.params, preset.name, params)
 
@@ -147,7 +150,8 @@ def cmd_simulate(args) -> int:
         print(f"taichi-sim: warning: {warning}", file=sys.stderr)
     result = run(scene, integrator, dt=dt, steps=args.steps, t_end=args.t_end,
                  energy_every=args.energy_every, progress=None if not args.quiet else False, guard=limits,
-                 curves=curves, save_every=args.save_every, max_residual=args.max_residual)
+                 curves=curves, save_every=args.save_every, max_residual=args.max_residual,
+                 tolerance=args.tolerance)
     arrays = io.run_arrays(scene, result, integrator=integrator, dt=dt)
     if curves:
         import numpy as np
@@ -173,13 +177,14 @@ def cmd_simulate(args) -> int:
               f"status {result.status.value} -> {path}")
         if exported:
             print(exported)
-        if len(result.solver_residual):
-            worst = result.worst_residual
-            verdict = "converged" if worst <= result.max_residual else "NOT converged"
-            print(f"{scene.name}: solver residual at most {worst:.3g} (t = {_residual_time(result):.6g} s) over "
-                  f"{len(result.solver_residual)} sampled steps, bound {result.max_residual:.3g}: {verdict}")
+        if len(result.error_estimate):
+            worst = result.worst_error_estimate
+            verdict = "within" if worst <= result.tolerance else "OVER"
+            print(f"{scene.name}: estimated error <= {format_metres(worst)} (t = {_worst_time(result):.6g} s) over "
+                  f"{len(result.error_estimate)} sampled steps, {verdict} --tolerance {format_metres(result.tolerance)} "
+                  f"(solver residual at most {result.worst_residual:.3g})")
         elif result.residual_note and integrator.equation is not None:
-            print(f"{scene.name}: solver residual not measured: {result.residual_note}")
+            print(f"{scene.name}: error not estimated: {result.residual_note}")
         for part in scene.parts:
             if part.name in replaced:
                 print(f"{scene.name}: {part.name}: done in {integrator_name}'s solve (its post-step event did not run)")
@@ -203,10 +208,11 @@ def _check_step_count(steps: int | None, dt: float | None, t_end: float | None, 
                           "raise --dt, shorten --t-end or pick an adaptive integrator")
 
 
-def _residual_time(result) -> float:
+def _worst_time(result) -> float:
+    """The time (s) of the run's largest estimated error."""
     import numpy as np
 
-    values = np.nan_to_num(result.solver_residual, nan=-1.0)
+    values = np.nan_to_num(result.error_estimate, nan=-1.0)
     return float(result.residual_t[int(np.argmax(values))])
 
 

@@ -154,17 +154,21 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--iterations", type=_positive_int,
                      help="Gauss-Seidel sweeps per substep of xpbd (default 1), or local/global "
                           "iterations per step of projective_dynamics (default 10)")
-    sim.add_argument("--pd-tolerance", dest="tolerance", type=_positive_float,
+    sim.add_argument("--pd-tolerance", type=_positive_float,
                      help="projective_dynamics stops iterating once an iteration moves no particle "
                           "by more than this fraction of the step's largest displacement, in (0, 1)")
     sim.add_argument("--chebyshev-rho", type=float,
                      help="projective_dynamics' Chebyshev acceleration: the spectral radius "
                           "estimate in [0, 1) (default 0: off)")
     _add_option(sim, "")
+    sim.add_argument("--tolerance", type=_positive_float, metavar="METRES",
+                     help="how far a step's positions may be from the solution of the equation its method "
+                          "solves (default 0.001 m; estimated at sampled steps): past it vbd, xpbd and "
+                          "projective_dynamics double their iterations (substeps for xpbd) up to 16 times "
+                          "their default, unless given, then warn; implicit_euler and implicit_midpoint end "
+                          "not_converged (exit 1)")
     sim.add_argument("--max-residual", type=_positive_float, metavar="R",
-                     help="bound on the relative residual of a method that solves a system per step "
-                          "(default 1e-2): above it implicit_euler and implicit_midpoint end not_converged "
-                          "(exit 1), projective_dynamics, xpbd and the linearised step warn")
+                     help="bound on the relative residual recorded beside the error estimate (default 1e-2)")
     sim.add_argument("--max-energy-growth", type=_positive_float, metavar="F",
                      help="the blow-up guard's energy bound: the run is diverged when its energy "
                           "rises more than F energy scales above the start (default 10)")

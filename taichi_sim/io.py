@@ -57,6 +57,8 @@ def run_arrays(scene: Scene, result: RunResult, *, integrator: Integrator, dt: f
     if integrator.equation is not None:  # a method that solves a system per step
         data["solver_residual"], data["residual_t"] = result.solver_residual, result.residual_t
         data["max_residual"] = np.float64(result.max_residual)
+        data["error_estimate_m"] = result.error_estimate  # (m), at residual_t
+        data["tolerance_m"] = np.float64(result.tolerance)
         data["residual_note"] = np.str_(result.residual_note)
     if result.x_history is not None:
         data["x_history"], data["t_history"] = result.x_history, result.t_history

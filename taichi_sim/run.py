@@ -38,13 +38,19 @@ class RunResult:
         constraint_violation: for a scene with constraints, the largest |C| (m) over all
             constraints at each energy sample (aligned with ``energy_t``); None otherwise.
         solver_residual, residual_t: for a method that solves a system per step, its relative
-            residual (:mod:`taichi_sim.convergence`) at the guard's checks and energy samples
-            and their times (s); empty arrays otherwise. residual_note: why a run has none ("").
-        worst_residual: the largest sample (NaN when none); max_residual: the bound applied
-            (``max_residual``, or more where the precision rounds more: see
+            residual (:mod:`taichi_sim.convergence`) at the sampled steps (the first, the last,
+            and as many between as cost at most 5 % of the run, chosen by work, so identical
+            runs sample identical steps) and their times (s); empty arrays otherwise.
+            residual_note: why a run has none ("").
+        error_estimate: at the same samples, the estimated distance (m) of the step's positions
+            from the solution of its method's equation (the largest over the particles);
+            worst_error_estimate its largest (NaN when none); tolerance: the tolerance (m).
+        worst_residual: the largest residual sample (NaN when none); max_residual: the bound
+            applied (``max_residual``, or more where the precision rounds more: see
             :meth:`~taichi_sim.convergence.ConvergenceMonitor.check_precision`); warnings:
-            one-line warnings (a fixed-work method whose residual exceeded the bound, the
-            integrator's own :meth:`~taichi_sim.integrators.Integrator.run_warning`).
+            one-line warnings (a fixed-work method whose estimated error exceeded the tolerance
+            at its cap, the integrator's own
+            :meth:`~taichi_sim.integrators.Integrator.run_warning`).
         x_history, t_history: with ``save_every``, the positions (S, N, 3) (m) (for a
             first-order system its state, (S, N, dim)) at t = 0, every ``save_every`` accepted
             steps and at the end, and their times (S,) (s); None otherwise.
@@ -72,10 +78,13 @@ class RunResult:
     object_history: dict[str, np.ndarray] = field(default_factory=dict)
     constraint_violation: np.ndarray | None = None
     solver_residual: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    error_estimate: np.ndarray = field(default_factory=lambda: np.zeros(0))
     residual_t: np.ndarray = field(default_factory=lambda: np.zeros(0))
     residual_note: str = ""
     worst_residual: float = math.nan
     max_residual: float = math.nan
+    worst_error_estimate: float = math.nan
+    tolerance: float = math.nan
     warnings: tuple = ()
 
 
@@ -109,7 +118,7 @@ def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: 
         t_end: float | None = None, energy_every: int | None = None,
         progress: bool | None = False, guard: GuardLimits | None = None,
         curves: dict | None = None, save_every: int | None = None,
-        max_residual: float | None = None) -> RunResult:
+        max_residual: float | None = None, tolerance: float | None = None) -> RunResult:
     """Advance ``scene.state`` from t = 0 by ``steps`` accepted steps, or up to ``t_end`` s.
 
     Args:
@@ -138,6 +147,13 @@ def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: 
             fixed-work one (projective dynamics, XPBD, the linearised step) goes on with a
             warning in ``warnings``. Such a method on a scene whose springs the precision
             cannot resolve is refused (ConfigError) before any step.
+        tolerance: how far (m) a step's positions may be from the solution of the equation its
+            method solves, estimated at the same samples (``error_estimate``; default
+            :data:`~taichi_sim.convergence.DEFAULT_TOLERANCE`): past it a fixed-work method
+            (vbd, xpbd, projective dynamics) solves the step again with twice its work option
+            (``iterations`` or ``substeps``, unless given) up to its cap, then warns; a method
+            that promises the solved step ends the run NOT_CONVERGED
+            (:class:`~taichi_sim.stepper.Stepper`).
 
     The steps are a :class:`~taichi_sim.stepper.Stepper`'s; this function adds the energy
     trace, the saved frames and the progress bar. With ``t_end`` the last step is shortened to
@@ -156,7 +172,8 @@ def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: 
                                    or save_every < 0):
         raise ConfigError(f"save_every must be an integer >= 0, got {save_every!r}")
     history = _History(scene) if save_every else None
-    stepper = Stepper(scene, integrator, dt, limits=guard, curves=curves, max_residual=max_residual)
+    stepper = Stepper(scene, integrator, dt, limits=guard, curves=curves, max_residual=max_residual,
+                      tolerance=tolerance)
     if stepper.refusal:
         raise ConfigError(stepper.refusal)
     watch = stepper.guard
@@ -243,6 +260,8 @@ def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: 
                      object_history=object_history,
                      constraint_violation=None if violation is None else np.asarray(violation, float)[kept],
                      solver_residual=np.asarray(monitor.values, float), residual_t=np.asarray(monitor.times, float),
+                     error_estimate=np.asarray(monitor.distances, float),
+                     worst_error_estimate=monitor.worst_distance, tolerance=monitor.tolerance,
                      residual_note=monitor.reason, worst_residual=monitor.worst, max_residual=monitor.bound,
                      warnings=tuple(stepper.warnings) + _integrator_warnings(stepper.integrator))
 

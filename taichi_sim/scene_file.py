@@ -38,6 +38,7 @@ RUN_KEYS = {p.name: p for p in (
     Param("save_every", 1, "", "keep the positions every K steps (x_history; needed by an export)", minimum=1),
     Param("energy_every", 0, "", "sample energy every K steps (0: never)", minimum=0),
     Param("max_residual", 1e-2, "", "bound on a solver's relative residual", minimum=0.0, exclusive=True),
+    Param("tolerance", 1e-3, "m", "how far a step may be from its method's solution", minimum=0.0, exclusive=True),
     Param("max_energy_growth", 10.0, "", "the blow-up guard's energy bound", minimum=0.0, exclusive=True),
     Param("curves", "", PATH_UNIT, "JSON file of parameter curves over time"),
 )}
@@ -50,7 +51,7 @@ TABLES = ("parameters", "integrator", "run", "output")
 # the simulate option each [run] / [output] key stands for (the argparse dest)
 ARG_OF = {"dt": "dt", "duration": "t_end", "steps": "steps", "seed": "seed", "precision": "precision",
           "arch": "arch", "save_every": "save_every", "energy_every": "energy_every",
-          "max_residual": "max_residual", "max_energy_growth": "max_energy_growth", "curves": "curves",
+          "max_residual": "max_residual", "tolerance": "tolerance", "max_energy_growth": "max_energy_growth", "curves": "curves",
           "npz": "out", "export": "export", "export_format": "export_format"}
 DEFAULTS = {"precision": "f64", "arch": "cpu", "seed": 0}  # what a command gets when nobody says
 

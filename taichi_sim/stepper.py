@@ -52,8 +52,11 @@ def check_dt(dt, *, adaptive: bool = False) -> float | None:
 def bind_integrator(scene, name: str, **options) -> Integrator:
     """Integrator ``name`` bound to ``scene``'s system with ``options`` over the scene's own
     for that method (:meth:`~taichi_sim.scene.scene.Scene.options_for`: ``cloth-stiff`` runs
-    XPBD with 50 substeps unless told otherwise); ConfigError for an unknown name or option."""
-    return create_integrator(name, scene.system, **{**scene.options_for(name), **options})
+    XPBD with 50 substeps unless told otherwise); ConfigError for an unknown name or option.
+    Only ``options`` count as given (the scene's are defaults a tolerance may raise)."""
+    integrator = create_integrator(name, scene.system, **{**scene.options_for(name), **options})
+    integrator.given_options = frozenset(options)
+    return integrator
 
 
 def _iterative(integrator: str) -> bool:
@@ -139,6 +142,15 @@ class Stepper:
             and ``after_check(stepper) -> str | None`` (after the guard passed the state, before
             it becomes the last good one; a string refuses it: the run ends DIVERGED with that
             detail, on the state before).
+        max_residual: bound on the sampled relative residual (recorded; see
+            :mod:`taichi_sim.convergence`).
+        tolerance: how far (m) a step's positions may be from the solution of the equation the
+            method solves (default :data:`~taichi_sim.convergence.DEFAULT_TOLERANCE`). A sampled
+            step past it is solved again with twice the method's work (its
+            :attr:`~taichi_sim.integrators.Integrator.work_option`, unless the caller set that
+            option) until it is within the tolerance or the option reaches its cap; then a
+            method that promises the solved step ends the run NOT_CONVERGED and a fixed-work one
+            warns once and goes on.
 
     Attributes:
         t: simulated time (s); steps: accepted steps; rejected: steps an adaptive method retried.
@@ -151,7 +163,7 @@ class Stepper:
 
     def __init__(self, scene, integrator: Integrator | str, dt: float | None, *,
                  limits: GuardLimits | None = None, curves: dict | None = None, observers=(),
-                 max_residual: float | None = None):
+                 max_residual: float | None = None, tolerance: float | None = None):
         if isinstance(integrator, str):  # a bad dt is refused before anything is bound
             check_dt(dt, adaptive=integrator_class(integrator).adaptive)
             integrator = bind_integrator(scene, integrator)
@@ -159,6 +171,8 @@ class Stepper:
         self.dt = check_dt(dt, adaptive=integrator.adaptive)
         self.guard = Guard(scene, limits)
         self.max_residual = max_residual
+        self.tolerance = tolerance
+        self._step_start = None  # the whole step's start, kept while the work may be raised
         # bound once: each attribute lookup is paid at every step
         self._events, self._spend = scene.after_step, self.guard.spend
         self.driver = None
@@ -203,14 +217,21 @@ class Stepper:
         # forth (the launcher) would allocate a field and compile its copy kernel every time.
         entry = self._monitors.get(id(integrator))
         if entry is None or entry[0] is not integrator:
-            entry = self._monitors[id(integrator)] = (integrator, ConvergenceMonitor(self.scene, integrator,
-                                                                                     self.max_residual))
+            entry = self._monitors[id(integrator)] = (integrator, ConvergenceMonitor(
+                self.scene, integrator, self.max_residual, self.tolerance))
         self.monitor = entry[1]
         self.monitor.clear()
         self.refusal = self.monitor.check_precision(self.scene.state, runtime.precision(),
                                                     runtime.machine_epsilon())
         self.warnings: list[str] = []
         self.h = self.dt
+        # The option whose work --tolerance may raise: the method's, unless the caller set it
+        # (``--iterations N`` means exactly N).
+        option = getattr(integrator, "work_option", "")
+        self.work_option = (option if self.monitor.active and option
+                            and option not in getattr(integrator, "given_options", ()) else "")
+        if self.work_option and self._step_start is None:
+            self._step_start = self.scene.system.make_state()
 
     def set_dt(self, dt: float) -> None:
         """Step ``dt`` (s) from the next step on (an adaptive method's next proposal)."""
@@ -278,6 +299,8 @@ class Stepper:
         monitor = self.monitor
         if monitor.active:
             monitor.before_step(self.scene.state)
+            if self.work_option:
+                self._step_start.copy_from(self.scene.state)
         report = self._integrate(self.scene.state, t, h)  # 3.
         self.f_evals += report.f_evals
         self.linear_iterations += report.linear_iterations
@@ -300,10 +323,14 @@ class Stepper:
             self._base_t, self._base_steps = self.t, self.steps
         else:
             self.t = self._base_t + (self.steps - self._base_steps) * h  # no drift over many steps
-        due = self._spend(report.f_evals + report.linear_iterations) or check
-        # The residual is the method's: measured before the post-step events move the state.
-        if due and monitor.active and (check or monitor.within_budget()) and not self._converged(report.h):
-            return report
+        work = report.f_evals + report.linear_iterations
+        due = self._spend(work) or check
+        # The step's distance from its equation is the method's: measured before the post-step
+        # events move the state.
+        if monitor.active:
+            monitor.spend(work)
+            if (check or monitor.due()) and not self._converged(t, report.h):
+                return report
         if self._events(self.t, report.h, self._skip):
             self.integrator.reset()  # an event changed the system (e.g. tore springs)
         if due:
@@ -367,21 +394,48 @@ class Stepper:
             self.fail(Status.DIVERGED, self.steps, self.t, self.h if h is None else h, detail, restore=True)
         return self.checked
 
-    def _converged(self, h: float) -> bool:
-        """Sample the residual of the step that just ended; a method that promises the solved
-        step and missed the bound ends the run NOT_CONVERGED (False), a fixed-work one warns
-        once (:attr:`warnings`) and goes on."""
+    def _converged(self, t0: float, h: float) -> bool:
+        """Sample the step of ``h`` s from ``t0`` that just ended. Past the tolerance, solve it
+        again with more work while the method's work option may grow (the class docstring);
+        then a method that promises the solved step ends the run NOT_CONVERGED (False), a
+        fixed-work one warns once (:attr:`warnings`) and goes on."""
         monitor = self.monitor
-        residual = monitor.measure(self.scene.state, self.t, h)
-        if not monitor.exceeds(residual):
+        _, distance = monitor.measure(self.scene.state, self.t, h)
+        while monitor.exceeds(distance) and self._raise_work():
+            self.scene.state.copy_from(self._step_start)
+            self.integrator.reset()
+            report = self._integrate(self.scene.state, t0, h)
+            self.f_evals += report.f_evals
+            self.linear_iterations += report.linear_iterations
+            if report.status is not OK or not report.accepted:
+                self._step_failed(report, h)
+                return False
+            monitor.forget_last()
+            _, distance = monitor.measure(self.scene.state, self.t, h)
+        if not monitor.exceeds(distance):
             return True
         if monitor.promises_exact:
-            self.fail(Status.NOT_CONVERGED, self.steps, self.t, h, monitor.breach_message(residual, self.t),
+            self.fail(Status.NOT_CONVERGED, self.steps, self.t, h, monitor.breach_message(distance, self.t),
                       restore=False)
             return False
         if not monitor.warned:
             monitor.warned = True
-            self.warnings.append(monitor.warning_message(residual, self.t))
+            stopped = ""
+            if self.work_option:
+                stopped = f"stopped by the cap of {self.work_option} = {getattr(self.integrator, self.work_option)}"
+            self.warnings.append(monitor.warning_message(distance, self.t, stopped))
+        return True
+
+    def _raise_work(self) -> bool:
+        """Double the method's work option up to its cap; False when it cannot grow."""
+        option = self.work_option
+        if not option:
+            return False
+        value = getattr(self.integrator, option)
+        cap = self.integrator.work_cap
+        if value >= cap:
+            return False
+        setattr(self.integrator, option, min(cap, 2 * value))
         return True
 
     def fail(self, status: Status, step: int, t: float, h: float, detail: str, *, restore: bool) -> None:

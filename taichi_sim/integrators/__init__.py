@@ -98,9 +98,12 @@ def create_integrator(name: str, system, **options) -> Integrator:
     """Bind the integrator called ``name`` to ``system`` (allocates its scratch once).
 
     ``options`` are the method's keyword-only settings (e.g. ``rtol`` for rk45); an option the
-    method does not take raises ConfigError.
+    method does not take raises ConfigError. The integrator's ``given_options`` names them:
+    the options a run leaves as given (``--tolerance`` does not raise them).
     """
-    return check_options(name, options)(system, **options)
+    integrator = check_options(name, options)(system, **options)
+    integrator.given_options = frozenset(options)
+    return integrator
 
 
 __all__ = ["INTEGRATORS", "ENTRY_POINT_GROUP", "Integrator", "Status", "StepReport", "ButcherTableau",

@@ -114,6 +114,15 @@ class Integrator(ABC):
     """Forces the method adds inside its own solve that the measured residual's model does not
     hold (e.g. ``vbd``'s in-solve contact), "" for none: such a run's residual is not measured
     rather than reported as a convergence figure it is not."""
+    work_option: str = ""
+    """The option (an int attribute read at every step, e.g. ``iterations``) whose growth brings
+    a fixed-work method's step closer to its equation's solution: a run whose sampled step is
+    farther than its tolerance doubles it up to ``work_cap`` (:class:`taichi_sim.Stepper`).
+    "" for none."""
+    work_cap: int = 0
+    """The most ``work_option`` may grow to under a tolerance."""
+    given_options: frozenset = frozenset()
+    """The options the caller set (:func:`~taichi_sim.integrators.create_integrator`)."""
     replaces_parts: frozenset = frozenset()
     """Names of the scene's post-step parts (``ScenePart.name``) whose work the method does
     inside its own solve once bound to a scene (``attach_scene``), e.g. ``vbd``'s self-contact

@@ -79,6 +79,7 @@ class ProjectiveDynamics(Integrator):
     description = "projective dynamics: local/global backward Euler with one prefactorised matrix"
     equation = Equation("backward_euler", FIXED_WORK, explicit_external=True, isotropic_dashpots=True,
                         advice="raise --iterations, set --pd-tolerance, or lower --dt")
+    work_option, work_cap = "iterations", 160  # 16 times the default, under a --tolerance
     # The springs are solved implicitly at any step (gravity, drag and wind are not stiff).
     stability_constant = math.inf
     advice_note = ("no blow-up at any step (each iteration lowers backward Euler's objective, "

@@ -119,6 +119,7 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, ContactPieces, Integrator):
     description = "vertex block descent: backward Euler by per-vertex Newton steps, Gauss-Seidel over a colouring"
     equation = Equation("backward_euler", FIXED_WORK,
                         advice="raise --iterations or --substeps, or lower --dt")
+    work_option, work_cap = "iterations", 320  # 16 times the default, under a --tolerance
     tracks_solved_start = True
     # No step-size limit: each sweep lowers the incremental potential at any step. An unconverged
     # step may still gain energy, which the energy cap takes back on closed scenes (vbd_energy).

@@ -71,6 +71,7 @@ class XPBD(Integrator):
     description = "extended position-based dynamics: springs as compliant constraints, substepped"
     equation = Equation("backward_euler", FIXED_WORK, explicit_external=True,
                         advice="raise --iterations or --substeps, or lower --dt")
+    work_option, work_cap = "substeps", 320  # 16 times the default, under a --tolerance
     tracks_solved_start = True
     stability_constant = math.inf  # the springs are compliant constraints, solved at any step
     advice_note = ("no blow-up at any step; with few substeps stiff springs stay partly stretched (k >= 1e6: "

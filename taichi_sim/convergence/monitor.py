@@ -1,0 +1,212 @@
+"""Samples how far one integrator's steps are from the equation it solves, during a run: the
+relative residual (:mod:`.residual`) and the distance in metres (:mod:`.distance`), at
+deterministic samples.
+
+When a step is sampled: the first step, then whenever the work the run has done since the last
+sample pays for another within ``BUDGET`` of the run's time, by a cost model rather than the
+clock (so identical runs sample identical steps): a sample costs about
+``SAMPLE_SECONDS_PER_DOF`` (3 n)^1.5 s (a sparse factorisation of a cloth's Jacobian; 0.5 s at
+64 x 64 on the 2-vCPU machine of docs/integrators.md), a unit of the method's work (an f
+evaluation, a sweep, a linear iteration) about ``WORK_SECONDS_PER_PARTICLE`` n s. The last step
+of a run and the steps a caller asks to check are always sampled.
+"""
+from __future__ import annotations
+
+import math
+
+from ..errors import ConfigError
+from ..integrators.equation import EXACT, Equation
+from .distance import DistanceModel
+from .residual import (BUDGET, FLOOR_MARGIN, MAX_FLOOR, ForceModel, check_max_residual,
+                       relative_residual, rounding_floor, unmodelled)
+
+#: Default ``--tolerance`` (m): the distance a step's positions may be from the solution of the
+#: equation its method declares (the largest over the particles) before the run says so.
+DEFAULT_TOLERANCE = 1e-3
+#: The cost model of the samples (see the module docstring), seconds.
+SAMPLE_SECONDS_PER_DOF = 4e-7
+WORK_SECONDS_PER_PARTICLE = 1e-7
+
+
+def check_tolerance(value) -> float:
+    """A tolerance in metres: a finite number > 0 (ConfigError naming ``tolerance`` else);
+    None gives :data:`DEFAULT_TOLERANCE`."""
+    if value is None:
+        return DEFAULT_TOLERANCE
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (0 < value < math.inf):
+        raise ConfigError(f"tolerance must be a finite number of metres > 0, got {value!r}")
+    return float(value)
+
+
+class ConvergenceMonitor:
+    """Samples one integrator's steps on one scene: how far each sampled step is from the
+    equation the method solves (module docstring).
+
+    Call :meth:`before_step` before every step (it keeps the step's start: one device copy,
+    unless the method keeps the start of its last solved piece itself), :meth:`spend` after
+    each with the step's work, and :meth:`measure` after a step that :meth:`due` (or the
+    caller) wants sampled, before the post-step events move the state.
+
+    Attributes:
+        equation: the method's :class:`Equation`, or None.
+        reason: why the run is not measured ("" when it is).
+        tolerance: the distance a step may be from its equation's solution (m).
+        max_residual: the bound asked for on the residual (see :func:`check_max_residual`);
+            bound: the one applied (:meth:`check_precision`), floor: the rounding floor.
+        times, values, distances: the samples (s, relative residual, estimated distance (m)).
+        worst, worst_t: the largest residual and its time; worst_distance, worst_distance_t:
+            the largest distance and its time (NaN before any).
+    """
+
+    def __init__(self, scene, integrator, max_residual: float | None = None, tolerance: float | None = None):
+        self.max_residual = check_max_residual(max_residual)
+        self.tolerance = check_tolerance(tolerance)
+        self.integrator = integrator
+        self.equation: Equation | None = getattr(integrator, "equation", None)
+        self.reason = ""
+        if self.equation is None:
+            self.reason = f"{integrator.name} solves no system per step"
+        elif not scene.system.second_order:
+            self.reason = "a first-order system"
+        elif unmodelled(scene):
+            self.reason = f"the scene's {unmodelled(scene)} forces are not in the residual's model"
+        elif getattr(integrator, "unmodelled_forces", ""):
+            self.reason = f"{integrator.name}'s {integrator.unmodelled_forces} forces are not in the residual's model"
+        self.active = not self.reason  # an attribute: read at every step
+        self.times: list[float] = []
+        self.values: list[float] = []
+        self.distances: list[float] = []
+        self.floor = math.nan
+        self.bound = self.max_residual
+        self._start = None
+        self.clear()
+        if self.active:
+            self.model = ForceModel(scene)
+            self.distance_model = DistanceModel(self.model, self.equation)
+            self._start = scene.system.make_state()
+            # A method that solves its step in pieces (substeps, halvings) keeps the start of
+            # the last piece it solved, which is what its equation is about.
+            self._tracked = bool(getattr(integrator, "tracks_solved_start", False))
+            if self._tracked:
+                integrator.solved_start = self._start
+                integrator.solved_h = math.nan
+            n = int(self.model.free.sum())
+            # the work (method's units) that pays for one sample within BUDGET (module docstring)
+            self.sample_work = (SAMPLE_SECONDS_PER_DOF * (3 * n) ** 1.5
+                                / (BUDGET * WORK_SECONDS_PER_PARTICLE * max(n, 1)))
+
+    def check_precision(self, state, precision: str, epsilon: float) -> str:
+        """Before a run: the bound samples are held to is ``max_residual`` or, where the
+        precision's rounding alone leaves more (:func:`rounding_floor` at the start positions;
+        single precision on stiff springs) but at most ``MAX_FLOOR``, ``FLOOR_MARGIN`` times
+        that floor (``bound``). Returns why a method that promises the exact step cannot run
+        in this precision (its floor is above ``MAX_FLOOR``: the answer cannot be told from a
+        cloth frozen in mid-air), else ""."""
+        if not self.active:
+            return ""
+        self.floor = rounding_floor(self.model, state.x.to_numpy(), epsilon)
+        if math.isfinite(self.floor) and self.floor <= MAX_FLOOR:
+            self.bound = max(self.max_residual, FLOOR_MARGIN * self.floor)
+        if self.promises_exact and self.floor > MAX_FLOOR:
+            return (f"{self.integrator.name} cannot solve this scene in {precision}: rounding of its springs' "
+                    f"forces is about {self.floor:.2g} of the particles' weight (more than {MAX_FLOOR:g}), so "
+                    f"the step cannot be told from one frozen in mid-air; use --precision f64, or a "
+                    f"position-level method (xpbd, projective_dynamics)")
+        return ""
+
+    def clear(self) -> None:
+        """Forget the samples (a restart from t = 0)."""
+        self.times.clear()
+        self.values.clear()
+        self.distances.clear()
+        self.worst, self.worst_t = math.nan, math.nan
+        self.worst_distance, self.worst_distance_t = math.nan, math.nan
+        self.warned = False
+        self.work = 0.0  # work since the last sample; the first step is always due
+        self._sampled = False
+
+    def before_step(self, state) -> None:
+        if self._start is not None and not self._tracked:
+            self._start.copy_from(state)
+
+    def spend(self, work: float) -> None:
+        """Count a step's work (f evaluations + linear iterations)."""
+        self.work += max(work, 1)
+
+    def due(self) -> bool:
+        """Whether the step just counted is to be sampled (module docstring): deterministic."""
+        return not self._sampled or self.work >= self.sample_work
+
+    def measure(self, state, t: float, h: float) -> tuple[float, float]:
+        """(relative residual, distance (m)) of the step that just ended at ``t`` and took
+        ``h`` s; recorded."""
+        if not self.active:
+            return math.nan, math.nan
+        self.work, self._sampled = 0.0, True
+        if self._tracked and math.isfinite(self.integrator.solved_h):
+            h = self.integrator.solved_h
+        x0, v0 = self._start.to_numpy()
+        x1, v1 = state.to_numpy()
+        value = relative_residual(self.model, self.equation, x0, v0, x1, v1, h)
+        distance = self.distance_model.distance(x0, v0, x1, v1, h) if h > 0 else math.nan
+        self.times.append(t)
+        self.values.append(value)
+        self.distances.append(distance)
+        if _larger(value, self.worst):
+            self.worst, self.worst_t = value, t
+        if _larger(distance, self.worst_distance):
+            self.worst_distance, self.worst_distance_t = distance, t
+        return value, distance
+
+    def forget_last(self) -> None:
+        """Drop the last sample (its step is being solved again); the worst figures are
+        recomputed from those left."""
+        for samples in (self.times, self.values, self.distances):
+            samples.pop()
+        self.worst = self.worst_t = self.worst_distance = self.worst_distance_t = math.nan
+        for t, value, distance in zip(self.times, self.values, self.distances):
+            if _larger(value, self.worst):
+                self.worst, self.worst_t = value, t
+            if _larger(distance, self.worst_distance):
+                self.worst_distance, self.worst_distance_t = distance, t
+
+    def exceeds(self, distance: float) -> bool:
+        """Whether a sampled distance is above the tolerance (an infinite one is; NaN, not
+        measured, is not)."""
+        return not math.isnan(distance) and not distance <= self.tolerance
+
+    @property
+    def promises_exact(self) -> bool:
+        return self.equation is not None and self.equation.promise == EXACT
+
+    def breach_message(self, distance: float, t: float) -> str:
+        """One line: the estimate found, the tolerance, and what to change."""
+        advice = f"; {self.equation.advice}" if self.equation and self.equation.advice else ""
+        return (f"estimated error {format_metres(distance)} at t = {t:.6g} s exceeds --tolerance "
+                f"{format_metres(self.tolerance)} (the distance of the step's positions from the solution of "
+                f"the equation {self.integrator.name} solves){advice}")
+
+    def warning_message(self, distance: float, t: float, stopped_by: str = "") -> str:
+        """One line for a fixed-work method whose sample exceeded the tolerance (the run goes
+        on); ``stopped_by``: the cap that kept it from iterating further, if any."""
+        cap = f" ({stopped_by})" if stopped_by else ""
+        return (f"{self.integrator.name} leaves its steps unsolved{cap}: " + self.breach_message(distance, t)
+                + "; the run goes on, and its answer is off by about that much a step")
+
+
+def _larger(value: float, worst: float) -> bool:
+    """NaN-aware: the first sample, or a larger one."""
+    if math.isnan(value):
+        return math.isnan(worst)
+    return not value <= worst
+
+
+def format_metres(value: float) -> str:
+    """A distance as people read it: '3.2 mm', '41 um', '1.2 m'."""
+    if not math.isfinite(value):
+        return f"{value} m"
+    for unit, scale in (("m", 1.0), ("mm", 1e-3), ("um", 1e-6), ("nm", 1e-9)):
+        if abs(value) >= scale or unit == "nm":
+            scaled = value / scale
+            return f"{scaled:.0f} {unit}" if abs(scaled) >= 10 else f"{scaled:.2g} {unit}"
+    return f"{value:.2g} m"
