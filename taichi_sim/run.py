@@ -118,7 +118,8 @@ def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: 
         t_end: float | None = None, energy_every: int | None = None,
         progress: bool | None = False, guard: GuardLimits | None = None,
         curves: dict | None = None, save_every: int | None = None,
-        max_residual: float | None = None, tolerance: float | None = None) -> RunResult:
+        max_residual: float | None = None, tolerance: float | None = None,
+        raise_work: bool = True) -> RunResult:
     """Advance ``scene.state`` from t = 0 by ``steps`` accepted steps, or up to ``t_end`` s.
 
     Args:
@@ -154,6 +155,7 @@ def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: 
             (``iterations`` or ``substeps``, unless given) up to its cap, then warns; a method
             that promises the solved step ends the run NOT_CONVERGED
             (:class:`~taichi_sim.stepper.Stepper`).
+        raise_work: False keeps the method's work as set (a benchmark of its settings).
 
     The steps are a :class:`~taichi_sim.stepper.Stepper`'s; this function adds the energy
     trace, the saved frames and the progress bar. With ``t_end`` the last step is shortened to
@@ -173,7 +175,7 @@ def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: 
         raise ConfigError(f"save_every must be an integer >= 0, got {save_every!r}")
     history = _History(scene) if save_every else None
     stepper = Stepper(scene, integrator, dt, limits=guard, curves=curves, max_residual=max_residual,
-                      tolerance=tolerance)
+                      tolerance=tolerance, raise_work=raise_work)
     if stepper.refusal:
         raise ConfigError(stepper.refusal)
     watch = stepper.guard

@@ -151,6 +151,8 @@ class Stepper:
             option) until it is within the tolerance or the option reaches its cap; then a
             method that promises the solved step ends the run NOT_CONVERGED and a fixed-work one
             warns once and goes on.
+        raise_work: False keeps the method's work as it was set (benchmarks that measure a
+            method at its settings); past the tolerance it then only warns or fails.
 
     Attributes:
         t: simulated time (s); steps: accepted steps; rejected: steps an adaptive method retried.
@@ -163,7 +165,7 @@ class Stepper:
 
     def __init__(self, scene, integrator: Integrator | str, dt: float | None, *,
                  limits: GuardLimits | None = None, curves: dict | None = None, observers=(),
-                 max_residual: float | None = None, tolerance: float | None = None):
+                 max_residual: float | None = None, tolerance: float | None = None, raise_work: bool = True):
         if isinstance(integrator, str):  # a bad dt is refused before anything is bound
             check_dt(dt, adaptive=integrator_class(integrator).adaptive)
             integrator = bind_integrator(scene, integrator)
@@ -172,6 +174,7 @@ class Stepper:
         self.guard = Guard(scene, limits)
         self.max_residual = max_residual
         self.tolerance = tolerance
+        self.raise_work = raise_work
         self._step_start = None  # the whole step's start, kept while the work may be raised
         # bound once: each attribute lookup is paid at every step
         self._events, self._spend = scene.after_step, self.guard.spend
@@ -228,7 +231,7 @@ class Stepper:
         # The option whose work --tolerance may raise: the method's, unless the caller set it
         # (``--iterations N`` means exactly N).
         option = getattr(integrator, "work_option", "")
-        self.work_option = (option if self.monitor.active and option
+        self.work_option = (option if self.raise_work and self.monitor.active and option
                             and option not in getattr(integrator, "given_options", ()) else "")
         if self.work_option and self._step_start is None:
             self._step_start = self.scene.system.make_state()

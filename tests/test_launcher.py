@@ -315,3 +315,14 @@ def test_the_help_overlay_holds_all_its_lines(size):
     assert (len(lines) + 1.5) * LINE_PX <= height * size[1]  # the lines under a title bar
     assert 0 <= y and y + height <= 1 and 0 <= x and x + width <= 1
     assert " ".join(lines).split() == " ".join(help_lines()).split()  # wrapped, nothing lost
+
+
+def test_the_hud_states_the_estimated_error_and_whether_it_is_within_the_tolerance(runtime):
+    s = Session("cloth", ["xpbd"], dt=1 / 60, substeps=1, interactive=False,
+                params={"nx": 6, "ny": 6, "stiffness": 1e4})
+    r = s.runners[0]
+    s.frame(1 / 60)
+    assert r.error_estimate is not None and r.error_estimate < 1e-3
+    assert any("error ~" in line and "tolerance" not in line for line in s.hud_lines())
+    r.stepper.monitor.tolerance = r.error_estimate / 2  # the same sample, judged tighter
+    assert any("error ~" in line and "> tolerance" in line for line in s.hud_lines())

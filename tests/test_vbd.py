@@ -140,9 +140,10 @@ def test_the_run_measures_its_residual(f64):
     scene.reset()
     vbd.reset()
     vbd.iterations = 1
-    rough = ts.run(scene, vbd, dt=1 / 60, steps=3)
+    rough = ts.run(scene, vbd, dt=1 / 60, steps=3, tolerance=1e-5)
     assert rough.status.value == "ok"
-    assert rough.worst_residual > 1e-2 and rough.warnings
+    assert rough.worst_residual > 1e-2 and rough.worst_error_estimate > 1e-5 and rough.warnings
+    assert solved.worst_error_estimate < 1e-5
 
 
 def test_a_non_finite_state_is_a_diverged_step(f64):

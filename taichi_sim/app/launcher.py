@@ -190,6 +190,7 @@ class Launcher:
             status["constraint_violation"] = r.drift
         if r.residual is not None:
             status["solver_residual"] = r.residual
+            status["error_estimate_m"] = r.error_estimate
         if final:
             status["x"] = x.tolist()
         write_atomically(self.status_path, lambda f: f.write(json.dumps(status)), binary=False)

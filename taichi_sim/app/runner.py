@@ -46,10 +46,11 @@ class Runner:
             guard check that passed since the last restart (empty for a system without energy).
         drift: the largest |C| (m) of the scene's constraints at the last check, or None
             without constraints.
-        residual: the relative solver residual of the last step measured (at the guard's
-            checks; :mod:`taichi_sim.convergence`), or None (a method that solves nothing per
-            step, a scene it cannot measure, no sample yet); converged: whether it is within
-            the bound (a method that promises the solved step freezes when it is not).
+        residual: the relative solver residual of the last step sampled
+            (:mod:`taichi_sim.convergence`), or None (a method that solves nothing per step, a
+            scene it cannot measure, no sample yet); error_estimate: that step's estimated
+            distance (m) from its equation's solution, or None; converged: whether that is
+            within the tolerance (a method that promises the solved step freezes when it is not).
         sim_ms: wall time (ms) of the last :meth:`advance` that compiled nothing (0 before).
         compile_s: wall time (s) of the first advance with the current integrator, which
             compiles its kernels (and the scene's), or None before it; compiled_at: when that
@@ -92,9 +93,14 @@ class Runner:
         return values[-1] if values else None
 
     @property
+    def error_estimate(self) -> float | None:
+        distances = self.stepper.monitor.distances
+        return distances[-1] if distances else None
+
+    @property
     def converged(self) -> bool:
-        residual = self.residual
-        return residual is None or not self.stepper.monitor.exceeds(residual)
+        distance = self.error_estimate
+        return distance is None or not self.stepper.monitor.exceeds(distance)
 
     @property
     def failure(self) -> str:

@@ -12,6 +12,7 @@ import time
 from dataclasses import dataclass
 from typing import Any, Sequence
 
+from ..convergence import format_metres
 from ..errors import ConfigError
 from ..integrators import INTEGRATORS, integrator_class
 from ..render.drawer import DrawOptions
@@ -431,8 +432,9 @@ class Session:
             state = r.failure if r.frozen else f"E = {energy}"
             if r.drift is not None and not r.frozen:
                 state += f"   max |C| = {r.drift:.2e} m"
-            if r.residual is not None and not r.frozen:
-                state += f"   residual {r.residual:.1e}" + ("" if r.converged else " NOT converged")
+            if r.error_estimate is not None and not r.frozen:
+                state += (f"   error ~{format_metres(r.error_estimate)}"
+                          + ("" if r.converged else f" > tolerance {format_metres(r.stepper.monitor.tolerance)}"))
             compiled_just_now = r.compile_s is not None and time.perf_counter() - r.compiled_at < COMPILE_NOTE_S
             cost = f"first frame {r.compile_s:.1f} s (compiling kernels)" if compiled_just_now else \
                 f"{r.sim_ms:.1f} ms/frame" if r.sim_ms else "ms/frame: not measured yet"

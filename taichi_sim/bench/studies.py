@@ -159,9 +159,11 @@ def print_stiff_cloth(rows: list[dict], details: dict) -> None:
     print(f"{details['size']}x{details['size']} cloth, rms position error at T = {details['t_end']:g} s against "
           f"symplectic Euler at a quarter of its stable step (f64):")
     print(common.format_table(
-        ["k (N/m)", "method", "h (s)", "status", "ms/step", "rms error (m)", "solver residual", "said so"],
+        ["k (N/m)", "method", "h (s)", "status", "ms/step", "rms error (m)", "estimated error a step (m)",
+         "solver residual", "said so"],
         [[f"{r['k']:g}", r["method"], _fmt(r.get("h")), r["status"], _fmt(r.get("ms_per_step")),
-          _fmt(r.get("error_rms")), _fmt(r.get("residual")), _said_so(r)] for r in rows]))
+          _fmt(r.get("error_rms")), _fmt(r.get("error_estimate")), _fmt(r.get("residual")), _said_so(r)]
+         for r in rows]))
     print("Artificial damping (no dashpots, no drag; h = 1/60 s, 1 s):")
     print(common.format_table(
         ["k (N/m)", "method", "status", "energy lost per s", "highest rise above start (J)"],

@@ -202,7 +202,7 @@ def _run_once(scene, integrator, *, dt, t_end):
 
     scene.reset()
     integrator.reset()
-    return run(scene, integrator, dt=dt, t_end=t_end, energy_every=0, progress=False)
+    return run(scene, integrator, dt=dt, t_end=t_end, energy_every=0, progress=False, raise_work=False)
 
 
 def sweep_method(scene, problem: Problem, name: str, truth: Truth, *, repeats: int,

@@ -3,8 +3,17 @@
 (:mod:`.distance`) and the monitor that samples both during a run (:mod:`.monitor`)."""
 from .distance import DistanceModel, step_distance
 from .monitor import DEFAULT_TOLERANCE, ConvergenceMonitor, check_tolerance, format_metres
-from .residual import (BUDGET, DEFAULT_MAX_RESIDUAL, FLOOR_MARGIN, MAX_FLOOR, ForceModel,
-                       check_max_residual, relative_residual, rounding_floor, unmodelled)
+from .residual import (
+                       BUDGET,
+                       DEFAULT_MAX_RESIDUAL,
+                       FLOOR_MARGIN,
+                       MAX_FLOOR,
+                       ForceModel,
+                       check_max_residual,
+                       relative_residual,
+                       rounding_floor,
+                       unmodelled,
+)
 
 __all__ = ["BUDGET", "DEFAULT_MAX_RESIDUAL", "DEFAULT_TOLERANCE", "check_tolerance", "format_metres", "FLOOR_MARGIN", "MAX_FLOOR", "ConvergenceMonitor",
            "DistanceModel", "ForceModel", "check_max_residual", "relative_residual", "rounding_floor",

@@ -17,8 +17,16 @@ import math
 from ..errors import ConfigError
 from ..integrators.equation import EXACT, Equation
 from .distance import DistanceModel
-from .residual import (BUDGET, FLOOR_MARGIN, MAX_FLOOR, ForceModel, check_max_residual,
-                       relative_residual, rounding_floor, unmodelled)
+from .residual import (
+    BUDGET,
+    FLOOR_MARGIN,
+    MAX_FLOOR,
+    ForceModel,
+    check_max_residual,
+    relative_residual,
+    rounding_floor,
+    unmodelled,
+)
 
 #: Default ``--tolerance`` (m): the distance a step's positions may be from the solution of the
 #: equation its method declares (the largest over the particles) before the run says so.

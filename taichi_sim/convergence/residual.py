@@ -26,12 +26,11 @@ about 1, a step solved to a Newton tolerance of 1e-6 about 1e-6 or less.
 from __future__ import annotations
 
 import math
-import time
 
 import numpy as np
 
 from ..errors import ConfigError
-from ..integrators.equation import EXACT, Equation
+from ..integrators.equation import Equation
 
 #: Default bound on the relative residual (``--max-residual``): see :func:`check_max_residual`.
 DEFAULT_MAX_RESIDUAL = 1e-2
@@ -43,9 +42,7 @@ MAX_FLOOR = 0.1
 #: leaves about the floor (16^2 cloth, k = 1e4 N/m, f32: floor 0.013, samples 0.002-0.031).
 FLOOR_MARGIN = 3.0
 
-#: Share of a run's wall time the samples may take: past it a due check is not sampled (the
-#: last step and the steps a caller asks to check always are). A sample costs about 3-5 ms at
-#: 64 x 64 (numpy), a projective dynamics or XPBD step about as much.
+#: Share of a run's time the samples may take, by the cost model of :mod:`.monitor`.
 BUDGET = 0.05
 
 #: Scene features whose forces this module does not model: a scene with one is not measured.
