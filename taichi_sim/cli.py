@@ -83,10 +83,11 @@ def cmd_simulate(args) -> int:
     from .theory import stability_warning, step_limited
 
     preset = scene_preset(args.scene)
-    if args.steps is None and args.t_end is None:
-        raise ConfigError("simulate needs --steps N or --t-end T (or a scene file's [run] steps or duration)")
-    if args.out is None:
-        raise ConfigError("simulate needs --out FILE.npz (or a scene file's [output] npz)")
+    missing = [what for what, absent in (
+        ("--steps N or --t-end T (or a scene file's [run] steps or duration)", args.steps is None and args.t_end is None),
+        ("--out FILE.npz (or a scene file's [output] npz)", args.out is None)) if absent]
+    if missing:  # both at once: one round of errors, not two
+        raise ConfigError(f"simulate needs {' and '.join(missing)}")
     exporting = export_request(args)
     integrator_name = args.integrator or preset.default_integrator
     options = {name: getattr(args, name)
