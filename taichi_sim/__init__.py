@@ -14,6 +14,8 @@ kernels starts (:mod:`taichi_sim.interrupt`).
 """
 import importlib
 import os
+import sys
+import types
 
 os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "0")  # keep stdout for our own output
 
@@ -46,3 +48,17 @@ def __getattr__(name: str):
 
 def __dir__():
     return sorted(set(globals()) | set(_FACE))
+
+
+class _Face(types.ModuleType):
+    """The package module. Importing a submodule sets it as the package's attribute of its
+    name; ``taichi_sim.run`` is both a submodule and the face's ``run()``, and the function
+    must win (as it did when this file imported ``from .run import run``)."""
+
+    def __setattr__(self, name, value):
+        if name in _FACE and isinstance(value, types.ModuleType) and value.__name__ == f"{__name__}.{name}":
+            value = getattr(value, name)
+        super().__setattr__(name, value)
+
+
+sys.modules[__name__].__class__ = _Face
