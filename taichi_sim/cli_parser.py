@@ -31,15 +31,15 @@ class _Parser(argparse.ArgumentParser):
         return super().parse_known_args(args, namespace)
 
     def _unknown_options(self, args) -> list[str]:
-        """The tokens of ``args`` that look like options this parser does not have (argparse's
-        reading: a negative number is a value, ``--`` ends the options)."""
+        """The tokens of ``args`` that look like options this parser does not have (a number is
+        a value, ``--`` ends the options)."""
         unknown = []
         for token in args:
             if token == "--":
                 break
             if len(token) < 2 or token[0] not in self.prefix_chars:
                 continue
-            if self._negative_number_matcher.match(token) and not self._has_negative_number_optionals:
+            if _is_number(token):  # a value ("-1", "-1e-3"): argparse says what it makes of it
                 continue
             name = token.split("=", 1)[0] if token.startswith("--") else token[:2]
             if name not in self._option_string_actions:
@@ -54,6 +54,14 @@ class _Parser(argparse.ArgumentParser):
             return ""
         close = close_names(unknown[0].split("=", 1)[0], [o for o in self._option_string_actions if o.startswith("--")])
         return f"; did you mean {close[0]}?" if len(close) == 1 else ""
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
 
 
 def _version() -> str:
