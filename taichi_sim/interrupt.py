@@ -9,9 +9,10 @@ so that ``import taichi`` and the package's ``@ti.kernel`` decorators take:
   kernel compiles; the command went on (a SIGINT sent at random moments of ``import taichi``
   alone vanished in 5 of 21 tries);
 - it turns into another error: the decorator, having swallowed it, raised
-  ``TaichiSyntaxError: Taichi kernels parameters must be type annotated`` (2 of 30 tries);
+  ``TaichiSyntaxError: Taichi kernels parameters must be type annotated`` (2 of 30 tries), and
+  Taichi's C++ module, interrupted while it initialised, ``ImportError: initialization failed``;
 - it marks the interpreter: after it passed through code that Taichi runs with ``PyRun_*``,
-  Python killed itself with SIGINT at exit whatever status the command returned (5 of 30).
+  Python killed itself with SIGINT at exit whatever status the command returned (4 of 30).
 
 So while the package loads (:func:`deferred`) a Ctrl-C is only recorded, and raised once the
 load is done; afterwards it is raised at once as usual, and also recorded, so that :func:`check`
