@@ -4,10 +4,10 @@ from __future__ import annotations
 import sys
 import warnings
 
+from . import interrupt
 from .cli_export import cmd_export, export_frames, export_request
 from .cli_parser import EXIT_USAGE, build_parser
 from .errors import ConfigError, InputWarning
-from .scene.params import scene_assignments
 
 # The most steps one `simulate` takes. The cheapest scene (the circle ODE, RK4) runs at about a
 # thousand steps a second on a loaded 2-core machine, a few thousand on an idle one: 10^8 steps
@@ -78,15 +78,16 @@ def cmd_simulate(args) -> int:
     from .integrators import check_options, create_integrator, integrator_class, method_label, parse_options
     from .run import check_run_args, planned_steps, run
     from .scene import build_scene, scene_preset
-    from .scene.params import resolve
+    from .scene.params import resolve, scene_assignments
     from .scene.presets import check_scene_memory
     from .theory import stability_warning, step_limited
 
     preset = scene_preset(args.scene)
-    if args.steps is None and args.t_end is None:
-        raise ConfigError("simulate needs --steps N or --t-end T (or a scene file's [run] steps or duration)")
-    if args.out is None:
-        raise ConfigError("simulate needs --out FILE.npz (or a scene file's [output] npz)")
+    missing = [what for what, absent in (
+        ("--steps N or --t-end T (or a scene file's [run] steps or duration)", args.steps is None and args.t_end is None),
+        ("--out FILE.npz (or a scene file's [output] npz)", args.out is None)) if absent]
+    if missing:  # both at once: one round of errors, not two
+        raise ConfigError(f"simulate needs {' and '.join(missing)}")
     exporting = export_request(args)
     integrator_name = args.integrator or preset.default_integrator
     options = {name: getattr(args, name)
@@ -258,7 +259,7 @@ def _session_args(args) -> dict:
     Taichi work (ConfigError names the culprit)."""
     from .integrators import check_options, integrator_class, parse_options
     from .scene import scene_preset
-    from .scene.params import resolve
+    from .scene.params import resolve, scene_assignments
     from .scene.presets import check_scene_memory
 
     preset = scene_preset(args.scene)
@@ -432,8 +433,16 @@ def _closed_pipe() -> int:
 def main(argv: list[str] | None = None) -> int:
     """Run one command; its exit status (0 done, 1 the run or check failed, 2 bad input, 130
     interrupted, 141 stdout closed by its reader)."""
+    restore = interrupt.install()  # before Taichi loads: Ctrl-C in its import is not lost
     try:
-        code = _main(argv)
+        try:
+            code = _main(argv)
+        except Exception:
+            if interrupt.pending():  # Taichi swallowed the KeyboardInterrupt and failed in its place
+                return _interrupted()
+            raise
+        if code != EXIT_INTERRUPTED and interrupt.pending():  # one Taichi swallowed after the last check
+            return _interrupted()
         sys.stdout.flush()  # a closed pipe shows here, not in Python's flush at exit
         return code
     except SystemExit:  # --help and --version print, then exit
@@ -448,12 +457,31 @@ def main(argv: list[str] | None = None) -> int:
         if not _stdout_closed():  # another pipe (ffmpeg's, say) broke: a real error
             raise
         return _closed_pipe()
+    finally:
+        restore()
+
+
+EXIT_INTERRUPTED = 128 + 2  # what a shell reports for a program ended by SIGINT
+
+
+def _interrupted() -> int:
+    print("taichi-sim: interrupted", file=sys.stderr)
+    return EXIT_INTERRUPTED
+
+
+def _load_package() -> None:
+    """Import Taichi and the package's kernels (a second or more) with Ctrl-C held back until
+    they are loaded (:mod:`taichi_sim.interrupt`)."""
+    with interrupt.deferred():
+        from . import integrators, run, scene  # noqa: F401 - loaded for their kernels
 
 
 def _main(argv: list[str] | None) -> int:
     parser = build_parser()
     try:
         args = parser.parse_args(argv)
+        if args.command != "export":  # export reads and writes files only
+            _load_package()
         if args.command in ("simulate", "demo", "record"):
             from .scene_file import apply_scene_file
 
@@ -474,5 +502,4 @@ def _main(argv: list[str] | None) -> int:
         print(f"taichi-sim: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt:
-        print("taichi-sim: interrupted", file=sys.stderr)
-        return 130
+        return _interrupted()

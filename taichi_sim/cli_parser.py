@@ -20,6 +20,49 @@ class _Parser(argparse.ArgumentParser):
     def error(self, message: str):
         raise ConfigError(message)
 
+    def parse_known_args(self, args=None, namespace=None):
+        # argparse checks the required arguments before it looks at unknown options, so
+        # `advise --frobnicate` said "required: scene". A command's own parser (one without
+        # subcommands, handed just its arguments) names an unknown option first.
+        if args is not None and self._subparsers is None:
+            unknown = self._unknown_options(args)
+            if unknown:
+                self.error(f"unrecognized arguments: {' '.join(unknown)}{self._suggestion(unknown)}")
+        return super().parse_known_args(args, namespace)
+
+    def _unknown_options(self, args) -> list[str]:
+        """The tokens of ``args`` that look like options this parser does not have (a number is
+        a value, ``--`` ends the options)."""
+        unknown = []
+        for token in args:
+            if token == "--":
+                break
+            if len(token) < 2 or token[0] not in self.prefix_chars:
+                continue
+            if _is_number(token):  # a value ("-1", "-1e-3"): argparse says what it makes of it
+                continue
+            name = token.split("=", 1)[0] if token.startswith("--") else token[:2]
+            if name not in self._option_string_actions:
+                unknown.append(token)
+        return unknown
+
+    def _suggestion(self, unknown: list[str]) -> str:
+        """"; did you mean --X?" for a single unknown option close to one of this parser's."""
+        from .errors import close_names
+
+        if len(unknown) != 1 or not unknown[0].startswith("--"):
+            return ""
+        close = close_names(unknown[0].split("=", 1)[0], [o for o in self._option_string_actions if o.startswith("--")])
+        return f"; did you mean {close[0]}?" if len(close) == 1 else ""
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
 
 def _version() -> str:
     """The installed package's version (from its metadata), or the source tree's when the

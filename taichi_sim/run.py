@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from tqdm import tqdm
 
+from . import interrupt
 from .errors import ConfigError
 from .guard import GuardLimits
 from .integrators import Integrator, Status
@@ -214,9 +215,11 @@ def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: 
     # energy_every given, the steps it names are checked whether the guard is due or not.
     forced = has_energy and energy_every is not None
     step, step_toward, update = stepper.step, stepper.step_toward, bar.update
+    interrupted = interrupt.check  # a Ctrl-C that Taichi swallowed while compiling the first step
     by_steps = steps is not None
     with bar:
         while stepper.failure is None and (stepper.steps < steps if by_steps else stepper.t < t_end):
+            interrupted()
             check = forced and (stepper.steps + 1) % every == 0
             # the last step is checked too: the method's own result is measured before the
             # post-step events move it, so the end's check must happen inside the step

@@ -24,3 +24,10 @@ def echo_after(value: int, wait_for: str, mark: str, gap: float) -> list[dict]:
     with open(mark, "w"):
         pass
     return [{"value": value, "square": value * value}]
+
+
+def echo_with_arrays(value: int) -> tuple[list[dict], dict]:
+    """A row and an array, as a study's reference stage returns them."""
+    import numpy as np
+
+    return [{"value": value}], {"values": np.full(3, float(value))}

@@ -51,6 +51,23 @@ def test_the_exact_backward_euler_step_of_a_falling_particle_has_no_residual(f64
     assert relative_residual(model, explicit, x0, v0, x1, v1, h) > 1e-3
 
 
+def test_the_exact_implicit_midpoint_step_of_a_falling_particle_has_no_residual(f64):
+    # Midpoint: m (v1 - v0) / h = m g - c (v0 + v1) / 2 and x1 = x0 + h (v0 + v1) / 2, closed form
+    # without springs. The monitor writes it about the midpoint with a half step (h / 2): with a
+    # whole step there, this exact solution would leave most of its inertia unbalanced.
+    scene = ts.build_scene("cloth", {"nx": 2, "ny": 2, "stiffness": 0.0, "pin": "none", "area_drag": 1.2})
+    model = ForceModel(scene)
+    h, m, c = 0.02, model.mass[:, None], model.drag
+    x0, v0 = scene.x0, np.full_like(scene.x0, 0.5)
+    v1 = (m * v0 / h + m * model.gravity - 0.5 * c * v0) / (m / h + 0.5 * c)
+    x1 = x0 + 0.5 * h * (v0 + v1)
+    midpoint = Equation("implicit_midpoint", EXACT)
+    assert relative_residual(model, midpoint, x0, v0, x1, v1, h) < 1e-13
+    # and the backward-Euler step of the same start is not a midpoint step
+    v_be = (m * v0 + h * m * model.gravity) / (m + h * c)
+    assert relative_residual(model, midpoint, x0, v0, x0 + h * v_be, v_be, h) > 1e-2
+
+
 def test_a_converged_implicit_euler_step_is_at_its_newton_tolerance(f64):
     scene = cloth(stiffness=1e4)
     for tolerance in (1e-4, 1e-7):

@@ -18,7 +18,7 @@ LAYERS = (
     ("what is simulated", {"scene", "forces", "systems", "state", "mesh", "memory"}),
     ("between steps", {"collide"}),
     ("foundations", {"runtime", "frontend_cache", "errors", "loops", "atomic", "geometry", "part",
-                     "field_io"}),
+                     "field_io", "interrupt"}),
 )
 #: ``import taichi_sim`` gives the public face, which hands on run() and the Stepper.
 FACE_LAYER = "running a scene"

@@ -126,6 +126,20 @@ def test_pin_specs_select_the_vertices_they_say(tmp_path):
     assert not select_pins("none", mesh).any()
 
 
+def test_a_welded_vertex_stays_in_its_group(tmp_path):
+    # Two panels sewn along y = 1: the hem's copies of the seam's vertices come later in the
+    # file, a rounding off the body's (so each is found as itself), and weld into the body's;
+    # pinning the hem must still pin the seam.
+    text = ("o body\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3\nf 1 3 4\n"
+            "o hem\nv 0 1.0000004 0\nv 1 1.0000003 0\nv 1 2 0\nv 0 2 0\nf 5 6 7\nf 5 7 8\n")
+    mesh = load_mesh(write(tmp_path, "sewn.obj", text), weld=1e-6)
+    assert mesh.vertex_count == 6 and mesh.welded == 2
+    hem = select_pins("group:hem", mesh)
+    assert set(map(tuple, mesh.x[hem])) == {(0.0, 1.0, 0.0), (1.0, 1.0, 0.0), (1.0, 2.0, 0.0), (0.0, 2.0, 0.0)}
+    body = select_pins("group:body", mesh)
+    assert set(map(tuple, mesh.x[body & hem])) == {(0.0, 1.0, 0.0), (1.0, 1.0, 0.0)}  # the seam, in both
+
+
 def test_gltf_nodes_are_groups_placed_by_their_transforms(tmp_path):
     scene = trimesh.Scene()
     triangle = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]

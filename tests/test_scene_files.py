@@ -1,6 +1,8 @@
 """Scene files: every preset round-trips through `list --scene-file`, problems are `FILE:LINE:
 problem` with nothing written, paths are relative to the file, the command line wins."""
 import dataclasses
+import importlib
+import sys
 import tomllib
 from pathlib import Path
 
@@ -114,6 +116,25 @@ def test_a_bad_scene_file_is_one_line_with_its_line_and_writes_nothing(tmp_path,
     assert len(err.splitlines()) == 1 and err.startswith(f"taichi-sim: error: {path}:{line}: "), err
     assert problem in err, err
     assert [p.name for p in tmp_path.iterdir()] == ["scene.toml"]
+
+
+def test_a_scene_file_naming_an_importable_class_is_refused_before_importing_it(tmp_path, capsys, monkeypatch):
+    # The module exists and leaves a mark when imported: refused, the mark must not be there.
+    # (A module that does not exist could not tell "refused" from "failed to import".)
+    mark = tmp_path / "imported"
+    (tmp_path / "marking_plugin.py").write_text(
+        f"from pathlib import Path\nPath({str(mark)!r}).touch()\n\n\nclass Stepper:\n    pass\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.delitem(sys.modules, "marking_plugin", raising=False)
+    path = tmp_path / "scene.toml"
+    path.write_text(GOOD.replace("[run]", '[integrator]\nname = "marking_plugin:Stepper"\n[run]'))
+    assert main(["simulate", str(path)]) == 2
+    assert "registered integrators only" in capsys.readouterr().err
+    assert not mark.exists() and "marking_plugin" not in sys.modules
+    assert not (tmp_path / "run.npz").exists()
+    importlib.import_module("marking_plugin")  # the control: importing it does leave the mark
+    assert mark.exists()
 
 
 def test_a_missing_scene_file_and_a_missing_length(tmp_path, capsys):

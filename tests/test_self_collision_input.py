@@ -161,6 +161,22 @@ def test_points_inside_each_kind_of_object_are_found_and_points_on_a_surface_are
     assert inside_objects(points, {}) == {}
 
 
+def test_a_box_is_as_thin_as_its_least_half_extent():
+    # A slab 1 m square and 4 cm thick (not a cube): a face whose edge lies 2 mm inside its top
+    # has gone a tenth of the slab's thinnest size in, far past FACE_SHARE; measured against
+    # the slab's largest half extent (0.5 m) it would be 0.4 %, and pass.
+    from taichi_sim.geometry.inside import FACE_SHARE, face_depths, faces_inside, object_depths
+
+    arrays = {"box_center": [[0.0, 0.0, 0.0]], "box_half_extents": [[0.5, 0.02, 0.5]]}
+    depth, thinnest = object_depths(np.array([[0.0, 0.0, 0.0], [0.3, 0.015, -0.4]]), arrays)["box"]
+    assert thinnest.tolist() == [0.02]
+    assert depth[:, 0] == pytest.approx([0.02, 0.005])  # to the nearest side: the top
+    x = np.array([[-0.1, 0.018, 0.0], [0.1, 0.018, 0.0], [0.0, 0.2, 0.0]])
+    shares, depths = face_depths(x, [[0, 1, 2]], arrays)["box"]
+    assert depths == pytest.approx([0.002]) and shares == pytest.approx([0.1])
+    assert 0.002 / 0.5 < FACE_SHARE and faces_inside(x, [[0, 1, 2]], arrays)["box"].tolist() == [True]
+
+
 def test_a_cloth_that_starts_inside_an_object_is_reported_before_the_run(f64, tmp_path, capsys):
     across = {"nx": 8, "ny": 8, "capsule": True, "capsule_y": 0.12, "capsule_radius": 0.1}
     warning = ts.build_scene("cloth-fold", across).start_warning()

@@ -209,3 +209,36 @@ def test_sigterm_stops_the_running_cases_and_keeps_the_finished_ones(tmp_path):
     assert time.monotonic() - stopped < 20, err
     assert proc.returncode != 0 and "the same command finishes the others" in err
     assert len(cases_of(path)) == 1  # the finished case, kept
+
+
+def test_a_case_whose_saved_arrays_are_missing_runs_again(tmp_path):
+    # A later stage reads a reference case's arrays: its row alone does not make it done.
+    from taichi_sim.bench.sweep import Case, Study, Sweep
+
+    cases = [Case("tests.sweep_cases:echo_with_arrays", {"value": i}, {"n": i}) for i in range(2)]
+    first = Sweep(Study("refs", 1), cases, tmp_path, jobs=2, quiet=True)
+    first.run(cases, "refs", needs_arrays=True)
+    saved = sorted((tmp_path / "refs-arrays").iterdir())
+    assert len(saved) == 2
+    saved[1].unlink()
+    again = Sweep(Study("refs", 1), cases, tmp_path, jobs=1, quiet=True)
+    assert not again.finished(cases[1], needs_arrays=True) and again.finished(cases[1])
+    again.run(cases, "refs", needs_arrays=True)
+    assert again.ran == [cases[1].key] and saved[1].exists()
+    assert again.arrays(cases[1])["values"].tolist() == [1.0, 1.0, 1.0]
+
+
+@pytest.mark.long
+def test_a_resumed_work_precision_study_computes_a_missing_truth_again(tmp_path):
+    study = ["bench", "work-precision", "--quick", "--scenes", "simple", "--integrators", "euler", "--quiet",
+             "--out", str(tmp_path)]
+    assert main(study) == 0
+    before = cases_of(tmp_path / "work-precision.csv")
+    (truth,) = (tmp_path / "work-precision-arrays").iterdir()
+    truth.unlink()
+    assert main(study) == 0  # not a crash reading the missing arrays, nor runs skipped for want of a truth
+    after = cases_of(tmp_path / "work-precision.csv")
+    assert truth.exists()
+    assert {k: v for k, v in after.items() if k.startswith("run-")} == \
+        {k: v for k, v in before.items() if k.startswith("run-")}  # the runs did not run again
+    assert [after[k] != before[k] for k in before if k.startswith("truth-")] == [True]  # the truth did

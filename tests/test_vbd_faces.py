@@ -107,3 +107,42 @@ def test_a_sphere_round_enough_for_the_cloth_is_left_to_the_vertices(f64, radius
     vbd = create_integrator("vbd", scene.system)
     vbd.attach_scene(scene)
     assert vbd.contact.has_object_faces  # a box has edges, however large
+
+
+def test_a_vertex_out_of_reach_moves_at_most_the_bound_fraction_of_its_room(f64):
+    """A pair out of reach at the query leaves each corner a ball: the triangle's lower bound
+    (the sphere's distance from its centroid less the centroid's spread) times bound_fraction.
+    A step longer than that share but shorter than the whole room is cut to the share."""
+    import taichi as ti
+
+    scene, tris = falling_cloth(OBJECTS["sphere"][0])
+    vbd = create_integrator("vbd", scene.system)
+    vbd.attach_scene(scene)
+    contact = vbd.contact
+    assert contact.has_object_faces and 0 < contact.fraction < 1
+    x = scene.state.x
+    resting = ti.Vector.field(3, ti.f64, shape=x.shape[0])  # no guessed move: the reach is 2 r
+
+    @ti.kernel
+    def query():
+        contact.measure_face_reach(resting)
+        contact.query_faces(x, 0.0)
+
+    @ti.kernel
+    def share(i: ti.i32, step: ti.types.vector(3, ti.f64)) -> ti.f64:
+        return contact.face_scale(i, x, x[i], step, 0.0, 1.0)
+
+    query()
+    positions = x.to_numpy()
+    a, b, c = (positions[tris[:, j]] for j in range(3))
+    g = (a + b + c) / 3
+    spread = np.max([np.linalg.norm(p - g, axis=1) for p in (a, b, c)], axis=0)
+    lower = np.linalg.norm(g - np.asarray(BELOW), axis=1) - 0.01 - spread
+    i = int(tris[np.argmin(lower)][0])  # a corner of the triangle nearest the sphere
+    room = lower[(tris == i).any(axis=1)].min()
+    assert 2 * contact.radius < room < np.inf  # out of reach: bounded by its ball only
+    assert contact.face_room.to_numpy()[i] == pytest.approx(room, rel=1e-9)
+    for direction in ((0.0, -1.0, 0.0), (0.6, 0.0, 0.8)):  # toward the sphere, and across it
+        step = 0.9 * room * np.asarray(direction)  # inside the room, beyond its share
+        assert share(i, step) * 0.9 * room == pytest.approx(contact.fraction * room, rel=1e-9)
+    assert share(i, 0.5 * contact.fraction * room * np.array([0.0, -1.0, 0.0])) == 1.0

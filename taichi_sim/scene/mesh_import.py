@@ -82,6 +82,8 @@ def _load_cached(path: str, size: int, mtime: int, weld: float, scale: float, up
         with open(path, "rb") as f:
             if b"\0" in f.read(1 << 16):  # what trimesh says of binary here misleads (a missing codec)
                 raise ConfigError(f"mesh file {path}: is binary data, not a text {ext.upper()} file")
+    if ext == "stl":
+        _check_stl(path, size)
     parts = _read_parts(path, ext)
     if not parts:
         raise ConfigError(f"mesh file {path}: has no triangles")
@@ -106,6 +108,23 @@ def _load_cached(path: str, size: int, mtime: int, weld: float, scale: float, up
                       source=name)
 
 
+def _check_stl(path: str, size: int) -> None:
+    """ConfigError unless the file is laid out as an STL: binary (an 80-byte header, a uint32
+    triangle count, 50 bytes a triangle) or text (``solid`` first). trimesh tries anything else
+    as text of an unknown encoding and fails on a codec it lacks (charset_normalizer), which
+    says nothing of the file."""
+    import struct
+
+    with open(path, "rb") as f:
+        head = f.read(512)
+    if size >= 84 and size == 84 + 50 * struct.unpack("<I", head[80:84])[0]:
+        return
+    if head.lstrip().lower().startswith(b"solid") and b"\0" not in head:
+        return
+    raise ConfigError(f"mesh file {path}: is not a readable STL mesh (neither binary STL, 84 bytes then 50 a "
+                      "triangle, nor text STL starting with 'solid')")
+
+
 def _read_parts(path: str, ext: str) -> list[tuple[tuple[str, ...], np.ndarray, np.ndarray]]:
     """(names, vertices (k, 3), triangles (t, 3)) of each triangle mesh in the file, with scene
     transforms applied; ConfigError for what trimesh cannot read as triangles."""
@@ -115,6 +134,8 @@ def _read_parts(path: str, ext: str) -> list[tuple[tuple[str, ...], np.ndarray, 
         loaded = trimesh.load(path, file_type=ext, process=False, maintain_order=True)
     except Exception as exc:  # trimesh raises many kinds (ValueError, IndexError, KeyError, ...)
         reason = " ".join(str(exc).split())[:120] or type(exc).__name__
+        if isinstance(exc, ImportError):  # a codec trimesh lacks for what it guessed the content was
+            reason = f"its content does not parse as {ext.upper()}"
         raise ConfigError(f"mesh file {path}: not a readable {ext.upper()} mesh ({reason})") from None
     parts = []
     if isinstance(loaded, trimesh.Scene):
