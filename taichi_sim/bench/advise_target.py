@@ -6,7 +6,7 @@ of E m at ``--t-end`` in the least wall time on this machine, found by measuring
    with post-step events (contact, colliders, tearing, emitters) a step's error no longer
    shrinks as h^p (the events are applied between steps, and contact switches on and off), so
    a third run at a quarter of the step measures the order the runs actually show; the error
-   is estimated with that order, and below order 1/2 (the answers do not settle as the step
+   is estimated with that order, and below order 0.8 (the answers do not settle as the step
    shrinks) there is no estimate: ``advise`` says so rather than print a number. The
    reference is refined (once) until its error is below a tenth of the target. Without a
    reference (no stable RK4 step, too many steps, or too close to the target) each error is a
@@ -51,7 +51,8 @@ PROBE_STEPS = 10  # timed steps (after one warm-up step) that measure a step siz
 UNCAPPED_SHARE = 20  # the largest step tried: t_end / 20 (an unconditionally stable method's)
 SAFETY = 0.9
 BUDGET = 30.0  # seconds of pilot runs, their compiling included (--budget)
-MIN_ORDER = 0.5  # an observed order below this: the answers do not settle as the step shrinks
+MIN_ORDER = 0.8  # a reference's observed order below this: its answers do not settle as the step shrinks
+PILOT_MIN_ORDER = 0.5  # the least order a candidate's pilots are extrapolated with
 
 
 def has_events(scene) -> bool:
@@ -269,7 +270,15 @@ def make_reference(scene, table, target_error: float, t_end: float, bind) -> tup
         if error <= REFERENCE_ACCURACY * target_error:
             break
         # the step whose error would be REFERENCE_ACCURACY x the target, at the order seen
-        steps = math.ceil(steps * 1.2 * (error / (REFERENCE_ACCURACY * target_error)) ** (1 / order))
+        finer = math.ceil(steps * 1.2 * (error / (REFERENCE_ACCURACY * target_error)) ** (1 / order))
+        if finer * 2 ** (runs - 1) > REFERENCE_MAX_STEPS:
+            if error <= 0.5 * target_error:
+                break
+            return None, (f"no reference run: {REFERENCE} at {h:.3g} s is itself about {error:.2g} m off "
+                          + (f"(its runs converge at order {order:.2g} here) " if events else "")
+                          + f"and one {REFERENCE_ACCURACY:g} x the target off would need about "
+                          f"{finer * 2 ** (runs - 1):.3g} steps (at most {REFERENCE_MAX_STEPS})")
+        steps = finer
     if error > 0.5 * target_error:
         return None, (f"no reference run: {REFERENCE} at {h:.3g} s is itself about {error:.2g} m off, too "
                       f"close to the target")
@@ -320,8 +329,10 @@ RANK = {"ok": 0, "estimated": 1, "skipped": 2, "not piloted": 3}
 
 
 def _rank(row: dict):
-    """Shown to meet the target first, then estimated, then the rest; fastest first."""
-    return RANK.get(row["status"], 4), row.get("wall_s", math.inf), row.get("bound", math.inf)
+    """Shown to meet the target first, then estimated, then the rest; fastest first (a step
+    left unsolved, where only Richardson judged it, after the solved)."""
+    return (RANK.get(row["status"], 4), row.get("unsolved", False), row.get("wall_s", math.inf),
+            row.get("bound", math.inf))
 
 
 class _Search:
@@ -337,9 +348,9 @@ class _Search:
         """Pilot, always the cheapest next run first (module docstring, step 3): a fixed-work
         method's first pilot (its cost is its lower bound) or a second or third pilot at an
         estimated step (its cost is the estimate), while it could beat the best run shown and
-        fits the budget; when none is left, the next iterative method's first pilot (their work
-        per step is not known before they run: they go once the fixed-work methods have set a
-        time to beat, and give up when slower)."""
+        fits the budget; when none is left, the iterative methods' first pilots (their work per
+        step is not known before they run: they go once the fixed-work methods have set a time
+        to beat, and give up when slower), and then their second and third, cheapest first."""
         while True:
             fixed = [(r["bound"], r, r["h_max"]) for r in self.rows
                      if r["status"] == "waiting" and r["evals"] is not None]
@@ -354,13 +365,13 @@ class _Search:
                                                           f"the pilot budget left (--budget)")
             ready = [c for c in fixed + again if c[0] < min(self.best, self.budget - self.spent)
                      and c[1]["status"] in ("waiting", "estimated")]
-            iterative = [r for r in self.rows if r["status"] == "waiting" and r["evals"] is None]
-            if ready:
-                _, row, h = min(ready, key=lambda c: c[0])
-            elif iterative and self.spent < self.budget:
-                row, h = iterative[0], iterative[0]["h_max"]
-            else:
+            tiers = ([c for c in ready if c[1]["evals"] is not None],
+                     [(0.0, r, r["h_max"]) for r in self.rows if r["status"] == "waiting" and r["evals"] is None],
+                     [c for c in ready if c[1]["evals"] is None])
+            tier = next((t for t in tiers if t), None)
+            if tier is None or self.spent >= self.budget:
                 break
+            _, row, h = min(tier, key=lambda c: c[0])
             first = row["status"] == "waiting"
             self.pilot(row, h)
             if first and progress is not None:
@@ -403,6 +414,9 @@ class _Search:
         steps = math.ceil(self.t_end / h - 1e-9)
         limited = row["max_by"] if h == row["h_max"] else "accuracy"
         note = "; ".join(w.split(";")[0] for w in pilot.warnings)
+        # Richardson sees only how the answer moves with the step: a fixed-work method that
+        # leaves its step unsolved may hardly move at any step and look accurate (ranked last)
+        row["unsolved"] = bool(pilot.warnings) and self.judge.reference is None
         if pilot.error <= self.target:
             wall = steps * pilot.per_step
             row.update(status="ok", h=h, steps=steps, error=pilot.error, measured=True, wall_s=wall,
@@ -434,12 +448,12 @@ class _Search:
 
     def _order(self, row: dict) -> float:
         """The order to extrapolate with: the declared one (at most 1 with events between the
-        steps), or the one the last two pilots show, kept within [MIN_ORDER, declared + 1]."""
+        steps), or the one the last two pilots show, kept within [PILOT_MIN_ORDER, declared + 1]."""
         declared = min(row["order"], 1) if self.events else row["order"]
         pilots = row["pilots"]
         if len(pilots) >= 2:
             (h1, e1), (h2, e2) = pilots[-2:]
             if h1 != h2 and e1 > 0 and e2 > 0:
                 seen = math.log(e1 / e2) / math.log(h1 / h2)
-                return min(max(seen, MIN_ORDER), row["order"] + 1)
+                return min(max(seen, PILOT_MIN_ORDER), row["order"] + 1)
         return declared

@@ -195,6 +195,10 @@ def _advise_target(args, scene, table, integrators) -> int:
     with common.progress_bar(len(planned), "pilot runs", False) as bar:
         rows, measured = recommend(scene, table, args.target_error, args.t_end, integrators, budget=args.budget,
                                    f_time=f_time, progress=bar)
+    if all(r["status"] == "no estimate" for r in rows):
+        print(f"\n{measured}")
+        print("no fixed-step integrator could be recommended", file=sys.stderr)
+        return 1
     print(f"\nFor a position error of {args.target_error:g} m at t = {args.t_end:g} s, fastest run first "
           f"(wall time on this machine; see `taichi_sim.bench.advise_target`):")
     print(common.format_table(
