@@ -253,6 +253,7 @@ def test_a_run_that_warns_then_fails_names_one_stable_step(tmp_path, capsys):
     (["advise", "nosuchscene"], "unknown scene"),
     (["advise", "spring", "--set", "stiffness=-1"], "stiffness"),
     (["advise", "spring", "--target-error", "0"], "--target-error"),
+    (["advise", "spring", "--target-error", "1e-3", "--budget", "0"], "--budget"),
 ])
 def test_bad_input_exits_2_without_output(tmp_path, capsys, argv, problem):
     afile = tmp_path / "afile"
@@ -301,7 +302,8 @@ def test_the_throughput_targets_are_checked_at_every_size_they_name():
 
 def test_importing_the_bench_does_not_initialise_taichi():
     code = ("import taichi_sim.bench.commands, taichi_sim.bench.workprec, "
-            "taichi_sim.bench.stability, taichi_sim.bench.throughput, taichi_sim.bench.advise\n"
+            "taichi_sim.bench.stability, taichi_sim.bench.throughput, taichi_sim.bench.advise, "
+            "taichi_sim.bench.advise_target\n"
             "from taichi_sim import runtime\nassert not runtime.is_initialized()\n"
             "import taichi.lang.impl as impl\nassert impl.get_runtime().prog is None\n")
     subprocess.run([sys.executable, "-c", code], check=True, timeout=120)
