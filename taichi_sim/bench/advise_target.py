@@ -343,6 +343,7 @@ class _Search:
         self.target, self.t_end, self.budget, self.events = target, t_end, budget, events
         self.spent = 0.0
         self.best = math.inf  # wall seconds of the fastest run shown to meet the target
+        self.f_step = math.inf  # the least wall time per f evaluation a fixed-work pilot stepped at
 
     def run(self, progress=None) -> None:
         """Pilot, always the cheapest next run first (module docstring, step 3): a fixed-work
@@ -352,17 +353,17 @@ class _Search:
         step is not known before they run: they go once the fixed-work methods have set a time
         to beat, and give up when slower), and then their second and third, cheapest first."""
         while True:
+            if math.isfinite(self.f_step):
+                # bounds at the f time the pilots' steps showed: it carries the step's overhead
+                # and the load the machine is under, which a bare f evaluation does not
+                for row in self.rows:
+                    if row["status"] == "waiting" and row["evals"] is not None:
+                        row["bound"] = max(row["bound"], math.ceil(self.t_end / row["h_max"] - 1e-9)
+                                           * row["evals"] * self.f_step)
             fixed = [(r["bound"], r, r["h_max"]) for r in self.rows
                      if r["status"] == "waiting" and r["evals"] is not None]
             again = [(r["wall_s"], r, r["h"]) for r in self.rows if r["status"] == "estimated"
                      and len(r["pilots"]) < MAX_PILOTS and not r.get("tried")]
-            for cost, row, _ in fixed:
-                if cost >= self.best:
-                    row.update(status="skipped", note=f"at least {cost:.3g} s at its largest step, slower than "
-                                                      f"{self.best:.3g} s already shown")
-                elif cost > self.budget - self.spent:
-                    row.update(status="not piloted", note=f"at least {cost:.3g} s at its largest step, more than "
-                                                          f"the pilot budget left (--budget)")
             ready = [c for c in fixed + again if c[0] < min(self.best, self.budget - self.spent)
                      and c[1]["status"] in ("waiting", "estimated")]
             tiers = ([c for c in ready if c[1]["evals"] is not None],
@@ -377,7 +378,15 @@ class _Search:
             if first and progress is not None:
                 progress.update(1)
         for row in self.rows:
-            if row["status"] == "waiting":
+            if row["status"] != "waiting":
+                continue
+            if row["evals"] is not None and row["bound"] >= self.best:
+                row.update(status="skipped", note=f"at least {row['bound']:.3g} s at its largest step, slower "
+                                                  f"than {self.best:.3g} s already shown")
+            elif row["evals"] is not None and row["bound"] >= self.budget - self.spent:
+                row.update(status="not piloted", note=f"at least {row['bound']:.3g} s at its largest step, more "
+                                                      f"than the pilot budget left (--budget)")
+            else:
                 row.update(status="not piloted", note=f"the pilot budget ({self.budget:g} s, --budget) was spent")
 
     def pilot(self, row: dict, h: float) -> None:
@@ -411,6 +420,8 @@ class _Search:
             row.update(status="failed", note=pilot.message.split(";")[0])
             return
         row["pilots"].append((h, pilot.error))
+        if row["evals"] and math.isfinite(pilot.per_step):
+            self.f_step = min(self.f_step, pilot.per_step / row["evals"])
         steps = math.ceil(self.t_end / h - 1e-9)
         limited = row["max_by"] if h == row["h_max"] else "accuracy"
         note = "; ".join(w.split(";")[0] for w in pilot.warnings)
