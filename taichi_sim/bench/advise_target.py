@@ -13,25 +13,31 @@ of E m at ``--t-end`` in the least wall time on this machine, found by measuring
    Richardson estimate from runs at h and h/2, which is refused on scenes with events.
 2. Each candidate (every fixed-step method of the stability table) has a largest step: 0.9 of
    its stable step (for Euler, trapezoid, midpoint: the step at which the fastest mode's energy
-   doubles over the run), and at most t_end / 20 (the unconditionally stable methods). Its time at that step, T / h_max steps of its f-evaluations
-   at the measured cost of one f evaluation, is a lower bound; candidates are piloted cheapest
-   bound first and skipped when the bound cannot beat a candidate already shown to meet the
-   target.
+   doubles over the run), and at most t_end / 20 (the unconditionally stable methods). A
+   fixed-work method's time at that step, T / h_max steps of its f-evaluations at the wall time
+   per f evaluation (measured bare, then as the pilots step: overhead and machine load
+   included), is a lower bound on any run of it: a candidate whose bound is above the best time
+   shown is skipped without compiling its kernels (explicit Euler on a cloth: hundreds of s).
 3. A pilot is one run of the whole horizon at the step tried, measured against the reference
    (so an error that grows faster than linearly in time, or that the method's own step hides,
    is seen as it is). The first is at h_max; if it misses the target, the step to try is
    h (0.7 E / e)^(1/p) (p the declared order, at most 1 on a scene with events; later pilots
-   use the order the pilots show). A candidate whose estimated time is below the best shown so
-   far is piloted again at that step (at most three pilots each) until one meets the target.
+   use the order the last two show), and its time is estimated (step 4). The next pilot is
+   always the cheapest that could beat the best time shown: a fixed-work method's first (its
+   bound) or a second or third pilot at an estimated step (its estimate); the iterative
+   methods (Newton, projective dynamics, XPBD, VBD), whose work per step is unknown before
+   they run, come once the fixed-work ones have set a time to beat. Every pilot gives up once
+   its steps have taken longer than the best time shown or the budget left.
 4. The time of a run is measured, not counted in f-evaluations: a pilot's steps after its first
    (the integrator is bound once per candidate, so its kernels are compiled by then), or, for a
-   step not yet run, a probe of a few steps at that step through a :class:`~taichi_sim.stepper.Stepper`
-   (an implicit method's Newton work grows with h). Candidates are ranked by that time: those
-   shown to meet the target first, then the estimated ones.
+   step not yet run, a probe of PROBE_STEPS steps at that step through a
+   :class:`~taichi_sim.stepper.Stepper` after a warm-up step (an implicit method's Newton work
+   grows with h). Candidates are ranked by that time: those shown to meet the target first,
+   then the estimated ones.
 
-The pilots spend at most ``budget`` seconds of stepping (``--budget``); a candidate not reached
-within it is listed as such. A reference run that would need more than REFERENCE_MAX_STEPS
-steps is not made.
+The pilots spend at most ``budget`` seconds, compiling included (``--budget``); a candidate not
+reached within it is listed as such. A reference run that would need more than
+REFERENCE_MAX_STEPS steps is not made.
 """
 from __future__ import annotations
 
