@@ -56,7 +56,7 @@ MAX_STEPS = 10_000_000  # a candidate needing more steps than this for the targe
 PROBE_STEPS = 10  # timed steps (after one warm-up step) that measure a step size's cost
 UNCAPPED_SHARE = 20  # the largest step tried: t_end / 20 (an unconditionally stable method's)
 SAFETY = 0.9
-BUDGET = 30.0  # seconds of pilot runs, their compiling included (--budget)
+BUDGET = 20.0  # seconds of pilot runs, their compiling included (--budget)
 MIN_ORDER = 0.8  # a reference's observed order below this: its answers do not settle as the step shrinks
 PILOT_MIN_ORDER = 0.5  # the least order a candidate's pilots are extrapolated with
 
@@ -350,6 +350,7 @@ class _Search:
         self.spent = 0.0
         self.best = math.inf  # wall seconds of the fastest run shown to meet the target
         self.f_step = math.inf  # the least wall time per f evaluation a fixed-work pilot stepped at
+        self.scene_method = getattr(scene, "default_integrator", None)
 
     def run(self, progress=None) -> None:
         """Pilot, always the cheapest next run first (module docstring, step 3): a fixed-work
@@ -373,7 +374,9 @@ class _Search:
             ready = [c for c in fixed + again if c[0] < min(self.best, self.budget - self.spent)
                      and c[1]["status"] in ("waiting", "estimated")]
             tiers = ([c for c in ready if c[1]["evals"] is not None],
-                     [(0.0, r, r["h_max"]) for r in self.rows if r["status"] == "waiting" and r["evals"] is None],
+                     # the scene's own method first (vbd on the contact cloths, xpbd on cloth-stiff)
+                     [(float(r["integrator"] != self.scene_method), r, r["h_max"]) for r in self.rows
+                      if r["status"] == "waiting" and r["evals"] is None],
                      [c for c in ready if c[1]["evals"] is None])
             tier = next((t for t in tiers if t), None)
             if tier is None or self.spent >= self.budget:
