@@ -57,6 +57,8 @@ PROBE_STEPS = 10  # timed steps (after one warm-up step) that measure a step siz
 UNCAPPED_SHARE = 20  # the largest step tried: t_end / 20 (an unconditionally stable method's)
 SAFETY = 0.9
 BUDGET = 20.0  # seconds of pilot runs, their compiling included (--budget)
+SETTLE_FINER = 8  # a reference that does not settle is tried once more at steps this many times shorter ...
+REFERENCE_RETRY_S = 20.0  # ... when that would take at most this many seconds
 MIN_ORDER = 0.8  # a reference's observed order below this: its answers do not settle as the step shrinks
 PILOT_MIN_ORDER = 0.5  # the least order a candidate's pilots are extrapolated with
 
@@ -125,8 +127,9 @@ def reference_steps(table: list[dict], t_end: float) -> int | None:
     """Steps of the reference run's coarser half (None: RK4 has no stable step here)."""
     entry = next((r for r in table if r["integrator"] == REFERENCE), None)
     limit = None if entry is None else entry["limit"]
-    if not limit or not math.isfinite(limit):
+    if not limit:  # None (no prediction) or 0 (grows at every step)
         return None
+    # nothing oscillates (no springs: a sprinkler): no limit, and the refinement finds the step
     return math.ceil(t_end / min(REFERENCE_FRACTION * limit, t_end / UNCAPPED_SHARE) - 1e-9)
 
 
@@ -247,23 +250,28 @@ def make_reference(scene, table, target_error: float, t_end: float, bind) -> tup
         return None, f"no reference run: {REFERENCE} has no stable step on this scene"
     events = has_events(scene)
     runs = 3 if events else 2
-    for _ in range(2):  # refined once when its own error is too close to the target
+    for rounds in range(2):  # refined once when its own error is too close to the target
         if steps * 2 ** (runs - 1) > REFERENCE_MAX_STEPS:
             return None, (f"no reference run: {REFERENCE} would need {steps * 2 ** (runs - 1)} steps "
                           f"(at most {REFERENCE_MAX_STEPS})")
         integrator = bind(REFERENCE)
-        finals = []
+        finals, took = [], 0.0  # the seconds of stepping, compiling left out
         for k in range(runs):
             run = run_to(scene, integrator, t_end / (steps * 2**k), t_end)
             if run.x is None:
                 return None, f"no reference run: {REFERENCE} did not finish it ({run.message})"
             finals.append(run.x)
+            took += run.per_step * steps * 2**k
         d = [_distance(finals[k], finals[k + 1]) for k in range(runs - 1)]
         order = 4.0
         if events:
             if d[-1] == 0.0:
                 order = 4.0
             elif d[0] <= d[-1] or math.log2(d[0] / d[-1]) < MIN_ORDER:
+                if not rounds and (SETTLE_FINER * took <= REFERENCE_RETRY_S
+                                   and SETTLE_FINER * steps * 2 ** (runs - 1) <= REFERENCE_MAX_STEPS):
+                    steps *= SETTLE_FINER  # its steps may just be too long: once more, shorter
+                    continue
                 return None, (f"no error estimate: the reference runs ({REFERENCE} at {t_end / steps:.3g}, "
                               f"{t_end / (2 * steps):.3g} and {t_end / (4 * steps):.3g} s) differ by {d[0]:.2g} "
                               f"and then {d[-1]:.2g} m: the answer does not settle as the step shrinks (contact "

@@ -191,6 +191,10 @@ def _advise_target(args, scene, table, integrators) -> int:
     f_time = f_seconds(scene)
     planned = candidates(scene, table, args.t_end, integrators)
     lower_bounds(planned, args.t_end, f_time)
+    if not planned:
+        print("\nno candidates: no fixed-step method has a predicted step here (the table's notes say why)")
+        print("no fixed-step integrator could be recommended", file=sys.stderr)
+        return 1
     print("\n" + cost_line(scene, table, planned, args.t_end, f_time, args.budget), flush=True)
     with common.progress_bar(len(planned), "pilot runs", False) as bar:
         rows, measured = recommend(scene, table, args.target_error, args.t_end, integrators, budget=args.budget,
