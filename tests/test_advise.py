@@ -126,3 +126,11 @@ def test_contact_scene_before_contact_is_advised(capsys):
     assert code == 0 and "observed order" in out
     recommended = next(line for line in out.splitlines() if line.startswith("recommended:"))
     assert "shown by a pilot run at that step" in recommended
+
+
+def test_a_scene_with_nothing_oscillating_still_gets_a_reference_run():
+    """No springs (a sprinkler): RK4 has no step limit, which must not read as "no stable step";
+    the reference starts at t_end / 20 and is refined from there."""
+    assert advise_target.reference_steps([{"integrator": "rk4", "limit": math.inf}], 0.5) == 20
+    assert advise_target.reference_steps([{"integrator": "rk4", "limit": 0.004}], 0.5) == 500
+    assert advise_target.reference_steps([{"integrator": "rk4", "limit": None}], 0.5) is None
