@@ -99,7 +99,7 @@ def test_the_cost_is_said_before_the_advice(capsys):
     cost = next(k for k, line in enumerate(lines) if line.startswith("advising: "))
     table = next(k for k, line in enumerate(lines) if line.startswith("For a position error"))
     assert cost < table and "reference run of rk4" in lines[cost] and "up to 2 candidates" in lines[cost]
-    assert "at most about" in lines[cost] and "--budget" in lines[cost]
+    assert "roughly" in lines[cost] and "--budget" in lines[cost]
     assert any(line.startswith("advised in ") for line in lines[table:])
 
 
@@ -134,3 +134,28 @@ def test_a_scene_with_nothing_oscillating_still_gets_a_reference_run():
     assert advise_target.reference_steps([{"integrator": "rk4", "limit": math.inf}], 0.5) == 20
     assert advise_target.reference_steps([{"integrator": "rk4", "limit": 0.004}], 0.5) == 500
     assert advise_target.reference_steps([{"integrator": "rk4", "limit": None}], 0.5) is None
+
+
+def test_step_times_leave_the_compiling_first_step_out(f64, monkeypatch):
+    """A pilot's and a probe's time per step are those of warm kernels: a first step made to
+    take 0.3 s (as compiling would) is not in them."""
+    import time
+
+    import taichi_sim as ts
+
+    scene = ts.build_scene("spring")
+    integrator = ts.create_integrator("symplectic_euler", scene.system)
+    step, calls = integrator.step, []
+
+    def slow_first(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 1:
+            time.sleep(0.3)
+        return step(*args, **kwargs)
+
+    monkeypatch.setattr(integrator, "step", slow_first)
+    pilot = advise_target.run_to(scene, integrator, 0.01, 0.2)
+    assert len(calls) == 20 and pilot.x is not None and pilot.per_step < 0.3 / 19 / 2
+    calls.clear()
+    assert advise_target.probe_step(scene, integrator, 0.01) < 0.3 / advise_target.PROBE_STEPS / 2
+    assert len(calls) == 1 + advise_target.PROBE_STEPS

@@ -149,7 +149,7 @@ def cost_line(scene, table, rows, t_end: float, f_time: float, budget: float) ->
     compile_s = 1.5 * len(rows)
     total = reference + pilots + compile_s
     return (f"advising: {what}, then pilot runs of the whole {t_end:g} s for up to {len(rows)} candidates "
-            f"(at most {MAX_PILOTS} each, at most {budget:g} s of pilot runs in all); at most about {total:.0f} s here, "
+            f"(at most {MAX_PILOTS} each, at most {budget:g} s of pilot runs in all); roughly {total:.0f} s here, "
             f"compiling included (--budget S to change)")
 
 
