@@ -159,3 +159,21 @@ def test_step_times_leave_the_compiling_first_step_out(f64, monkeypatch):
     calls.clear()
     assert advise_target.probe_step(scene, integrator, 0.01) < 0.3 / advise_target.PROBE_STEPS / 2
     assert len(calls) == 1 + advise_target.PROBE_STEPS
+
+
+def test_without_a_reference_errors_are_richardson_estimates(f64, monkeypatch):
+    """Where RK4 would need too many steps, each error comes from the run at h and h/2 (spring:
+    an exact oscillator, so the estimate is good); on a scene with contact that is refused."""
+    import taichi_sim as ts
+    from taichi_sim.bench.advise import scene_omegas, stability_table
+
+    monkeypatch.setattr(advise_target, "REFERENCE_MAX_STEPS", 1)
+    scene = ts.build_scene("spring")
+    table = stability_table(scene, scene_omegas(scene), 1.0)
+    rows, line = advise_target.recommend(scene, table, 1e-4, 1.0, ["rk4"])
+    assert "no reference run" in line and "Richardson estimates" in line
+    assert rows[0]["status"] == "ok" and rows[0]["error"] <= 1e-4
+    scene = ts.build_scene("cloth-sphere", {"nx": 4, "ny": 4})
+    table = stability_table(scene, scene_omegas(scene), 0.1)
+    rows, line = advise_target.recommend(scene, table, 1e-2, 0.1, ["symplectic_euler"])
+    assert "not valid on a scene with contact" in line and rows[0]["status"] == "no estimate"
