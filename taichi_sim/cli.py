@@ -1,6 +1,7 @@
 """The ``taichi-sim`` command line."""
 from __future__ import annotations
 
+import math
 import sys
 import warnings
 
@@ -174,7 +175,7 @@ def cmd_simulate(args) -> int:
         rejected = f" ({result.rejected_steps} rejected)" if result.rejected_steps else ""
         label = method_label(integrator_name, options)
         print(f"{scene.name}: {result.steps} steps{rejected} of {label} to t = {result.t:.6g} s, "
-              f"{result.f_evals} f-evals, {result.wall_time:.3f} s on {runtime.backend()}, "
+              f"{result.f_evals} f-evals, {result.wall_time:.3f} s on {runtime.backend()}{_rate(result)}, "
               f"status {result.status.value} -> {path}")
         if exported:
             print(exported)
@@ -195,6 +196,15 @@ def cmd_simulate(args) -> int:
             print(f"{scene.name}: largest |C| over the constraints {float(result.constraint_violation.max()):.3g} m "
                   f"over the run, {result.constraint_violation[-1]:.3g} m at the end")
     return 0 if result.status.value == "ok" else 1
+
+
+def _rate(result) -> str:
+    """" (N steps/s after the first)" for the summary line: the rate with the first step's
+    compiling left out, which on a short run is most of the wall time; "" for a run of one step."""
+    rate = result.steps_per_second
+    if not math.isfinite(rate):
+        return ""
+    return f" ({rate:,.0f} steps/s after the first)" if rate >= 100 else f" ({rate:.3g} steps/s after the first)"
 
 
 def _check_step_count(steps: int | None, dt: float | None, t_end: float | None, planned_steps) -> None:

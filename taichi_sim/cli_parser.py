@@ -348,6 +348,8 @@ def build_parser() -> argparse.ArgumentParser:
                      help="largest position error (m) wanted at --t-end: recommend an integrator and step")
     adv.add_argument("--t-end", type=_positive_float, default=1.0, help="simulated time in s (default 1)")
     adv.add_argument("--integrators", metavar="A,B,...", help="candidates for the recommendation (default: all)")
+    adv.add_argument("--budget", type=_positive_float, metavar="S", default=20.0,
+                     help="at most S seconds of pilot runs, compiling included (default 20)")
     adv.add_argument("--precision", choices=("f32", "f64"), default="f64", help=_PRECISION_HELP)
     adv.add_argument("--arch", choices=("cpu", "gpu"), default="cpu", help=_ARCH_HELP)
     adv.add_argument("--seed", type=int, default=0, help="random seed for scenes with randomness (default 0)")

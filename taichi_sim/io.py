@@ -51,6 +51,7 @@ def run_arrays(scene: Scene, result: RunResult, *, integrator: Integrator, dt: f
         "message": np.str_(result.message), "seed": np.int64(scene.seed),
         "energy": result.energy, "energy_t": result.energy_t,
         "failed_step": np.int64(result.failed_step), "failed_t": np.float64(result.failed_t),
+        "wall_time": np.float64(result.wall_time), "steps_per_second": np.float64(result.steps_per_second),
     }
     if result.constraint_violation is not None:
         data["constraint_violation"] = result.constraint_violation

@@ -31,6 +31,9 @@ class RunResult:
             has no energy or sampling was off.
         message: a one-line explanation when status is not OK.
         wall_time: seconds spent stepping (compile time of the first step included).
+        warm_time: seconds from the end of the first accepted step to the end of the run: the
+            stepping without the first step, which compiles most kernels (NaN for a run of
+            fewer than two steps); :attr:`steps_per_second` divides by it.
         failed_step, failed_t: where the run stopped when status is not OK (the step that
             failed, or at which the blow-up guard caught it, and its time in s); 0 and NaN
             for an OK run. ``steps`` and ``t`` are those of the state left in the scene: for a
@@ -87,6 +90,16 @@ class RunResult:
     worst_error_estimate: float = math.nan
     tolerance: float = math.nan
     warnings: tuple = ()
+    warm_time: float = math.nan
+
+    @property
+    def steps_per_second(self) -> float:
+        """Accepted steps per second of wall time after the first accepted step (compile time
+        left out: the first step compiles the step's kernels and the guard's); NaN for a run
+        of fewer than two steps, whose rate would be mostly compile time."""
+        if self.steps < 2 or not self.warm_time > 0:
+            return math.nan
+        return (self.steps - 1) / self.warm_time
 
 
 def planned_steps(dt: float, t_end: float) -> int:
@@ -217,6 +230,7 @@ def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: 
     step, step_toward, update = stepper.step, stepper.step_toward, bar.update
     interrupted = interrupt.check  # a Ctrl-C that Taichi swallowed while compiling the first step
     by_steps = steps is not None
+    warm = None  # when the first accepted step ended: the rate after it leaves compiling out
     with bar:
         while stepper.failure is None and (stepper.steps < steps if by_steps else stepper.t < t_end):
             interrupted()
@@ -244,12 +258,15 @@ def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: 
             if history is not None and stepper.steps % save_every == 0:
                 history.keep(stepper.t)
             update(report.h if by_time else 1)
+            if warm is None:
+                warm = time.perf_counter()
         # The last state is always checked and sampled.
         if stepper.failure is None and not stepper.checked:
             stepper.check()
         if stepper.failure is None and has_energy and energy_t[-1] != stepper.t:
             sample(stepper.t)
-    wall = time.perf_counter() - start
+    end = time.perf_counter()
+    wall = end - start
     t, failure, monitor = stepper.t, stepper.failure, stepper.monitor
     energy_t = np.asarray(energy_t, float)
     kept = energy_t <= t  # a diverged run's trace ends at the state it returns
@@ -268,7 +285,8 @@ def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: 
                      error_estimate=np.asarray(monitor.distances, float),
                      worst_error_estimate=monitor.worst_distance, tolerance=monitor.tolerance,
                      residual_note=monitor.reason, worst_residual=monitor.worst, max_residual=monitor.bound,
-                     warnings=tuple(stepper.warnings) + _integrator_warnings(stepper.integrator))
+                     warnings=tuple(stepper.warnings) + _integrator_warnings(stepper.integrator),
+                     warm_time=math.nan if warm is None or stepper.steps < 2 else end - warm)
 
 
 def _integrator_warnings(integrator) -> tuple[str, ...]:

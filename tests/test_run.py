@@ -128,3 +128,30 @@ def test_build_scene_names_the_bad_parameter(f64, name, params, problem):
 def test_symplectic_euler_refuses_a_first_order_system(f64):
     with pytest.raises(ValueError, match="second-order"):
         ts.create_integrator("symplectic_euler", ts.build_scene("simple").system)
+
+
+def test_steps_per_second_leaves_the_first_step_out(f64, monkeypatch):
+    """The rate is that of the steps after the first, whose compiling it must not count: a
+    first step made to take 0.3 s (as compiling would) leaves the rate of 20 fast steps far
+    above 19 / 0.3 steps/s."""
+    import time
+
+    scene = oscillator()
+    integrator = ts.create_integrator("symplectic_euler", scene.system)
+    step = integrator.step
+    calls = []
+
+    def slow_first(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 1:
+            time.sleep(0.3)
+        return step(*args, **kwargs)
+
+    monkeypatch.setattr(integrator, "step", slow_first)
+    result = ts.run(scene, integrator, dt=0.01, steps=20, energy_every=0)
+    assert result.wall_time >= 0.3
+    assert result.warm_time < result.wall_time - 0.25
+    assert result.steps_per_second == pytest.approx(19 / result.warm_time)
+    assert result.steps_per_second > 10 * 19 / 0.3  # the 0.3 s first step is not in it
+    single = ts.run(scene, "symplectic_euler", dt=0.01, steps=1, energy_every=0)
+    assert math.isnan(single.steps_per_second)  # one step: nothing but its compiling to rate

@@ -10,7 +10,8 @@ Modules:
 * :mod:`.stability`: the largest stable step per integrator, found by bisection, against theory.
 * :mod:`.throughput`: particle-steps per second against grid size, precision and scene
   features, with the Taichi and warp peers timed in their own subprocesses.
-* :mod:`.advise`: the stability table and a recommended (integrator, step) for a target error.
+* :mod:`.advise`: the stability table; :mod:`.advise_target`: the (integrator, step) that
+  reaches a target error in the least wall time, measured against a reference run.
 
 Importing this package does not call ``ti.init``; matplotlib (plots) and scipy (reference
 solutions, a cross-check of omega_max) are optional (``pip install 'taichi_sim[bench]'``).

@@ -148,7 +148,7 @@ def advise_main(args) -> int:
     from ..scene import build_scene, scene_preset
     from ..scene.params import resolve, scene_assignments
     from ..scene.presets import check_scene_memory
-    from .advise import check, recommend, scene_omegas, stability_table
+    from .advise import scene_omegas, stability_table
 
     preset = scene_preset(args.scene)
     params = scene_assignments(args.assignments)
@@ -158,6 +158,8 @@ def advise_main(args) -> int:
     integrators = _integrator_names(args.integrators) if args.integrators else None
     if args.target_error is not None and not (math.isfinite(args.target_error) and args.target_error > 0):
         raise ConfigError(f"--target-error must be a finite number > 0, got {args.target_error}")
+    if not (math.isfinite(args.budget) and args.budget > 0):
+        raise ConfigError(f"--budget must be a finite number > 0, got {args.budget}")
     runtime.init(arch=args.arch, precision=args.precision)
     scene = build_scene(args.scene, params, seed=args.seed)
     omegas = scene_omegas(scene)
@@ -175,23 +177,53 @@ def advise_main(args) -> int:
           "none" if r["C"] == 0 else _fmt(r["limit_bound"]), r["note"]] for r in table]))
     if args.target_error is None:
         return 0
-    with common.progress_bar(len(table), "pilot runs", False) as bar:
-        rows = recommend(scene, table, args.target_error, args.t_end, integrators, progress=bar)
-    checked = check(scene, table, rows, args.target_error, args.t_end)
-    print(f"\nFor a position error of {args.target_error:g} m at t = {args.t_end:g} s (pilot runs, Richardson "
-          f"estimate; see `taichi_sim.bench.advise`):")
+    return _advise_target(args, scene, table, integrators)
+
+
+def _advise_target(args, scene, table, integrators) -> int:
+    """The measured recommendation for --target-error (:mod:`.advise_target`), its cost said
+    first."""
+    import time
+
+    from .advise_target import candidates, cost_line, f_seconds, lower_bounds, recommend
+
+    start = time.perf_counter()
+    f_time = f_seconds(scene)
+    planned = candidates(scene, table, args.t_end, integrators)
+    lower_bounds(planned, args.t_end, f_time)
+    if not planned:
+        print("\nno candidates: no fixed-step method has a predicted step here (the table's notes say why)")
+        print("no fixed-step integrator could be recommended", file=sys.stderr)
+        return 1
+    print("\n" + cost_line(scene, table, planned, args.t_end, f_time, args.budget), flush=True)
+    with common.progress_bar(len(planned), "pilot runs", False) as bar:
+        rows, measured = recommend(scene, table, args.target_error, args.t_end, integrators, budget=args.budget,
+                                   f_time=f_time, progress=bar)
+    if all(r["status"] == "no estimate" for r in rows):
+        print(f"\n{measured}")
+        print("no fixed-step integrator could be recommended", file=sys.stderr)
+        return 1
+    print(f"\nFor a position error of {args.target_error:g} m at t = {args.t_end:g} s, fastest run first "
+          f"(wall time on this machine; see `taichi_sim.bench.advise_target`):")
     print(common.format_table(
-        ["integrator", "order", "step (s)", "limited by", "steps", "cost (f-evals + lin. its)", "wall (s)", "status"],
-        [[r["integrator"], r["order"], r.get("h"), r.get("limited_by"), r.get("steps"), r.get("cost"),
-          r.get("wall_s"), r["status"] + (f": {r['note']}" if r.get("note") else "")]
-         for r in rows]))
-    print(checked)
-    best = next((r for r in rows if r["status"] == "ok"), None)
+        ["integrator", "order", "step (s)", "limited by", "steps", "error (m)", "run time (s)", "status"],
+        [[r["integrator"], r["order"], r.get("h"), r.get("limited_by"), r.get("steps"), _error_cell(r),
+          r.get("wall_s"), r["status"] + (f": {r['note']}" if r.get("note") else "")] for r in rows]))
+    print(measured)
+    print(f"advised in {time.perf_counter() - start:.0f} s")
+    best = next((r for r in rows if r["status"] in ("ok", "estimated")), None)
     if best is None:
         print("no fixed-step integrator could be recommended", file=sys.stderr)
         return 1
+    shown = ("shown by a pilot run at that step" if best["status"] == "ok" else
+             "estimated, not shown by a run at that step: check it with a run at half the step")
     print(f"recommended: --integrator {best['integrator']} --dt {best['h']:.3g} ({best['steps']} steps, "
-          f"about {best['cost']:.3g} f-evaluations, {best['wall_s']:.3g} s on this machine)"
-          + ("; no candidate solves its step at its size, so check this one against a finer run"
-             if best.get("converged") is False else ""))
+          f"about {best['wall_s']:.3g} s on this machine; error {_error_cell(best)} m, {shown})")
     return 0
+
+
+def _error_cell(row: dict) -> str | None:
+    """A measured error as it is; an estimated one marked with "~"."""
+    if row.get("error") is None:
+        return None
+    return f"{row['error']:.2g}" if row.get("measured") else f"~{row['error']:.2g}"
