@@ -184,7 +184,8 @@ def cmd_simulate(args) -> int:
             verdict = "within" if worst <= result.tolerance else "OVER"
             print(f"{scene.name}: estimated error <= {format_metres(worst)} (t = {_worst_time(result):.6g} s) over "
                   f"{len(result.error_estimate)} sampled steps, {verdict} --tolerance {format_metres(result.tolerance)} "
-                  f"(solver residual at most {result.worst_residual:.3g})")
+                  f"(solver residual at most {result.worst_residual:.3g}; the samples took "
+                  f"{result.estimate_time:.2g} s, left out of steps/s)")
         elif result.residual_note and integrator.equation is not None:
             print(f"{scene.name}: error not estimated: {result.residual_note}")
         for part in scene.parts:

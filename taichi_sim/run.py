@@ -33,7 +33,10 @@ class RunResult:
         wall_time: seconds spent stepping (compile time of the first step included).
         warm_time: seconds from the end of the first accepted step to the end of the run: the
             stepping without the first step, which compiles most kernels (NaN for a run of
-            fewer than two steps); :attr:`steps_per_second` divides by it.
+            fewer than two steps); :attr:`steps_per_second` divides by it, less
+            ``estimate_time``'s share after the first step.
+        estimate_time: seconds the error estimate's samples took (all of them) and
+            estimate_warm_time: those after the first step (see ``error_estimate``).
         failed_step, failed_t: where the run stopped when status is not OK (the step that
             failed, or at which the blow-up guard caught it, and its time in s); 0 and NaN
             for an OK run. ``steps`` and ``t`` are those of the state left in the scene: for a
@@ -91,15 +94,18 @@ class RunResult:
     tolerance: float = math.nan
     warnings: tuple = ()
     warm_time: float = math.nan
+    estimate_time: float = 0.0
+    estimate_warm_time: float = 0.0
 
     @property
     def steps_per_second(self) -> float:
         """Accepted steps per second of wall time after the first accepted step (compile time
         left out: the first step compiles the step's kernels and the guard's); NaN for a run
         of fewer than two steps, whose rate would be mostly compile time."""
-        if self.steps < 2 or not self.warm_time > 0:
+        stepping = self.warm_time - self.estimate_warm_time
+        if self.steps < 2 or not stepping > 0:
             return math.nan
-        return (self.steps - 1) / self.warm_time
+        return (self.steps - 1) / stepping
 
 
 def planned_steps(dt: float, t_end: float) -> int:
@@ -259,7 +265,7 @@ def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: 
                 history.keep(stepper.t)
             update(report.h if by_time else 1)
             if warm is None:
-                warm = time.perf_counter()
+                warm, estimated = time.perf_counter(), stepper.monitor.seconds
         # The last state is always checked and sampled.
         if stepper.failure is None and not stepper.checked:
             stepper.check()
@@ -286,7 +292,9 @@ def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: 
                      worst_error_estimate=monitor.worst_distance, tolerance=monitor.tolerance,
                      residual_note=monitor.reason, worst_residual=monitor.worst, max_residual=monitor.bound,
                      warnings=tuple(stepper.warnings) + _integrator_warnings(stepper.integrator),
-                     warm_time=math.nan if warm is None or stepper.steps < 2 else end - warm)
+                     warm_time=math.nan if warm is None or stepper.steps < 2 else end - warm,
+                     estimate_time=monitor.seconds,
+                     estimate_warm_time=0.0 if warm is None else monitor.seconds - estimated)
 
 
 def _integrator_warnings(integrator) -> tuple[str, ...]:

@@ -194,7 +194,7 @@ def run_to(scene, integrator, h: float, t_end: float, give_up: float = math.inf)
 
     scene.restore()
     integrator.reset()
-    stepper = Stepper(scene, integrator, h)
+    stepper = Stepper(scene, integrator, h, raise_work=False)  # the candidate at its settings
     if stepper.refusal:
         return Pilot(message=stepper.refusal)
     first = None
@@ -231,7 +231,7 @@ def probe_step(scene, integrator, h: float) -> float:
 
     scene.restore()
     integrator.reset()
-    stepper = Stepper(scene, integrator, h)
+    stepper = Stepper(scene, integrator, h, raise_work=False)
     stepper.step()
     _sync()
     start = time.perf_counter()

@@ -13,6 +13,7 @@ of a run and the steps a caller asks to check are always sampled.
 from __future__ import annotations
 
 import math
+import time
 
 from ..errors import ConfigError
 from ..integrators.equation import EXACT, Equation
@@ -64,6 +65,7 @@ class ConvergenceMonitor:
         times, values, distances: the samples (s, relative residual, estimated distance (m)).
         worst, worst_t: the largest residual and its time; worst_distance, worst_distance_t:
             the largest distance and its time (NaN before any).
+        seconds: wall time the samples took (s).
     """
 
     def __init__(self, scene, integrator, max_residual: float | None = None, tolerance: float | None = None):
@@ -132,6 +134,7 @@ class ConvergenceMonitor:
         self.warned = False
         self.work = 0.0  # work since the last sample; the first step is always due
         self._sampled = False
+        self.seconds = 0.0  # wall time spent sampling (reported; it decides nothing)
 
     def before_step(self, state) -> None:
         if self._start is not None and not self._tracked:
@@ -150,6 +153,7 @@ class ConvergenceMonitor:
         ``h`` s; recorded."""
         if not self.active:
             return math.nan, math.nan
+        start = time.perf_counter()
         self.work, self._sampled = 0.0, True
         if self._tracked and math.isfinite(self.integrator.solved_h):
             h = self.integrator.solved_h
@@ -164,6 +168,7 @@ class ConvergenceMonitor:
             self.worst, self.worst_t = value, t
         if _larger(distance, self.worst_distance):
             self.worst_distance, self.worst_distance_t = distance, t
+        self.seconds += time.perf_counter() - start
         return value, distance
 
     def forget_last(self) -> None:
