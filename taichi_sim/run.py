@@ -45,9 +45,9 @@ class RunResult:
         constraint_violation: for a scene with constraints, the largest |C| (m) over all
             constraints at each energy sample (aligned with ``energy_t``); None otherwise.
         solver_residual, residual_t: for a method that solves a system per step, its relative
-            residual (:mod:`taichi_sim.convergence`) at the sampled steps (the first, the last,
-            and as many between as cost at most 5 % of the run, chosen by work, so identical
-            runs sample identical steps) and their times (s); empty arrays otherwise.
+            residual (:mod:`taichi_sim.convergence`) at the sampled steps (the last, and as many
+            before it as cost at most 5 % of the run, chosen by work, so identical runs sample
+            identical steps) and their times (s); empty arrays otherwise.
             residual_note: why a run has none ("").
         error_estimate: at the same samples, the estimated distance (m) of the step's positions
             from the solution of its method's equation (the largest over the particles);

@@ -81,7 +81,7 @@ def test_xpbd_meets_a_tolerance_by_taking_more_substeps_and_lands_within_it(f64,
     assert stepper.failure is None and not stepper.warnings
     assert integrator.substeps > 20
     monitor = stepper.monitor
-    assert len(monitor.distances) >= 2 and monitor.worst_distance <= 1e-4
+    assert len(monitor.distances) >= 1 and monitor.worst_distance <= 1e-4
     x0, v0 = (a.astype(float) for a in monitor._start.to_numpy())
     x1 = scene.state.to_numpy()[0].astype(float)
     x_star, _ = monitor.distance_model.solve_step(x0, v0, integrator.solved_h, guess=x1)
@@ -117,7 +117,7 @@ def test_identical_runs_sample_identical_steps_and_estimates(f64):
         result = ts.run(scene, ts.create_integrator("xpbd", scene.system), dt=1 / 60, steps=400)
         assert result.status is ts.Status.OK
         runs.append(result)
-    assert 2 < len(runs[0].residual_t) < 400  # thinned, by work
+    assert 1 < len(runs[0].residual_t) < 400  # thinned, by work
     assert np.array_equal(runs[0].residual_t, runs[1].residual_t)
     assert np.array_equal(runs[0].error_estimate, runs[1].error_estimate)
 
