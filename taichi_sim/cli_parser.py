@@ -208,7 +208,8 @@ def build_parser() -> argparse.ArgumentParser:
                      help="how far a step's positions may be from the solution of the equation its method "
                           "solves (default 0.001 m; estimated at sampled steps): past it vbd, xpbd and "
                           "projective_dynamics double their iterations (substeps for xpbd) up to 16 times "
-                          "their default, unless given, then warn; implicit_euler and implicit_midpoint end "
+                          "their default, unless given, then warn; implicit_euler and implicit_midpoint "
+                          "tighten --newton-tolerance tenfold down to 1e-12, unless given, then end "
                           "not_converged (exit 1)")
     sim.add_argument("--max-residual", type=_positive_float, metavar="R",
                      help="bound on the relative residual recorded beside the error estimate (default 1e-2)")

@@ -146,11 +146,12 @@ class Stepper:
             :mod:`taichi_sim.convergence`).
         tolerance: how far (m) a step's positions may be from the solution of the equation the
             method solves (default :data:`~taichi_sim.convergence.DEFAULT_TOLERANCE`). A sampled
-            step past it is solved again with twice the method's work (its
+            step past it is solved again with more work (the method's
             :attr:`~taichi_sim.integrators.Integrator.work_option`, unless the caller set that
-            option) until it is within the tolerance or the option reaches its cap; then a
-            method that promises the solved step ends the run NOT_CONVERGED and a fixed-work one
-            warns once and goes on.
+            option: iterations or substeps doubled, a Newton tolerance divided by ten) until it
+            is within the tolerance or the option reaches its cap; then a method that promises
+            the solved step ends the run NOT_CONVERGED and a fixed-work one warns once and goes
+            on.
         raise_work: False keeps the method's work as it was set (benchmarks that measure a
             method at its settings); past the tolerance it then only warns or fails.
 
@@ -430,15 +431,21 @@ class Stepper:
         return True
 
     def _raise_work(self) -> bool:
-        """Double the method's work option up to its cap; False when it cannot grow."""
+        """Double the method's work count, or divide its relative tolerance by ten, up to its
+        cap; False when it is there."""
         option = self.work_option
         if not option:
             return False
         value = getattr(self.integrator, option)
         cap = self.integrator.work_cap
-        if value >= cap:
-            return False
-        setattr(self.integrator, option, min(cap, 2 * value))
+        if isinstance(value, int):
+            if value >= cap:
+                return False
+            setattr(self.integrator, option, min(cap, 2 * value))
+        else:
+            if value <= cap:
+                return False
+            setattr(self.integrator, option, max(cap, value / 10))
         return True
 
     def fail(self, status: Status, step: int, t: float, h: float, detail: str, *, restore: bool) -> None:

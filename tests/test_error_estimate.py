@@ -137,3 +137,22 @@ def test_simulate_refuses_a_bad_tolerance_before_writing(tmp_path, capsys, value
     assert code == 2 and not out.exists()
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--tolerance" in err[0]
+
+
+def test_newton_tightens_its_own_test_to_meet_a_tolerance_in_metres(f64):
+    # The default relative test leaves a 16 x 16 cloth at k = 1e4 N/m some 1e-8 m from its step;
+    # asked for 1e-10 m, implicit_euler solves the steps it samples again to tighter tests.
+    scene = stiff_cloth(size=16, k=1e4)
+    loose = ts.run(scene, ts.create_integrator("implicit_euler", scene.system), dt=1 / 60, steps=4,
+                   energy_every=1, tolerance=1.0)
+    assert loose.worst_error_estimate > 1e-10
+    scene.reset()
+    integrator = ts.create_integrator("implicit_euler", scene.system)
+    result = ts.run(scene, integrator, dt=1 / 60, steps=4, energy_every=1, tolerance=1e-10)
+    assert result.status is ts.Status.OK, result.message
+    assert integrator.newton_tolerance < loose_tolerance(scene)
+    assert result.worst_error_estimate <= 1e-10
+
+
+def loose_tolerance(scene) -> float:
+    return ts.create_integrator("implicit_euler", scene.system).newton_tolerance

@@ -115,12 +115,14 @@ class Integrator(ABC):
     hold (e.g. ``vbd``'s in-solve contact), "" for none: such a run's residual is not measured
     rather than reported as a convergence figure it is not."""
     work_option: str = ""
-    """The option (an int attribute read at every step, e.g. ``iterations``) whose growth brings
-    a fixed-work method's step closer to its equation's solution: a run whose sampled step is
-    farther than its tolerance doubles it up to ``work_cap`` (:class:`taichi_sim.Stepper`).
-    "" for none."""
-    work_cap: int = 0
-    """The most ``work_option`` may grow to under a tolerance."""
+    """The option (an attribute read at every step) that brings a method's step closer to its
+    equation's solution: a count that grows (``iterations``, ``substeps``: doubled) or a
+    relative tolerance that shrinks (``newton_tolerance``: divided by ten). A run whose sampled
+    step is farther than its tolerance changes it, up to ``work_cap``, and solves the step
+    again (:class:`taichi_sim.Stepper`). "" for none."""
+    work_cap: float = 0
+    """The furthest ``work_option`` may go under a tolerance (the largest count, the smallest
+    tolerance)."""
     given_options: frozenset = frozenset()
     """The options the caller set (:func:`~taichi_sim.integrators.create_integrator`)."""
     replaces_parts: frozenset = frozenset()

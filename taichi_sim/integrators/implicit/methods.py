@@ -39,6 +39,9 @@ class ImplicitEuler(ImplicitStageMethod):
     default_newton_iterations = 50
     inexact_newton = True
     equation = Equation("backward_euler", EXACT, advice=_NEWTON_ADVICE)
+    # Newton's stop test in metres: a step farther than the run's tolerance is solved again to a
+    # tenfold tighter relative test, down to 1e-12
+    work_option, work_cap = "newton_tolerance", 1e-12
     advice_note = ("no step limit: exact backward Euler, energy never rises on conservative scenes; "
                    "damps motion more as h omega grows")
 
@@ -94,5 +97,6 @@ class ImplicitMidpoint(ImplicitStageMethod):
     stage_fraction = 0.5
     default_newton_iterations = 50
     equation = Equation("implicit_midpoint", EXACT, advice=_NEWTON_ADVICE)
+    work_option, work_cap = "newton_tolerance", 1e-12  # as ImplicitEuler
     advice_note = ("no limit on linear springs (conserves their energy); on nonlinear springs "
                    "energy can rise and Newton can fail at large h omega (reported)")
