@@ -43,6 +43,7 @@ class IsometricBending(ForceTerm):
     """
 
     name = "bending"
+    elastic_model = "bending"
     reads_other_particles = True
     precomputes = True
     has_jacobian = True

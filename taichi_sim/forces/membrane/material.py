@@ -102,15 +102,30 @@ def _shear_part(f0, f1, mu, lam):
 
 
 @ti.func
+def _green(f0, f1):
+    """E = (F^T F - I) / 2 as (e00, e11, e01)."""
+    return 0.5 * (f0.dot(f0) - 1.0), 0.5 * (f1.dot(f1) - 1.0), 0.5 * f0.dot(f1)
+
+
+@ti.func
 def stvk(f0, f1, mu, lam):
-    """Saint Venant-Kirchhoff: psi = mu |E|^2 + lam/2 (tr E)^2, P = F S with
-    S = 2 mu E + lam tr(E) I. Returns (psi (J/m^2), p0, p1 (the columns of P, N/m), the 6x6
-    Hessian S_cd I + mu (delta_cd (f0 f0^T + f1 f1^T) + f_d f_c^T) + lam f_c f_d^T)."""
-    e00 = 0.5 * (f0.dot(f0) - 1.0)
-    e11 = 0.5 * (f1.dot(f1) - 1.0)
-    e01 = 0.5 * f0.dot(f1)
+    """Saint Venant-Kirchhoff: psi = mu |E|^2 + lam/2 (tr E)^2 and P = F S with
+    S = 2 mu E + lam tr(E) I. Returns (psi (J/m^2), p0, p1 (the columns of P, N/m))."""
+    e00, e11, e01 = _green(f0, f1)
     trace = e00 + e11
     psi = mu * (e00 * e00 + 2.0 * e01 * e01 + e11 * e11) + 0.5 * lam * trace * trace
+    s00 = 2.0 * mu * e00 + lam * trace
+    s11 = 2.0 * mu * e11 + lam * trace
+    s01 = 2.0 * mu * e01
+    return psi, s00 * f0 + s01 * f1, s01 * f0 + s11 * f1
+
+
+@ti.func
+def stvk_hessian(f0, f1, mu, lam):
+    """d^2 psi / dF^2 of :func:`stvk` (6x6): S_cd I + mu (delta_cd (f0 f0^T + f1 f1^T)
+    + f_d f_c^T) + lam f_c f_d^T."""
+    e00, e11, e01 = _green(f0, f1)
+    trace = e00 + e11
     s00 = 2.0 * mu * e00 + lam * trace
     s11 = 2.0 * mu * e11 + lam * trace
     s01 = 2.0 * mu * e01
@@ -120,7 +135,21 @@ def stvk(f0, f1, mu, lam):
         h[3 + c, 3 + c] += s11
         h[c, 3 + c] += s01
         h[3 + c, c] += s01
-    return psi, s00 * f0 + s01 * f1, s01 * f0 + s11 * f1, h
+    return h
+
+
+@ti.func
+def _area_ratio(f0, f1):
+    """(J = |f0 x f1|, the unit normal n, 1/J), with n = 0 and 1/J = 0 for a collapsed triangle
+    (no normal, no curvature of J)."""
+    w = f0.cross(f1)
+    jac = w.norm()
+    n = ti.Vector.zero(float, 3)
+    inv = 0.0 * jac
+    if jac > 1e-12 * (f0.dot(f0) + f1.dot(f1)):
+        n = w / jac
+        inv = 1.0 / jac
+    return jac, n, inv
 
 
 @ti.func
@@ -134,18 +163,22 @@ def neohookean(f0, f1, mu, lam):
     forms blow up. P's columns are mu f_c + (l (J - 1) - mu) q_c with q = dJ/dF
     (q0 = f1 x n, q1 = n x f0, n the unit normal); the Hessian is
     mu I + l q q^T + (l (J - 1) - mu) d^2J/dF^2 with d^2J/dF^2 = G^T (I - n n^T) G / J + N,
-    G = [-[f1]x, [f0]x], N = [[0, -[n]x], [[n]x, 0]]."""
+    G = [-[f1]x, [f0]x], N = [[0, -[n]x], [[n]x, 0]].
+    Returns (psi (J/m^2), p0, p1 (the columns of P, N/m))."""
     lam = lam + mu
-    w = f0.cross(f1)
-    jac = w.norm()
-    n = ti.Vector.zero(float, 3)
-    inv = 0.0 * jac
-    if jac > 1e-12 * (f0.dot(f0) + f1.dot(f1)):  # collapsed: no normal, no curvature of J
-        n = w / jac
-        inv = 1.0 / jac
+    jac, n, inv = _area_ratio(f0, f1)
+    psi = 0.5 * mu * (f0.dot(f0) + f1.dot(f1) - 2.0) - mu * (jac - 1.0) + 0.5 * lam * (jac - 1.0) ** 2
+    coef = lam * (jac - 1.0) - mu
+    return psi, mu * f0 + coef * f1.cross(n), mu * f1 + coef * n.cross(f0)
+
+
+@ti.func
+def neohookean_hessian(f0, f1, mu, lam):
+    """d^2 psi / dF^2 of :func:`neohookean` (6x6; see there)."""
+    lam = lam + mu
+    jac, n, inv = _area_ratio(f0, f1)
     q0 = f1.cross(n)
     q1 = n.cross(f0)
-    psi = 0.5 * mu * (f0.dot(f0) + f1.dot(f1) - 2.0) - mu * (jac - 1.0) + 0.5 * lam * (jac - 1.0) ** 2
     coef = lam * (jac - 1.0) - mu
     g0 = -_cross_matrix(f1)
     g1 = _cross_matrix(f0)
@@ -158,7 +191,7 @@ def neohookean(f0, f1, mu, lam):
               + coef * inv * (g1.transpose() @ proj @ g1))
     set_block(h, 0, 1, lam * q0.outer_product(q1) + coef * (inv * (g0.transpose() @ proj @ g1) - nx))
     set_block(h, 1, 0, lam * q1.outer_product(q0) + coef * (inv * (g1.transpose() @ proj @ g0) + nx))
-    return psi, mu * f0 + coef * q0, mu * f1 + coef * q1, h
+    return h
 
 
 @ti.func

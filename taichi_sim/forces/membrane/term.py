@@ -8,7 +8,7 @@ from ..base import ForceTerm
 from ..springs.topology import incidence_of
 from .geometry import rest_frames
 from .jacobian import MembraneJacobians
-from .material import MembraneMaterial, neohookean, stvk, viscous
+from .material import MembraneMaterial, neohookean, neohookean_hessian, stvk, stvk_hessian, viscous
 
 
 @ti.data_oriented
@@ -49,7 +49,7 @@ class Membrane(MembraneJacobians, ForceTerm):
         if T == 0:
             raise ValueError("Membrane needs at least one triangle")
         self.material = material
-        self.model = material.model
+        self.model = self.elastic_model = material.model
         self.damped = material.damping > 0
         inverse, area = rest_frames(rest_x, triangles)
         self.triangles_np, self.inverse_np, self.area_np = triangles, inverse, area
@@ -65,6 +65,8 @@ class Membrane(MembraneJacobians, ForceTerm):
         self.moduli = ti.Vector.field(3, real, shape=())
         self.triangle_force = ti.Vector.field(3, real, shape=(T, 3))  # each triangle's force on each corner
         self.entry_block = None  # the Jacobian cache, allocated by bind_jacobian_cache
+        # each triangle's 3x3 blocks a df_r/dv_s + b df_r/dx_s, filled by precompute_jacobian
+        self.triangle_block = ti.Matrix.field(3, 3, real, shape=(T, 3, 3))
         npr = runtime.np_real()
         self._upload(triangles, inverse.astype(npr), area.astype(npr), offsets, element, slot,
                      np.array([material.mu, material.lam, material.damping], npr))
@@ -118,21 +120,31 @@ class Membrane(MembraneJacobians, ForceTerm):
 
     @ti.func
     def elastic(self, f0, f1):
-        """(psi (J/m^2), P's columns (N/m), the 6x6 Hessian) of the term's material."""
+        """(psi (J/m^2), P's columns (N/m)) of the term's material."""
         m = self.moduli[None]
-        psi, p0, p1, h = 0.0 * m[0], ti.Vector.zero(float, 3), ti.Vector.zero(float, 3), \
-            ti.Matrix.zero(float, 6, 6)
+        psi, p0, p1 = 0.0 * m[0], ti.Vector.zero(float, 3), ti.Vector.zero(float, 3)
         if ti.static(self.model == "stvk"):
-            psi, p0, p1, h = stvk(f0, f1, m[0], m[1])
+            psi, p0, p1 = stvk(f0, f1, m[0], m[1])
         else:
-            psi, p0, p1, h = neohookean(f0, f1, m[0], m[1])
-        return psi, p0, p1, h
+            psi, p0, p1 = neohookean(f0, f1, m[0], m[1])
+        return psi, p0, p1
+
+    @ti.func
+    def elastic_hessian(self, f0, f1):
+        """d^2 psi / dF^2 (6x6, N/m) of the term's material."""
+        m = self.moduli[None]
+        h = ti.Matrix.zero(float, 6, 6)
+        if ti.static(self.model == "stvk"):
+            h = stvk_hessian(f0, f1, m[0], m[1])
+        else:
+            h = neohookean_hessian(f0, f1, m[0], m[1])
+        return h
 
     @ti.func
     def triangle_stress(self, t, y, g):
         """(A psi (J), A R (W), the columns of A (P + P_v) (N m)) of triangle t at ``y``."""
         f0, f1 = self.columns(t, y.x, g)
-        psi, p0, p1, hessian = self.elastic(f0, f1)
+        psi, p0, p1 = self.elastic(f0, f1)
         r = 0.0 * psi
         if ti.static(self.damped):
             d0, d1 = self.columns(t, y.v, g)
@@ -183,7 +195,7 @@ class Membrane(MembraneJacobians, ForceTerm):
         for e in range(self.offsets[i], self.offsets[i + 1]):
             t = self.incident[e]
             f0, f1 = self.columns(t, y.x, self.shape_gradients(t))
-            psi, p0, p1, hessian = self.elastic(f0, f1)
+            psi, p0, p1 = self.elastic(f0, f1)
             total += self.area[t] * psi / 3.0
         return total
 
