@@ -78,9 +78,11 @@ def bending_stencils(x, triangles) -> tuple[np.ndarray, np.ndarray]:
     mean-curvature vector across it is sum_k K_k x_k with the cotangent weights
     K = (c03 + c04, c01 + c02, -c01 - c03, -c02 - c04) of the rest angles (c01, c02 at x0,
     c03, c04 at x1, in the first and second triangle); it vanishes on any flat shape and on
-    rigid motions. The edge's energy is (D/2) (3 / (A0 + A1)) |sum_k K_k x_k|^2 for a bending
-    stiffness D (N m): summed over the edges it approximates (D/2) times the integral of
-    (k1 + k2)^2 over the area (D/2 k^2 per m^2 for a cylinder of curvature k).
+    rigid motions. The edge's energy is (D/2) |sum_k K_k x_k|^2 / (A0 + A1) for a bending
+    stiffness D (N m). Bergou et al. scale by 3 / (A0 + A1); with 1 / (A0 + A1) a grid cloth
+    rolled into a cylinder of curvature k about either grid axis stores (D/2) k^2 per m^2, a
+    plate's energy (measured: tests/test_membrane.py; across the cells' diagonals about three
+    times as much, the per-edge model's anisotropy on that mesh).
 
     Args:
         x: (n, 3) rest positions (m); the rest shape is taken as flat, whatever x's curvature.
@@ -89,7 +91,7 @@ def bending_stencils(x, triangles) -> tuple[np.ndarray, np.ndarray]:
     Returns:
         vertices: (B, 4) int64 (x0, x1, x2, x3) of each interior edge shared by exactly two
             triangles (non-manifold edges get none).
-        weights: (B, 4) float64 sqrt(3 / (A0 + A1)) K (1/m): the edge's energy is
+        weights: (B, 4) float64 K / sqrt(A0 + A1) (1/m): the edge's energy is
             (D/2) |sum_k weights_k x_k|^2.
     """
     x = np.asarray(x, float)
@@ -114,7 +116,7 @@ def bending_stencils(x, triangles) -> tuple[np.ndarray, np.ndarray]:
     c03, c04 = _cot(-e0, e3), _cot(-e0, e4)
     area = 0.5 * (np.linalg.norm(np.cross(e0, e1), axis=1) + np.linalg.norm(np.cross(e0, e2), axis=1))
     k = np.stack([c03 + c04, c01 + c02, -c01 - c03, -c02 - c04], axis=1)
-    return np.stack([v0, v1, v2, v3], axis=1), k * np.sqrt(3.0 / area)[:, None]
+    return np.stack([v0, v1, v2, v3], axis=1), k / np.sqrt(area)[:, None]
 
 
 def omega_max_bound(mass, pinned, triangles, inverse, area, mu: float, lam: float,
