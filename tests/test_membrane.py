@@ -318,3 +318,55 @@ def test_bending_a_sheet_into_a_cylinder_stores_half_d_kappa_squared_per_area(f6
     assert 2.5 < ratios[2] < 3.0
     state.from_numpy(x @ np.array([[0.0, 1, 0], [-1, 0, 0], [0, 0, 1]]).T + 1.0, np.zeros_like(x))
     assert system.potential_energy(state) == pytest.approx(0.0, abs=1e-12)
+
+
+@ti.kernel
+def _cached_rows(system: ti.template(), y: ti.template(), p: ti.template(), diagonal: ti.template(),
+                 out: ti.template(), lower: ti.template(), upper: ti.template(), a: float, b: float):
+    system.prepare_jacobian(y, a, b, 0.0)
+    for i in range(out.shape[0]):
+        diagonal[i] = system.cache_system_matrix_row(i, y, a, b, 0.0)
+    for i in range(out.shape[0]):
+        out[i] = system.cached_system_matrix_row(i, y, p, a, b, 0.0, diagonal[i])
+        lower[i] = system.cached_triangle_product(i, p, -1)
+        upper[i] = system.cached_triangle_product(i, p, 1)
+
+
+@pytest.mark.parametrize("model", MODELS)
+def test_cached_rows_and_the_assembled_matrix_are_the_system_matrix(f64, model, rng):
+    """What CG and its Gauss-Seidel sweeps read (the cached rows, each triangle's side of the
+    diagonal) and what the direct solver factorises (the assembled lower triangle) are
+    A = M - a df/dv - b df/dx, with a pinned vertex's row and column the identity's."""
+    x, tri = sheet()
+    material = MembraneMaterial.from_parameters(model, stretch_modulus=800.0, poisson_ratio=0.3, damping=0.02)
+    pinned = np.zeros(len(x), bool)
+    pinned[[0, 5]] = True
+    system, state = system_of(x, tri, material, bending=0.05, pinned=pinned)
+    system.bind_jacobian_cache()
+    deformed = 0.9 * x + 0.02 * rng.normal(size=x.shape)
+    state.from_numpy(deformed, np.zeros_like(x))
+    a, b = 0.3, 0.7
+    free = np.repeat(~pinned, 3)
+    expected = np.eye(3 * len(x)) - jacobian_matrix(system, state, a, b)  # unit masses
+    expected[~free, :] = 0.0
+    expected[:, ~free] = 0.0
+    expected[~free, ~free] = 1.0
+    n = len(x)
+    p_np = rng.normal(size=(n, 3))
+    p_np[pinned] = 0.0  # as every vector of the solve
+    fields = [ti.Vector.field(3, ti.f64, shape=n) for _ in range(4)]
+    p, out, lower, upper = fields
+    diagonal = ti.Matrix.field(3, 3, ti.f64, shape=n)
+    p.from_numpy(p_np)
+    state.from_numpy(deformed, np.zeros_like(x))
+    _cached_rows(system, state, p, diagonal, out, lower, upper, a, b)
+    product = expected @ p_np.ravel()
+    np.testing.assert_allclose(out.to_numpy().ravel(), product, atol=1e-9 * np.abs(product).max())
+    sides = lower.to_numpy() + upper.to_numpy() + np.einsum("nij,nj->ni", diagonal.to_numpy(), p_np)
+    np.testing.assert_allclose(sides.ravel()[free], product[free], atol=1e-9 * np.abs(product).max())
+    builder = ti.linalg.SparseMatrixBuilder(3 * n, 3 * n, max_num_triplets=system.system_matrix_triplet_capacity,
+                                            dtype=ti.f64)
+    system.assemble_system_matrix(state, a, b, 0.0, builder)
+    lower_triangle = builder.build()
+    dense = np.array([lower_triangle @ column for column in np.eye(3 * n)]).T
+    np.testing.assert_allclose(dense, np.tril(expected), atol=1e-9 * np.abs(expected).max())
