@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 import taichi_sim as ts
+from taichi_sim.app.session import compatible_integrators
 from taichi_sim.cli import main
 from taichi_sim.convergence import ConvergenceMonitor
 from taichi_sim.errors import ConfigError
@@ -71,6 +72,8 @@ def test_positional_methods_refuse_a_membrane_before_running(f64, integrator):
     scene = ts.build_scene("cloth", {**TINY, "material": "stvk"})
     with pytest.raises(ConfigError, match=rf"integrator '{integrator}' cannot step a cloth of material bending\+stvk"):
         ts.create_integrator(integrator, scene.system)
+    assert integrator not in compatible_integrators(scene)  # the launcher does not offer it
+    assert {"symplectic_euler", "rk45", "implicit_euler", "implicit_midpoint"} <= set(compatible_integrators(scene))
 
 
 def test_the_cli_refuses_in_one_line(tmp_path, capsys):
