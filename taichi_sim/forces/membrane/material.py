@@ -230,18 +230,18 @@ def project_psd(h):
         shift += h[k, k]
     shift = 1e-9 * ti.max(shift, 0.0) / 6.0 + 1e-300
     ok = True
-    l = h
+    work = h
     for k in ti.static(range(6)):
-        l[k, k] += shift
+        work[k, k] += shift
     for k in range(6):
         if ok:
-            if l[k, k] <= 0.0:
+            if work[k, k] <= 0.0:
                 ok = False
             else:
                 for r in range(k + 1, 6):
-                    factor = l[r, k] / l[k, k]
+                    factor = work[r, k] / work[k, k]
                     for c in range(k + 1, r + 1):
-                        l[r, c] -= factor * l[c, k]
+                        work[r, c] -= factor * work[c, k]
     out = h
     if not ok:
         a = h
