@@ -7,6 +7,11 @@ default springs, against the plate's (D/2) kappa^2 A (numpy, no simulation).
 
     .venv/bin/python benchmarks/bench_membrane.py [--sizes 16 32 64] [--materials stvk neohookean springs]
     .venv/bin/python benchmarks/bench_membrane.py --study cylinder
+    .venv/bin/python benchmarks/bench_membrane.py --study steps --sizes 32
+
+``--study steps``: the ``cloth-membrane`` preset per material and method, its first step
+(compiling, or loading from Taichi's cache) and the median of the next 20 (implicit, 1/60 s)
+or 200 (explicit, at the scene's explicit step) steps.
 """
 import argparse
 import time
@@ -49,11 +54,29 @@ def cylinder(n: int, radius: float = 0.25, stiffness: float = 1.0) -> tuple[floa
     return bending / (0.5 * stiffness / radius ** 2), springs
 
 
+def steps(material: str, method: str, n: int) -> tuple[float, float, float]:
+    """(step (s), first step's wall time (s), median step's (s)) of ``cloth-membrane``."""
+    scene = ts.build_scene("cloth-membrane", {"nx": n, "ny": n, "material": material})
+    dt = 1 / 60 if method.startswith("implicit") else scene.explicit_dt
+    stepper = ts.Stepper(scene, ts.create_integrator(method, scene.system), dt)
+    start = time.perf_counter()
+    stepper.step()
+    first = time.perf_counter() - start
+    walls = []
+    for _ in range(20 if method.startswith("implicit") else 200):
+        start = time.perf_counter()
+        stepper.step()
+        walls.append(time.perf_counter() - start)
+        if stepper.failure is not None:
+            raise SystemExit(f"{material} {method}: {stepper.failure.message}")
+    return dt, first, float(np.median(walls))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sizes", type=int, nargs="+", default=[16, 32, 64])
     parser.add_argument("--materials", nargs="+", default=["stvk", "neohookean", "springs"])
-    parser.add_argument("--study", choices=("hang", "cylinder"), default="hang")
+    parser.add_argument("--study", choices=("hang", "cylinder", "steps"), default="hang")
     args = parser.parse_args()
     if args.study == "cylinder":
         print("| n x n | bending / plate's (D/2) kappa^2 A | spring net's energy (J) |")
@@ -63,6 +86,15 @@ def main() -> None:
             print(f"| {n} | {ratio:.4f} | {springs:.3g} |")
         return
     ts.init(arch="cpu", precision="f64")
+    if args.study == "steps":
+        print("| material | n x n | method | step (s) | first step (s) | median step (ms) |")
+        print("|---|---|---|---|---|---|")
+        for material in [m for m in args.materials if m != "springs"]:
+            for n in args.sizes:
+                for method in ("symplectic_euler", "implicit_euler", "implicit_midpoint"):
+                    dt, first, median = steps(material, method, n)
+                    print(f"| {material} | {n} | {method} | {dt:.2g} | {first:.1f} | {1000 * median:.2f} |", flush=True)
+        return
     print("| material | n x n | sag (m) | stretch: sag - 1 m (mm) | largest speed left (m/s) | wall (s) |")
     print("|---|---|---|---|---|---|")
     for material in args.materials:

@@ -91,8 +91,10 @@ def test_the_cli_refuses_in_one_line(tmp_path, capsys):
 def test_a_positional_default_becomes_implicit_euler_and_explicit_steps_fit_the_membrane(f64):
     """The mesh scene's xpbd default runs implicit Euler on a membrane; an explicit method's
     step is below its stable limit there (it runs) and shrinks on a finer grid."""
-    mesh = ts.build_scene("mesh", {"material": "stvk"})
-    assert mesh.default_integrator == "implicit_euler" and mesh.springs is None
+    for name in ("mesh", "garment"):
+        mesh = ts.build_scene(name, {"material": "stvk"})
+        assert mesh.default_integrator == "implicit_euler" and mesh.springs is None
+        assert mesh.features["membrane"] == "stvk" and mesh.features["bending"]
     coarse = ts.build_scene("cloth", {"nx": 8, "ny": 8, "material": "stvk", "density": 1.0})
     fine = ts.build_scene("cloth", {"nx": 16, "ny": 16, "material": "stvk", "density": 1.0})
     assert coarse.default_integrator == "symplectic_euler" and fine.default_dt < coarse.default_dt <= 1e-3
