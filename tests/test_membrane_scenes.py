@@ -6,6 +6,7 @@ import pytest
 
 import taichi_sim as ts
 from taichi_sim.app.session import compatible_integrators
+from taichi_sim.bench.advise import scene_omegas
 from taichi_sim.cli import main
 from taichi_sim.convergence import ConvergenceMonitor
 from taichi_sim.errors import ConfigError
@@ -106,10 +107,13 @@ def test_a_positional_default_becomes_implicit_euler_and_explicit_steps_fit_the_
     assert ts.run(fine, "symplectic_euler", dt=3 * fine.default_dt, t_end=0.2, energy_every=0).status.value != "ok"
 
 
-def test_the_convergence_monitor_does_not_measure_a_membrane(f64):
+def test_the_spring_models_do_not_claim_a_membrane(f64):
+    """The residual monitor and advise's omega_max model springs only: a membrane run is not
+    measured, and no stable step is predicted for it, rather than a wrong figure given."""
     scene = ts.build_scene("cloth", {**TINY, "material": "neohookean"})
     monitor = ConvergenceMonitor(scene, ts.create_integrator("implicit_euler", scene.system))
     assert not monitor.active and "membrane" in monitor.reason
+    assert scene_omegas(scene)["omega_max"] is None
 
 
 @pytest.mark.parametrize("integrator", ["implicit_euler", "implicit_midpoint"])
