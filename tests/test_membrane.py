@@ -370,3 +370,24 @@ def test_cached_rows_and_the_assembled_matrix_are_the_system_matrix(f64, model, 
     lower_triangle = builder.build()
     dense = np.array([lower_triangle @ column for column in np.eye(3 * n)]).T
     np.testing.assert_allclose(dense, np.tril(expected), atol=1e-9 * np.abs(expected).max())
+
+
+@ti.kernel
+def _per_particle_forces(system: ti.template(), y: ti.template(), out: ti.template()):
+    for i in range(out.shape[0]):
+        f, scale, rounding = system.force_and_scale(i, y, 0.0)
+        out[i] = f
+
+
+@pytest.mark.parametrize("model", MODELS)
+def test_the_per_particle_force_is_the_whole_system_force(f64, model, rng):
+    """What the implicit methods evaluate vertex by vertex (``force``: each incident triangle
+    from the vertex) is what eval_f sums from the triangle-parallel buffer (``precompute``)."""
+    x, tri = sheet()
+    material = MembraneMaterial.from_parameters(model, stretch_modulus=800.0, poisson_ratio=0.2, damping=0.05)
+    system, state = system_of(x, tri, material, bending=0.03)
+    deformed, v = x + 0.03 * rng.normal(size=x.shape), rng.normal(size=x.shape)
+    whole = forces_at(system, state, deformed, v)
+    out = ti.Vector.field(3, ti.f64, shape=len(x))
+    _per_particle_forces(system, state, out)
+    np.testing.assert_allclose(out.to_numpy(), whole, rtol=1e-12, atol=1e-12 * np.abs(whole).max())
