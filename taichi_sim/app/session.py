@@ -15,6 +15,7 @@ from typing import Any, Sequence
 from ..convergence import format_metres
 from ..errors import ConfigError
 from ..integrators import INTEGRATORS, integrator_class
+from ..integrators.base import elastic_models
 from ..render.drawer import DrawOptions
 from ..scene import SCENES, build_scene, scene_preset
 from ..scene.live import LIVE_SETTERS, applies_live
@@ -65,10 +66,12 @@ def compatible_integrators(scene: Scene, plugins: Sequence[str] = ()) -> list[st
     systems have no velocities; a constrained one takes only the methods that evaluate forces
     through eval_f)."""
     constrained = getattr(scene.system, "constraints", None) is not None
+    elastic = bool(elastic_models(scene.system))
     classes = {**INTEGRATORS, **{name: integrator_class(name) for name in plugins}}
     return [name for name, cls in classes.items()
             if not (cls.requires_second_order and not scene.system.second_order)
-            and not (constrained and not cls.takes_constraints)]
+            and not (constrained and not cls.takes_constraints)
+            and not (elastic and not getattr(cls, "takes_elastic_models", True))]
 
 
 class Session:

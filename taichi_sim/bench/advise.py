@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 
+from ..integrators.base import elastic_models
 from ..theory import (
     damped_step_limit,
     horizon_limit,
@@ -38,6 +39,9 @@ def scene_omegas(scene, *, power_iterations: int = 300) -> dict:
     if getattr(scene, "constraints", None) is not None:
         # the spring model's omega_max says nothing of constraint forces and their feedback
         return {"omega_max": None, "omega_bound": None, "method": "not predicted with constraint forces"}
+    if elastic_models(scene.system):
+        # the same spring model knows nothing of a membrane's or its bending's stiffness
+        return {"omega_max": None, "omega_bound": None, "method": "not predicted for a membrane (material=...)"}
     arrays = scene.arrays
     omega, info = omega_max_power(arrays, scene.x0, max_iterations=power_iterations, tol=1e-10)
     return {"omega_max": omega, "omega_bound": omega_max_bound(arrays),

@@ -81,6 +81,12 @@ class ForceTerm:
     # :meth:`energy` and :meth:`dissipation`, so one gather kernel can evaluate everything a
     # Newton iteration's merit needs (see taichi_sim.integrators.implicit.velocity_stage).
 
+    elastic_model = ""
+    """The continuum model the term discretises ("stvk", "neohookean": a membrane;
+    "bending"), "" for none. The positional methods, which know the springs as constraints
+    and take every other force at the step's start, refuse a system with one
+    (:attr:`~taichi_sim.integrators.Integrator.takes_elastic_models`)."""
+
     source = False
     """Whether the term can put energy into the system (wind): then a system's energy may rise
     under any integrator, and the implicit methods do not require it to fall."""

@@ -106,6 +106,12 @@ class Integrator(ABC):
     pairs) do; the implicit and positional ones, which assemble the forces term by term, do
     not and refuse such a system."""
 
+    takes_elastic_models: bool = True
+    """Whether the method steps a system with continuum force terms (a membrane, bending:
+    :attr:`~taichi_sim.forces.ForceTerm.elastic_model`): the methods that call eval_f or the
+    force-Jacobian API do; the positional ones (XPBD, projective dynamics, VBD), whose solves
+    hold only springs, would take those forces explicitly at their large steps and refuse."""
+
     equation = None
     """The equation a step solves (:class:`~taichi_sim.integrators.equation.Equation`) for the
     methods that solve a system per step; None for the explicit ones. Runs measure its residual
@@ -149,6 +155,16 @@ class Integrator(ABC):
                 f"integrator {self.name!r} cannot step scene {constraints.scene!r}: its constraint "
                 f"forces are computed inside eval_f, which the implicit and positional methods do "
                 f"not use; pick an explicit method (rk4, rk45, symplectic_euler)")
+        models = elastic_models(system)
+        if models and not self.takes_elastic_models:
+            raise ConfigError(
+                f"integrator {self.name!r} cannot step a cloth of material {'+'.join(models)}: its solve holds "
+                f"springs only, and it would take the membrane and bending forces explicitly at its large "
+                f"steps; pick implicit_euler, implicit_midpoint or an explicit method (symplectic_euler, rk4)")
+        if models and self.equation is not None:
+            # the residual's force model (convergence.py) holds springs only: a residual measured
+            # without the membrane's forces would be wrong, so the run does not measure it
+            self.unmodelled_forces = f"membrane ({'+'.join(models)})"
         self.system = system
 
     initial_step_f_evals: int = 0
@@ -198,6 +214,11 @@ class Integrator(ABC):
     @abstractmethod
     def step(self, state: State, t: float, h: float) -> StepReport:
         """Advance ``state`` in place from time ``t`` by ``h`` seconds."""
+
+
+def elastic_models(system) -> list[str]:
+    """The continuum models of ``system``'s force terms (``ForceTerm.elastic_model``), sorted."""
+    return sorted({getattr(term, "elastic_model", "") for term in getattr(system, "terms", ())} - {""})
 
 
 def missing_facts(cls) -> list[str]:

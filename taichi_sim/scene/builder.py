@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 
 from ..forces import Drag, GrabSpring, Gravity, Springs, Turbulence, Wind
+from ..forces.membrane import IsometricBending, Membrane, MembraneMaterial, bending_stencils
 from ..forces.springs.grid import GridSprings, grid_layout
 from ..mesh import TriangleMesh
 from ..part import PartContext, PartSpec
@@ -62,6 +63,7 @@ class SceneBuilder:
         self._constraints: list[tuple] = []  # (kind, a, b, point, normal, length)
         self._feedback = (0.0, 0.0)
         self._rest_x: list[np.ndarray] = []
+        self._membrane: tuple[MembraneMaterial, float] | None = None
         self._count = 0
 
     @property
@@ -195,6 +197,14 @@ class SceneBuilder:
         mesh that wind acts on, that tearing opens and that the renderer draws."""
         triangles = np.asarray(triangles, np.int64).reshape(-1, 3)
         self._triangles.append(triangles)
+
+    def set_membrane(self, material: MembraneMaterial, *, bending: float = 0.0) -> None:
+        """Make the triangles (:meth:`add_triangles`) a membrane of ``material`` (see
+        :class:`~taichi_sim.forces.membrane.Membrane`), with ``bending`` stiffness (N m, >= 0;
+        0 for none) across their interior edges
+        (:class:`~taichi_sim.forces.membrane.IsometricBending`). Both rest in the particles'
+        positions as added (before :meth:`displace`), each triangle flattened to its own frame."""
+        self._membrane = (material, float(bending))
 
     def set_gravity(self, g) -> None:
         """Gravity: a magnitude (m/s^2, pointing -y) or a 3-vector."""
@@ -363,6 +373,20 @@ class SceneBuilder:
             system.add_term(springs)
             features.update(springs=springs.spring_count, dashpots=springs.damped,
                             tearing=springs.tearable, grid_stencil=layout is not None)
+        if self._membrane is not None:
+            if not self._triangles:
+                raise ValueError("a membrane acts on triangles: add_triangles first")
+            material, bending = self._membrane
+            triangles, rest = np.concatenate(self._triangles), np.concatenate(self._rest_x)
+            membrane = Membrane(self._count, triangles, rest, material)
+            system.add_term(membrane)
+            arrays.update(membrane.arrays())
+            features.update(membrane=material.model, bending=False)
+            if bending > 0 and len(bending_stencils(rest, triangles)[0]):
+                bending_term = IsometricBending(self._count, triangles, rest, bending)
+                system.add_term(bending_term)
+                arrays.update(bending_term.arrays())
+                features["bending"] = True
         mesh = None
         faces = None  # the mesh the object colliders test, when they test faces
         if self._triangles:

@@ -12,6 +12,7 @@ from . import cloth as topo
 from .builder import SceneBuilder
 from .colliders import SpherePath, load_mesh_file
 from .kinematic import TwistPath
+from .materials import MATERIAL_PARAMS, add_membrane_cloth, finish_membrane_scene, membrane_material
 from .params import Param
 from .preset import ScenePreset, common_params, with_defaults
 from .scene import Scene
@@ -41,6 +42,7 @@ CLOTH_PARAMS: tuple[Param, ...] = (
     Param("structural", True, "", "include structural springs"),
     Param("shear", True, "", "include shear springs"),
     Param("flex", True, "", "include flex springs"),
+    *MATERIAL_PARAMS,
     Param("pin", "corners", "", "pinned particles: corners (both ends of the edge j = ny-1), edge "
           "(that whole edge), pole (the edge i = 0), sides (edges i = 0 and i = nx-1), border (all four "
           "edges) or none",
@@ -231,13 +233,19 @@ def build_cloth(preset: ScenePreset, p: dict[str, Any], seed: int) -> Scene:
         x = topo.grid_positions(nx, ny, size, size, origin=(-size / 2, p["height"], 0.0),
                                 u_axis=(1, 0, 0), v_axis=(0, -1, 0))
     b = SceneBuilder()
-    mass = topo.grid_particle_mass(p)
-    b.add_particles(x, mass, pinned=cloth_pins(nx, ny, p["pin"]))
-    b.declare_grid(0, nx, ny)
-    ends, kind = topo.grid_springs(nx, ny, structural=p["structural"], shear=p["shear"], flex=p["flex"])
-    stiffness = topo.kind_stiffness(kind, p)
-    b.add_springs(ends, stiffness=stiffness, damping=p["damping"], kind=kind)
-    b.add_triangles(topo.grid_triangles(nx, ny))
+    material = membrane_material(p)
+    if material is not None:  # a membrane: masses lumped from the triangles' areas, no springs
+        masses = add_membrane_cloth(b, p, x, topo.grid_triangles(nx, ny), cloth_pins(nx, ny, p["pin"]), material)
+        mass = float(np.mean(masses))
+        ends = ()
+    else:
+        mass = topo.grid_particle_mass(p)
+        b.add_particles(x, mass, pinned=cloth_pins(nx, ny, p["pin"]))
+        b.declare_grid(0, nx, ny)
+        ends, kind = topo.grid_springs(nx, ny, structural=p["structural"], shear=p["shear"], flex=p["flex"])
+        stiffness = topo.kind_stiffness(kind, p)
+        b.add_springs(ends, stiffness=stiffness, damping=p["damping"], kind=kind)
+        b.add_triangles(topo.grid_triangles(nx, ny))
     if p["jitter"] > 0:  # after the springs, so rest lengths stay those of the flat grid
         b.displace(np.random.default_rng(seed).normal(scale=p["jitter"], size=(nx * ny, 3)))
     if p["tear"] and len(ends):
@@ -246,6 +254,8 @@ def build_cloth(preset: ScenePreset, p: dict[str, Any], seed: int) -> Scene:
         add_twist(b, p, x)
     add_cloth_extras(b, p, seed, mass)
     scene = preset.finish(b, p, seed, drag=topo.grid_particle_drag(p))
+    if material is not None:
+        return finish_membrane_scene(scene, preset, p, material, EXPLICIT_DEFAULTS, EXPLICIT_STEP_SHARE)
     if preset.default_integrator in EXPLICIT_DEFAULTS:
         # a finer grid has lighter particles and a shorter stable step (omega_max ~ n, the
         # dashpots' gamma_max ~ n^2)
@@ -300,6 +310,8 @@ EXTRA_PARAM_NAMES = tuple(p.name for p in CLOTH_PARAMS if p.name.split("_")[0] i
 def cloth_size(p: dict[str, Any]) -> Size:
     """Particles, springs and triangles of a cloth, in closed form (nothing allocated)."""
     nx, ny = p["nx"], p["ny"]
+    if p["material"] != "springs":
+        return Size(nx * ny, 0, 2 * (nx - 1) * (ny - 1))
     counts = topo.spring_counts(nx, ny)
     springs = sum(counts[kind] for kind, on in ((topo.STRUCTURAL, p["structural"]), (topo.SHEAR, p["shear"]),
                                                 (topo.FLEX, p["flex"])) if on)
@@ -354,6 +366,13 @@ CLOTH_SCENES = (
     # 2000 steps per frame here (h < 2 / omega_max), XPBD takes one step of 50 substeps: with
     # XPBD's own 20 the fall ends 5 cm from the motion at 64 x 64, with 50 within 2 cm
     # (docs/vbd.md, "cloth-stiff's default").
+    # The cloth as a material: the default 1 m^2 cloth's weight as a Neo-Hookean membrane of
+    # E t = 1000 N/m with bending, at one implicit Euler step per 60 Hz frame.
+    ScenePreset("cloth-membrane", "a cloth as a material: a Neo-Hookean membrane (E t = 1000 N/m, nu = 0.3) "
+                "with bending across its edges, the same cloth at any nx, ny, one implicit step a frame",
+                with_defaults(CLOTH_PARAMS, material="neohookean", bending_stiffness=1e-3, membrane_damping=0.01),
+                build_cloth, default_dt=1 / 60, default_integrator="implicit_euler", explicit_dt=1e-3,
+                **_CLOTH_SIZE),
     ScenePreset("cloth-stiff", "a nearly inextensible cloth (k = 1e6 N/m) at one 1/60 s step per "
                 "frame with XPBD",
                 with_defaults(CLOTH_PARAMS, stiffness=1e6, shear_stiffness=5e5, flex_stiffness=2e5),

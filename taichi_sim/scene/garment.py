@@ -16,7 +16,7 @@ import numpy as np
 
 from .builder import SceneBuilder
 from .colliders import SpherePath
-from .mesh_cloth import MESH_CLOTH_PARAMS, add_mesh_cloth, mesh_size
+from .mesh_cloth import MESH_CLOTH_PARAMS, add_mesh_cloth, finish_mesh_cloth, mesh_size
 from .mesh_import import ClothMesh
 from .params import Param
 from .preset import ScenePreset, with_defaults
@@ -134,12 +134,12 @@ def build_garment(preset: ScenePreset, p: dict[str, Any], seed: int) -> Scene:
     if p["body"]:
         for centre, half_axis, radius in BODY:
             b.add_capsule(SpherePath(centre), radius, half_axis, p["body_friction"])
-    return preset.finish(b, p, seed)
+    return finish_mesh_cloth(preset, b, p, seed)
 
 
 GARMENT = ScenePreset(
     "garment", "a skirt sewn from ten flat panels, pinned at the waist and draping over hips and "
     "legs made of capsules", GARMENT_PARAMS, build_garment, default_dt=1 / 60,
-    default_integrator="xpbd", size=lambda p: mesh_size(garment_mesh(p), p["bending"]),
+    default_integrator="xpbd", size=lambda p: mesh_size(garment_mesh(p), p["bending"], p["material"]),
     size_params=("gores", "gore_columns", "rows"))
 

@@ -10,8 +10,9 @@ from ..errors import ConfigError
 from ..memory import Size
 from . import cloth as topo
 from .builder import SceneBuilder
-from .cloth_scenes import EXTRA_PARAM_NAMES, add_cloth_extras, cloth_params
+from .cloth_scenes import EXPLICIT_STEP_SHARE, EXTRA_PARAM_NAMES, add_cloth_extras, cloth_params
 from .kinematic import TranslatePath
+from .materials import MATERIAL_PARAMS, finish_membrane_scene, membrane_material, refuse_springs_only
 from .mesh_import import ClothMesh
 from .params import Param
 from .preset import common_params, with_defaults
@@ -141,13 +142,22 @@ def add_mesh_cloth(b: SceneBuilder, p: dict[str, Any], seed: int, mesh: ClothMes
         mass = vertex_masses(mesh.x, mesh.triangles, p["density"])
     if pinned is None:
         pinned = select_pins(p["pin"], mesh)
-    b.add_particles(mesh.x, mass, pinned=pinned)
+    material = membrane_material(p)
+    if material is not None:  # a membrane resting in the mesh as loaded, each triangle flattened
+        b.set_membrane(material, bending=p["bending_stiffness"] if p["bending"] else 0.0)
+        refuse_springs_only(p)
+        ends = ()
+        b.add_particles(mesh.x, mass, pinned=pinned)
+        b.add_triangles(mesh.triangles)
+    else:
+        b.add_particles(mesh.x, mass, pinned=pinned)
     if p["pin_motion"] != "static" and pinned.any():
         b.add_kinematic(np.flatnonzero(pinned), pin_path(p, mesh.x[pinned]))
-    ends, kind = mesh_springs(mesh.triangles, bending=p["bending"])
-    stiffness = np.where(kind == topo.FLEX, p["flex_stiffness"], p["stiffness"])
-    b.add_springs(ends, stiffness=stiffness, damping=p["damping"], kind=kind)
-    b.add_triangles(mesh.triangles)
+    if material is None:
+        ends, kind = mesh_springs(mesh.triangles, bending=p["bending"])
+        stiffness = np.where(kind == topo.FLEX, p["flex_stiffness"], p["stiffness"])
+        b.add_springs(ends, stiffness=stiffness, damping=p["damping"], kind=kind)
+        b.add_triangles(mesh.triangles)
     if p["jitter"] > 0:  # after the springs: the rest lengths stay those of the mesh as loaded
         b.displace(np.random.default_rng(seed).normal(scale=p["jitter"], size=mesh.x.shape))
     if p["tear"] and len(ends):
@@ -155,6 +165,17 @@ def add_mesh_cloth(b: SceneBuilder, p: dict[str, Any], seed: int, mesh: ClothMes
         strain[kind == topo.FLEX] *= p["tear_flex_factor"]
         b.set_tearing(strain)
     add_cloth_extras(b, p, seed, float(np.mean(mass)))
+
+
+def finish_mesh_cloth(preset, b: SceneBuilder, p: dict[str, Any], seed: int):
+    """``preset.finish`` for a mesh cloth; a membrane's method and steps then (a positional
+    default becomes implicit Euler: see :func:`~taichi_sim.scene.materials.finish_membrane_scene`)."""
+    scene = preset.finish(b, p, seed)
+    material = membrane_material(p)
+    if material is not None:
+        bending = p["bending_stiffness"] if p["bending"] else 0.0
+        finish_membrane_scene(scene, preset, dict(p, bending_stiffness=bending), material, (), EXPLICIT_STEP_SHARE)
+    return scene
 
 
 PIN_MOTIONS = ("static", "lift", "sweep", "oscillate")
@@ -171,8 +192,10 @@ def pin_path(p: dict[str, Any], x0: np.ndarray) -> TranslatePath:
     return TranslatePath(x0, velocity=tuple(p["pin_speed"] * np.asarray(direction)), duration=p["pin_duration"])
 
 
-def mesh_size(mesh: ClothMesh, bending: bool) -> Size:
+def mesh_size(mesh: ClothMesh, bending: bool, material: str = "springs") -> Size:
     """Particles, springs and triangles a mesh cloth allocates (counted with numpy only)."""
+    if material != "springs":
+        return Size(mesh.vertex_count, 0, len(mesh.triangles))
     edges, counts = mesh_edges(mesh.triangles)
     springs = len(edges)
     if bending:
@@ -196,6 +219,9 @@ MESH_CLOTH_PARAMS: tuple[Param, ...] = (
     Param("bending", True, "", "a flex spring across each interior edge, between the two vertices "
           "opposite it"),
     Param("flex_stiffness", 20.0, "N/m", "stiffness of the bending springs", minimum=0.0),
+    # a membrane instead (material=stvk or neohookean): bending is then bending_stiffness across
+    # the interior edges, off with bending=0
+    *MATERIAL_PARAMS,
     # drag and the dashpot act per vertex and per spring here: the grid's defaults at 32 x 32
     # (for 0.01 kg particles) would hold back vertices of a few grams per m^2 like honey, and
     # make an explicit step unstable (c / m above 2 / h); these suit vertices of about 3e-5 kg

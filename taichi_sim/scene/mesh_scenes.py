@@ -3,7 +3,7 @@ from typing import Any
 
 from .builder import SceneBuilder
 from .garment import skirt_mesh
-from .mesh_cloth import MESH_CLOTH_PARAMS, add_mesh_cloth, mesh_size
+from .mesh_cloth import MESH_CLOTH_PARAMS, add_mesh_cloth, finish_mesh_cloth, mesh_size
 from .mesh_import import ClothMesh, load_mesh
 from .params import Param
 from .preset import ScenePreset
@@ -29,12 +29,12 @@ def scene_mesh(p: dict[str, Any]) -> ClothMesh:
 def build_mesh(preset: ScenePreset, p: dict[str, Any], seed: int) -> Scene:
     b = SceneBuilder()
     add_mesh_cloth(b, p, seed, scene_mesh(p))
-    return preset.finish(b, p, seed)
+    return finish_mesh_cloth(preset, b, p, seed)
 
 
 MESH = ScenePreset(
     "mesh", "any triangle mesh file as cloth (--set file=shirt.obj pin=top:0.02): stretch springs on "
     "its edges, bending springs across them, mass from its area; the cloth extras apply",
     MESH_FILE_PARAMS + MESH_CLOTH_PARAMS, build_mesh, default_dt=1 / 60,
-    default_integrator="xpbd", size=lambda p: mesh_size(scene_mesh(p), p["bending"]),
+    default_integrator="xpbd", size=lambda p: mesh_size(scene_mesh(p), p["bending"], p["material"]),
     size_params=("file",))

@@ -37,6 +37,16 @@ class ImplicitAPI:
         return 6 * self.particle_count + 9 * ((couplings + 1) // 2)
 
     @ti.func
+    def prepare_jacobian(self, y, a, b, t):
+        """Every term's whole-system Jacobian pass at ``y``, ``a``, ``b`` (terms with
+        ``precomputes_jacobian``: a membrane's per-triangle blocks). Call at the top level of
+        every kernel that reads Jacobians (products, blocks, cached rows, the assembly), before
+        the loop that reads them; nothing for a system of springs alone."""
+        for term in ti.static(self.terms):
+            if ti.static(getattr(term, "precomputes_jacobian", False)):
+                term.precompute_jacobian(y, a, b)
+
+    @ti.func
     def force_jacobian_product(self, i, y, p, a, b, t):
         """a (df/dv p)_i + b (df/dx p)_i (N) at state ``y`` and time ``t`` (s); zero for a pinned
         particle. ``p``: (n,) vec3 field, zero on pinned particles."""
@@ -217,6 +227,7 @@ class ImplicitAPI:
     @ti.kernel
     def _assemble_system_matrix(self, y: ti.template(), a: float, b: float, t: float,
                                 builder: ti.types.sparse_matrix_builder()):
+        self.prepare_jacobian(y, a, b, t)
         for i in range(self.particle_count):
             block = self.system_matrix_diagonal_block(i, y, a, b, t)
             for r, c in ti.static(ti.ndrange(3, 3)):

@@ -112,6 +112,7 @@ class SparseCholesky:
     def _residual_norms(self, a: float, b: float, t: float) -> (float, float):
         residual2 = 0.0
         rhs2 = 0.0
+        self.system.prepare_jacobian(self.point, a, b, t)
         for i in self.rhs:
             r = self.rhs[i] - self.system.system_matrix_row(i, self.point, self.solution, a, b, t)
             self.residual[i] = r

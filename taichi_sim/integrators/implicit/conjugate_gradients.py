@@ -246,6 +246,7 @@ class ConjugateGradients:
         bb = ti.cast(0.0, self.r.dtype)
         rr = ti.cast(0.0, self.r.dtype)
         rz = ti.cast(0.0, self.r.dtype)
+        self.system.prepare_jacobian(self.point, a, b, t)  # (a top-level pass, for terms that have one)
         for i in range(self.r.shape[0]):
             diagonal = self.system.cache_system_matrix_row(i, self.point, a, b, t)
             inverse = ti.Matrix.zero(self.r.dtype, 3, 3)

@@ -39,10 +39,11 @@ import time
 
 import numpy as np
 
+from ... import runtime
 from ...errors import ConfigError
 from ...state import State
 from ...systems.base import System
-from ..base import Integrator, Status, StepReport
+from ..base import Integrator, Status, StepReport, elastic_models
 from .common import (
     LINEAR_SOLVERS,
     LinearSolverStats,
@@ -165,6 +166,12 @@ class ImplicitStageMethod(Integrator):
                  cg_max_iterations: int = 1000, preconditioner: str | None = None,
                  warm_start: bool = True, max_subdivisions: int | None = None):
         super().__init__(system)
+        # A membrane's Hessian, its projection and its stress make the solver's kernels large,
+        # and Taichi's control-flow-graph pass grows faster than a kernel: it was most of their
+        # compile (an 8 x 8 StVK cloth's first step took 14.2 s with it, 6.2 s without; a
+        # 32 x 32 Neo-Hookean one 15.9 and 7.8 s, stepping 33.8 and 33.9 ms, alternated in one
+        # process; docs/materials.md). Spring systems compile as before.
+        self._compile_without_cfg = bool(elastic_models(system))
         if max_subdivisions is None:
             max_subdivisions = 0 if self.linearised else DEFAULT_SUBDIVISIONS
         if isinstance(max_subdivisions, bool) or not isinstance(max_subdivisions, (int, np.integer)) \
@@ -222,6 +229,12 @@ class ImplicitStageMethod(Integrator):
         self._steps_at_level = 0
 
     def step(self, state: State, t: float, h: float) -> StepReport:
+        if self._compile_without_cfg:
+            with runtime.without_cfg_optimisation():
+                return self._step(state, t, h)
+        return self._step(state, t, h)
+
+    def _step(self, state: State, t: float, h: float) -> StepReport:
         if self.linearised or not self.max_subdivisions:
             report = self._attempt(state, t, h)
             self.stats.substeps += report.status is Status.OK

@@ -260,6 +260,7 @@ class VelocityStage:
     def _linearised_rhs(self, tau: float, t: float):
         # f(x0 + tau V, V) ~ f0 + tau df/dx V + df/dv (V - v0): the momentum balance
         # M (V - v0) = tau f becomes A dV = tau f0 + tau^2 df/dx v0 with dV = V - v0.
+        self.system.prepare_jacobian(self.point, 0.0, tau * tau, t)
         for i in self.rhs:
             self.rhs[i] = tau * self.force[i] + self.system.force_jacobian_product(
                 i, self.point, self.point.v, 0.0, tau * tau, t)

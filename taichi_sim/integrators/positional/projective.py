@@ -74,6 +74,7 @@ class ProjectiveDynamics(Integrator):
     """
 
     name = "projective_dynamics"
+    takes_elastic_models = False  # its solve holds springs only (Integrator.takes_elastic_models)
     order = 1
     requires_second_order = True
     description = "projective dynamics: local/global backward Euler with one prefactorised matrix"

@@ -114,6 +114,7 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, ContactPieces, Integrator):
     """
 
     name = "vbd"
+    takes_elastic_models = False  # its solve holds springs only (Integrator.takes_elastic_models)
     order = 1
     requires_second_order = True
     description = "vertex block descent: backward Euler by per-vertex Newton steps, Gauss-Seidel over a colouring"

@@ -66,6 +66,7 @@ class XPBD(Integrator):
     """
 
     name = "xpbd"
+    takes_elastic_models = False  # its solve holds springs only (Integrator.takes_elastic_models)
     order = 1
     requires_second_order = True
     description = "extended position-based dynamics: springs as compliant constraints, substepped"

@@ -1,0 +1,9 @@
+"""Cloth as a material: constant-strain triangle membranes (StVK, Neo-Hookean) and bending
+across interior edges, in physical units (docs/materials.md)."""
+from .bending import IsometricBending, check_bending_stiffness
+from .geometry import bending_stencils, lumped_masses, omega_max_bound, rest_frames
+from .material import MODELS, MembraneMaterial
+from .term import Membrane
+
+__all__ = ["IsometricBending", "MODELS", "Membrane", "MembraneMaterial", "bending_stencils",
+           "check_bending_stiffness", "lumped_masses", "omega_max_bound", "rest_frames"]
