@@ -182,7 +182,3 @@ def _largest(delta: np.ndarray) -> float:
         return 0.0
     return float(np.sqrt(np.max(np.einsum("ij,ij->i", delta, delta))))
 
-
-def step_distance(model: ForceModel, equation: Equation, x0, v0, x1, v1, h: float) -> float:
-    """:meth:`DistanceModel.distance` of one step (m)."""
-    return DistanceModel(model, equation).distance(x0, v0, x1, v1, h)
