@@ -10,7 +10,8 @@ identical runs sample identical steps): a sample costs about ``SAMPLE_SECONDS_PE
 unit of the method's work (an f evaluation, a sweep, a linear iteration) about
 ``WORK_SECONDS_PER_PARTICLE`` n s. The last step of a run and the steps a caller asks to check
 are sampled whatever they cost, so that every run has its figure: a run shorter than the work
-one sample pays for spends more than ``BUDGET`` on that one sample.
+one sample pays for spends more than ``BUDGET`` on that one sample. A small scene (a sample
+under ``FREE_SAMPLE_SECONDS``) has its first step sampled too.
 """
 from __future__ import annotations
 
@@ -37,6 +38,9 @@ DEFAULT_TOLERANCE = 1e-3
 #: The cost model of the samples (see the module docstring), seconds.
 SAMPLE_SECONDS_PER_DOF = 8e-7
 WORK_SECONDS_PER_PARTICLE = 1e-7
+#: A scene whose sample costs at most this (s; about 800 particles) has its first step sampled
+#: too, so that its figure shows at once (the launcher's HUD, a short run's early warning).
+FREE_SAMPLE_SECONDS = 0.05
 
 
 def check_tolerance(value) -> float:
@@ -104,8 +108,8 @@ class ConvergenceMonitor:
                 integrator.solved_h = math.nan
             n = int(self.model.free.sum())
             # the work (method's units) that pays for one sample within BUDGET (module docstring)
-            self.sample_work = (SAMPLE_SECONDS_PER_DOF * (3 * n) ** 1.5
-                                / (BUDGET * WORK_SECONDS_PER_PARTICLE * max(n, 1)))
+            self.sample_seconds = SAMPLE_SECONDS_PER_DOF * (3 * n) ** 1.5
+            self.sample_work = self.sample_seconds / (BUDGET * WORK_SECONDS_PER_PARTICLE * max(n, 1))
 
     def check_precision(self, state, precision: str, epsilon: float) -> str:
         """Before a run: the bound samples are held to is ``max_residual`` or, where the
@@ -135,6 +139,7 @@ class ConvergenceMonitor:
         self.worst_distance, self.worst_distance_t = math.nan, math.nan
         self.warned = False
         self.work = 0.0  # work since the last sample
+        self._sampled = False
         self.seconds = 0.0  # wall time spent sampling (reported; it decides nothing)
 
     def before_step(self, state) -> None:
@@ -147,7 +152,7 @@ class ConvergenceMonitor:
 
     def due(self) -> bool:
         """Whether the step just counted is to be sampled (module docstring): deterministic."""
-        return self.work >= self.sample_work
+        return self.work >= self.sample_work or (not self._sampled and self.sample_seconds <= FREE_SAMPLE_SECONDS)
 
     def measure(self, state, t: float, h: float) -> tuple[float, float]:
         """(relative residual, distance (m)) of the step that just ended at ``t`` and took
@@ -155,7 +160,7 @@ class ConvergenceMonitor:
         if not self.active:
             return math.nan, math.nan
         start = time.perf_counter()
-        self.work = 0.0
+        self.work, self._sampled = 0.0, True
         if self._tracked and math.isfinite(self.integrator.solved_h):
             h = self.integrator.solved_h
         x0, v0 = self._start.to_numpy()
