@@ -27,13 +27,16 @@ import math
 from dataclasses import dataclass
 
 from . import runtime
-from .convergence import ConvergenceMonitor
+from .convergence import ConvergenceMonitor, format_metres
 from .errors import ConfigError
 from .guard import Guard, GuardLimits
 from .integrators import Integrator, Status, StepReport, create_integrator, integrator_class
 from .theory import stable_step_advice
 
 ADVICE = "lower the step or pick a more stable integrator"
+#: Work that brings a step's estimated error down by less than this factor has stalled (the
+#: Stepper stops raising it, :meth:`Stepper._converged`).
+STALLED = 0.7
 OK = Status.OK  # a module global: read at every step
 
 
@@ -149,9 +152,10 @@ class Stepper:
             step past it is solved again with more work (the method's
             :attr:`~taichi_sim.integrators.Integrator.work_option`, unless the caller set that
             option: iterations or substeps doubled, a Newton tolerance divided by ten) until it
-            is within the tolerance or the option reaches its cap; then a method that promises
-            the solved step ends the run NOT_CONVERGED and a fixed-work one warns once and goes
-            on.
+            is within the tolerance, the option reaches its cap, or a change brings the estimate
+            down by less than ``STALLED`` (the option then goes back to its value before); then a
+            method that promises the solved step ends the run NOT_CONVERGED and a fixed-work one
+            warns once and goes on.
         raise_work: False keeps the method's work as it was set (benchmarks that measure a
             method at its settings); past the tolerance it then only warns or fails.
 
@@ -405,7 +409,13 @@ class Stepper:
         fixed-work one warns once (:attr:`warnings`) and goes on."""
         monitor = self.monitor
         _, distance = monitor.measure(self.scene.state, self.t, h)
-        while monitor.exceeds(distance) and self._raise_work():
+        stopped = ""
+        while monitor.exceeds(distance) and not stopped:
+            before = getattr(self.integrator, self.work_option) if self.work_option else None
+            if not self._raise_work():
+                if self.work_option:
+                    stopped = f"stopped at the cap of {self.work_option} = {before}"
+                break
             self.scene.state.copy_from(self._step_start)
             self.integrator.reset()
             report = self._integrate(self.scene.state, t0, h)
@@ -414,8 +424,17 @@ class Stepper:
             if report.status is not OK or not report.accepted:
                 self._step_failed(report, h)
                 return False
+            earlier = distance
             monitor.forget_last()
             _, distance = monitor.measure(self.scene.state, self.t, h)
+            # (a count only: a Newton test tightened tenfold may take no further iteration)
+            if isinstance(before, int) and monitor.exceeds(distance) and not distance <= STALLED * earlier:
+                # more work hardly helps (sweeps on a stiff cloth): go back to the work before
+                # rather than pay for more on every step to come
+                now = getattr(self.integrator, self.work_option)
+                setattr(self.integrator, self.work_option, before)
+                stopped = (f"{self.work_option} {before} -> {now} moved the estimate only from "
+                           f"{format_metres(earlier)} to {format_metres(distance)}, so it stays at {before}")
         if not monitor.exceeds(distance):
             return True
         if monitor.promises_exact:
@@ -424,9 +443,6 @@ class Stepper:
             return False
         if not monitor.warned:
             monitor.warned = True
-            stopped = ""
-            if self.work_option:
-                stopped = f"stopped by the cap of {self.work_option} = {getattr(self.integrator, self.work_option)}"
             self.warnings.append(monitor.warning_message(distance, self.t, stopped))
         return True
 
