@@ -128,3 +128,20 @@ def cloth_builder(n=16, size=0.5, height=0.0, stiffness=5.0, mass=0.01):
     b.add_springs(ends, stiffness=stiffness, damping=0.0, kind=kind)
     b.add_triangles(topo.grid_triangles(n, n))
     return b
+
+
+def slow_first_step(monkeypatch, integrator, seconds: float = 0.3) -> list:
+    """Make ``integrator``'s first step (after each clearing of the returned list) take
+    ``seconds`` longer, as compiling would; the list counts the calls."""
+    import time
+
+    step, calls = integrator.step, []
+
+    def slow_first(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 1:
+            time.sleep(seconds)
+        return step(*args, **kwargs)
+
+    monkeypatch.setattr(integrator, "step", slow_first)
+    return calls

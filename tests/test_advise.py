@@ -139,21 +139,13 @@ def test_a_scene_with_nothing_oscillating_still_gets_a_reference_run():
 def test_step_times_leave_the_compiling_first_step_out(f64, monkeypatch):
     """A pilot's and a probe's time per step are those of warm kernels: a first step made to
     take 0.3 s (as compiling would) is not in them."""
-    import time
+    from helpers import slow_first_step
 
     import taichi_sim as ts
 
     scene = ts.build_scene("spring")
     integrator = ts.create_integrator("symplectic_euler", scene.system)
-    step, calls = integrator.step, []
-
-    def slow_first(*args, **kwargs):
-        calls.append(1)
-        if len(calls) == 1:
-            time.sleep(0.3)
-        return step(*args, **kwargs)
-
-    monkeypatch.setattr(integrator, "step", slow_first)
+    calls = slow_first_step(monkeypatch, integrator)
     pilot = advise_target.run_to(scene, integrator, 0.01, 0.2)
     assert len(calls) == 20 and pilot.x is not None and pilot.per_step < 0.3 / 19 / 2
     calls.clear()

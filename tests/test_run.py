@@ -134,20 +134,11 @@ def test_steps_per_second_leaves_the_first_step_out(f64, monkeypatch):
     """The rate is that of the steps after the first, whose compiling it must not count: a
     first step made to take 0.3 s (as compiling would) leaves the rate of 20 fast steps far
     above 19 / 0.3 steps/s."""
-    import time
+    from helpers import slow_first_step
 
     scene = oscillator()
     integrator = ts.create_integrator("symplectic_euler", scene.system)
-    step = integrator.step
-    calls = []
-
-    def slow_first(*args, **kwargs):
-        calls.append(1)
-        if len(calls) == 1:
-            time.sleep(0.3)
-        return step(*args, **kwargs)
-
-    monkeypatch.setattr(integrator, "step", slow_first)
+    slow_first_step(monkeypatch, integrator)
     result = ts.run(scene, integrator, dt=0.01, steps=20, energy_every=0)
     assert result.wall_time >= 0.3
     assert result.warm_time < result.wall_time - 0.25
