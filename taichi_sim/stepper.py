@@ -181,6 +181,7 @@ class Stepper:
         self.tolerance = tolerance
         self.raise_work = raise_work
         self._step_start = None  # the whole step's start, kept while the work may be raised
+        self._attempt = None  # a step's result before it was solved again with more work
         # bound once: each attribute lookup is paid at every step
         self._events, self._spend = scene.after_step, self.guard.spend
         self.driver = None
@@ -408,7 +409,7 @@ class Stepper:
         then a method that promises the solved step ends the run NOT_CONVERGED (False), a
         fixed-work one warns once (:attr:`warnings`) and goes on."""
         monitor = self.monitor
-        _, distance = monitor.measure(self.scene.state, self.t, h)
+        value, distance = monitor.measure(self.scene.state, self.t, h)
         stopped = ""
         while monitor.exceeds(distance) and not stopped:
             before = getattr(self.integrator, self.work_option) if self.work_option else None
@@ -416,6 +417,9 @@ class Stepper:
                 if self.work_option:
                     stopped = f"stopped at the cap of {self.work_option} = {before}"
                 break
+            if self._attempt is None:
+                self._attempt = self.scene.system.make_state()
+            self._attempt.copy_from(self.scene.state)  # kept in case more work lands farther
             self.scene.state.copy_from(self._step_start)
             self.integrator.reset()
             report = self._integrate(self.scene.state, t0, h)
@@ -424,9 +428,9 @@ class Stepper:
             if report.status is not OK or not report.accepted:
                 self._step_failed(report, h)
                 return False
-            earlier = distance
+            earlier, earlier_value = distance, value
             monitor.forget_last()
-            _, distance = monitor.measure(self.scene.state, self.t, h)
+            value, distance = monitor.measure(self.scene.state, self.t, h)
             # (a count only: a Newton test tightened tenfold may take no further iteration)
             if isinstance(before, int) and monitor.exceeds(distance) and not distance <= STALLED * earlier:
                 # more work hardly helps (sweeps on a stiff cloth): go back to the work before
@@ -435,6 +439,11 @@ class Stepper:
                 setattr(self.integrator, self.work_option, before)
                 stopped = (f"{self.work_option} {before} -> {now} moved the estimate only from "
                            f"{format_metres(earlier)} to {format_metres(distance)}, so it stays at {before}")
+                if distance > earlier:  # farther: the step solved with the work before stands
+                    self.scene.state.copy_from(self._attempt)
+                    monitor.forget_last()
+                    monitor.record(self.t, earlier_value, earlier)
+                    distance = earlier
         if not monitor.exceeds(distance):
             return True
         if monitor.promises_exact:

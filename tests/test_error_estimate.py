@@ -105,13 +105,24 @@ def test_a_method_at_its_cap_warns_with_the_cap_and_the_estimate(f64):
 
 
 def test_work_that_does_not_help_is_not_kept(f64):
-    # vbd's sweeps on a stiff cloth: twice the sweeps leave the step about as far from its
-    # solution, so the run goes back to its 20 and says why, instead of paying 16 times more
+    # projective dynamics' iterations on a stiff cloth: twice the iterations leave the step about
+    # as far from its solution, so the run goes back to its 10 and says why, instead of paying
+    # 16 times more
     scene = stiff_cloth(size=8, k=1e8)
-    integrator = ts.create_integrator("vbd", scene.system)
+    integrator = ts.create_integrator("projective_dynamics", scene.system)
     result = ts.run(scene, integrator, dt=1 / 60, steps=6, tolerance=1e-6)
-    assert integrator.iterations == 20
-    assert len(result.warnings) >= 1 and "iterations 20 -> 40 moved the estimate only" in result.warnings[0]
+    assert integrator.iterations == 10
+    assert len(result.warnings) >= 1 and "iterations 10 -> 20 moved the estimate only" in result.warnings[0]
+
+
+def test_vbd_meets_a_tolerance_on_stiff_cloth_by_taking_substeps(f64):
+    # Where its sweeps stall (k = 1e6 N/m), substeps of dt / 2^k bring each substep to its
+    # solution: the run takes them and ends within the tolerance, without a warning.
+    scene = stiff_cloth(size=8, k=1e6)
+    integrator = ts.create_integrator("vbd", scene.system)
+    result = ts.run(scene, integrator, dt=1 / 60, steps=6, tolerance=1e-4)
+    assert integrator.substeps > 1 and integrator.iterations == 20
+    assert not result.warnings and result.worst_error_estimate <= 1e-4
 
 
 def test_a_converged_run_does_not_warn(f64):

@@ -56,15 +56,20 @@ class DistanceModel:
             return 0.5 * (x0 + x1), 0.5 * (v0 + v1), 0.5 * h, 2.0
         return x1, v1, h, 1.0
 
-    def residual(self, x, v, x0, v0, tau) -> np.ndarray:
-        """r at (x, v) ((n, 3), N) for the stage of tau s from (x0, v0)."""
+    def residual(self, x, v, x0, v0, tau, extra=None, x1=None) -> np.ndarray:
+        """r at (x, v) ((n, 3), N) for the stage of tau s from (x0, v0); ``extra``: the method's
+        own :class:`~taichi_sim.integrators.equation.SolveForces`, linearised at x1."""
         model, eq = self.model, self.equation
         internal = model.internal(x, v, x0, tau, eq.isotropic_dashpots, model.spring_arrays())
         external = model.external(v0 if eq.explicit_external else v)
-        return model.mass[:, None] * (x - x0 - tau * v0) / tau**2 - internal - external
+        r = model.mass[:, None] * (x - x0 - tau * v0) / tau**2 - internal - external
+        if extra is not None:
+            r -= extra.at(x, x if x1 is None else x1)
+        return r
 
-    def jacobian(self, x, tau) -> sp.csc_matrix:
-        """dr/dx over the free particles at positions x ((3 nf, 3 nf), N/m), v = (x - x0) / tau."""
+    def jacobian(self, x, tau, extra=None) -> sp.csc_matrix:
+        """dr/dx over the free particles at positions x ((3 nf, 3 nf), N/m), v = (x - x0) / tau;
+        with ``extra`` (SolveForces) its stiffness added."""
         model, eq = self.model, self.equation
         nf = len(self.free)
         diagonal = np.repeat(model.mass[self.free] / tau**2, 3)
@@ -96,15 +101,20 @@ class DistanceModel:
                 rows.append(np.broadcast_to(r3, (keep.sum(), 3, 3)).ravel())
                 cols.append(np.broadcast_to(c3, (keep.sum(), 3, 3)).ravel())
                 vals.append(sign * block[keep].ravel())
-        return sp.csc_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                             shape=(3 * nf, 3 * nf))
+        matrix = sp.csc_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                               shape=(3 * nf, 3 * nf))
+        if extra is not None:
+            dofs = (3 * self.free[:, None] + np.arange(3)[None]).ravel()
+            matrix = matrix + extra.stiffness.tocsr()[dofs][:, dofs].tocsc()
+        return matrix
 
-    def correction(self, x0, v0, x1, v1, h, steps: int | None = None) -> np.ndarray:
+    def correction(self, x0, v0, x1, v1, h, steps: int | None = None, extra=None) -> np.ndarray:
         """x1 - x* estimated by up to ``steps`` (default two) Newton corrections from x1 with one
         factorisation of J (the second at the first's result: a chord step, which takes in much
         of the nonlinearity a single step misses on stiff cloth; taken only where it contracts)
         ((n, 3), m; 0 on pinned particles). Arrays of any float type; computed in float64; inf
-        where the residual is not finite."""
+        where the residual is not finite. ``extra``: the method's own forces (SolveForces) at
+        x1, for a backward Euler step."""
         x0, v0, x1, v1 = (np.asarray(a, np.float64) for a in (x0, v0, x1, v1))
         v0, v1 = v0.copy(), v1.copy()
         pinned = ~self.model.free
@@ -113,17 +123,17 @@ class DistanceModel:
         out = np.zeros_like(x1)
         if not len(self.free):
             return out
-        r = self.residual(x, v, x0, v0, tau)[self.free]
+        r = self.residual(x, v, x0, v0, tau, extra)[self.free]
         if not np.all(np.isfinite(r)):
             out[:] = math.inf
             return out
-        solve = spla.splu(self.jacobian(x, tau)).solve
+        solve = spla.splu(self.jacobian(x, tau, extra)).solve
         delta = solve(r.ravel()).reshape(-1, 3)
         steps = self.newton_steps if steps is None else steps
         for _ in range(steps - 1):
             moved = x.copy()
             moved[self.free] -= delta
-            r = self.residual(moved, v + (moved - x) / tau, x0, v0, tau)[self.free]
+            r = self.residual(moved, v + (moved - x) / tau, x0, v0, tau, extra, x)[self.free]
             if not np.all(np.isfinite(r)):
                 break
             more = solve(r.ravel()).reshape(-1, 3)
@@ -136,9 +146,9 @@ class DistanceModel:
         out[self.free] = scale * delta
         return out
 
-    def distance(self, x0, v0, x1, v1, h) -> float:
+    def distance(self, x0, v0, x1, v1, h, extra=None) -> float:
         """The estimate's figure: ``max_i |x1_i - x*_i|`` (m); 0 with nothing free."""
-        return _largest(self.correction(x0, v0, x1, v1, h))
+        return _largest(self.correction(x0, v0, x1, v1, h, extra=extra))
 
     def solve_step(self, x0, v0, h, guess=None, *, tolerance: float = 1e-10,
                    max_iterations: int = 500) -> tuple[np.ndarray, np.ndarray]:

@@ -76,7 +76,7 @@ class ConvergenceMonitor:
 
     def __init__(self, scene, integrator, max_residual: float | None = None, tolerance: float | None = None):
         self.max_residual = check_max_residual(max_residual)
-        self.tolerance = check_tolerance(tolerance)
+        self.tolerance = check_tolerance(getattr(scene, "default_tolerance", None) if tolerance is None else tolerance)
         self.integrator = integrator
         self.equation: Equation | None = getattr(integrator, "equation", None)
         self.reason = ""
@@ -95,6 +95,7 @@ class ConvergenceMonitor:
         self.floor = math.nan
         self.bound = self.max_residual
         self._start = None
+        self._solve_forces = getattr(integrator, "solve_forces", None)
         self.clear()
         if self.active:
             self.model = ForceModel(scene)
@@ -165,8 +166,16 @@ class ConvergenceMonitor:
             h = self.integrator.solved_h
         x0, v0 = self._start.to_numpy()
         x1, v1 = state.to_numpy()
-        value = relative_residual(self.model, self.equation, x0, v0, x1, v1, h)
-        distance = self.distance_model.distance(x0, v0, x1, v1, h) if h > 0 else math.nan
+        # the method's own forces (vbd's contact), at the result
+        extra = self._solve_forces(state, t, h) if self._solve_forces is not None else None
+        value = relative_residual(self.model, self.equation, x0, v0, x1, v1, h, extra)
+        distance = self.distance_model.distance(x0, v0, x1, v1, h, extra) if h > 0 else math.nan
+        self.record(t, value, distance)
+        self.seconds += time.perf_counter() - start
+        return value, distance
+
+    def record(self, t: float, value: float, distance: float) -> None:
+        """Keep a sample: at time ``t`` (s), the relative residual and the distance (m)."""
         self.times.append(t)
         self.values.append(value)
         self.distances.append(distance)
@@ -174,8 +183,6 @@ class ConvergenceMonitor:
             self.worst, self.worst_t = value, t
         if _larger(distance, self.worst_distance):
             self.worst_distance, self.worst_distance_t = distance, t
-        self.seconds += time.perf_counter() - start
-        return value, distance
 
     def forget_last(self) -> None:
         """Drop the last sample (its step is being solved again); the worst figures are

@@ -154,9 +154,11 @@ def rounding_floor(model: ForceModel, x, epsilon: float) -> float:
     return float(math.sqrt(noise2[free].sum()) / np.linalg.norm(weight[free]))
 
 
-def relative_residual(model: ForceModel, equation: Equation, x0, v0, x1, v1, h: float) -> float:
+def relative_residual(model: ForceModel, equation: Equation, x0, v0, x1, v1, h: float, extra=None) -> float:
     """|r| / scale of ``equation`` for the step of ``h`` s from (x0, v0) to (x1, v1) ((n, 3)
-    arrays of any float type; computed in float64). NaN when nothing is free or h <= 0."""
+    arrays of any float type; computed in float64). NaN when nothing is free or h <= 0.
+    ``extra``: the method's own forces at x1 (a backward Euler step's
+    :class:`~taichi_sim.integrators.equation.SolveForces`), counted with the internal ones."""
     x0, v0, x1, v1 = (np.asarray(a, np.float64) for a in (x0, v0, x1, v1))
     if h <= 0 or not np.any(model.free):
         return math.nan
@@ -174,6 +176,8 @@ def relative_residual(model: ForceModel, equation: Equation, x0, v0, x1, v1, h: 
         x, v = x1, v1
     springs = model.spring_arrays()
     internal = model.internal(x, v, x0, tau, equation.isotropic_dashpots, springs)
+    if extra is not None:
+        internal = internal + extra.force
     external = model.external(v0 if equation.explicit_external else v)
     inertia = model.mass[:, None] * (x - x0 - tau * v0) / tau**2
     free = model.free

@@ -29,3 +29,25 @@ class Equation:
     explicit_external: bool = False
     isotropic_dashpots: bool = False
     advice: str = ""
+
+
+@dataclass(frozen=True)
+class SolveForces:
+    """Forces a method puts in its own equation beyond the scene's force model (vbd's contact
+    penalties and friction), linearised at the step's result x1 so that the convergence monitor
+    can add them to its residual and Jacobian:
+
+        f(x) ~ force - stiffness (x - x1)
+
+    Attributes:
+        force: (n, 3) float64, the forces at x1 (N).
+        stiffness: (3 n, 3 n) scipy.sparse matrix, -df/dx at x1 (N/m), positive semi-definite,
+            rows and columns ordered particle by particle (x, y, z).
+    """
+
+    force: object
+    stiffness: object
+
+    def at(self, x, x1):
+        """The linearised forces at positions ``x`` ((n, 3), m)."""
+        return self.force - (self.stiffness @ (x - x1).ravel()).reshape(-1, 3)

@@ -26,6 +26,7 @@ class ScenePreset:
     size_params: tuple[str, ...] = ()
     explicit_dt: float | None = None  # s: an explicit method's step when not told (Scene.explicit_dt)
     integrator_options: dict[str, dict[str, Any]] = field(default_factory=dict, hash=False)
+    default_tolerance: float | None = None  # m: the scene's --tolerance when not told (Scene.default_tolerance)
 
     def options_for(self, integrator: str) -> dict[str, Any]:
         """The keyword options this scene runs ``integrator`` with unless told otherwise (a

@@ -117,4 +117,7 @@ def build_scene(name: str, params: dict[str, Any] | None = None, *, seed: int = 
     preset = scene_preset(name)
     values = resolve(preset.params, name, dict(params or {}))
     check_scene_memory(preset, values, precision=runtime.precision())
-    return preset.build(preset, values, int(seed))
+    scene = preset.build(preset, values, int(seed))
+    if preset.default_tolerance is not None:
+        scene.default_tolerance = preset.default_tolerance
+    return scene

@@ -30,6 +30,8 @@ class Scene:
         explicit_dt: the step (s) an explicit (step-limited) method takes when not told, where
             the default method is not one and takes longer steps (the contact cloths run ``vbd``
             at 1/60 s; symplectic Euler there at 1 ms, less on a fine grid); None: default_dt.
+        default_tolerance: the ``--tolerance`` (m) its runs take when not told; None: the
+            default of :mod:`taichi_sim.convergence` (1 mm).
         seed: the random seed the scene was built with.
         parts: the optional scene parts (:class:`~taichi_sim.part.ScenePart`: colliders, the
             ground, scripted pins, self-contact, tearing, an emitter), in the order their events
@@ -61,6 +63,7 @@ class Scene:
     rest_x: np.ndarray | None = None
     explicit_dt: float | None = None
     integrator_options: dict[str, dict[str, Any]] = field(default_factory=dict)
+    default_tolerance: float | None = None
 
     @property
     def explicit_step(self) -> float:

@@ -120,7 +120,10 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, ContactPieces, Integrator):
     description = "vertex block descent: backward Euler by per-vertex Newton steps, Gauss-Seidel over a colouring"
     equation = Equation("backward_euler", FIXED_WORK,
                         advice="raise --iterations or --substeps, or lower --dt")
-    work_option, work_cap = "iterations", 320  # 16 times the default, under a --tolerance
+    # Under a --tolerance it takes more substeps, not sweeps: a substep of dt / 2 has a quarter of
+    # the stiffness ratio k dt^2 / m, where more sweeps stall on stiff cloth (16 x 16, k = 1e6:
+    # 20 -> 40 sweeps 3.6 -> 2.9 mm, 1 -> 8 substeps 2.9 mm -> 0.23 mm; docs/integrators.md).
+    work_option, work_cap = "substeps", 64
     tracks_solved_start = True
     # No step-size limit: each sweep lowers the incremental potential at any step. An unconverged
     # step may still gain energy, which the energy cap takes back on closed scenes (vbd_energy).
@@ -248,13 +251,14 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, ContactPieces, Integrator):
         bad = 0
         pieces_before = self.pieces
         for k in range(self.substeps):
-            if self.solved_start is not None and k == self.substeps - 1:
-                self.solved_start.copy_from(state)  # what the convergence monitor measures
+            if self.solved_start is not None and k == self.substeps - 1 and self.contact is None:
+                self.solved_start.copy_from(state)  # what the convergence monitor measures (pieces: vbd_pieces)
                 self.solved_h = dt
             t_end = t + (k + 1) * dt  # backward Euler evaluates the forces at the substep's end
             previous_dt = self._last_dt  # the last substep's (or piece's) length: its v0 is start_v
             if self.contact is not None:
-                bad = self._contact_substep(kernels, state, dt, t_end, use_acceleration, previous_dt)
+                bad = self._contact_substep(kernels, state, dt, t_end, use_acceleration, previous_dt,
+                                            last=k == self.substeps - 1)
                 if bad < 0:
                     self._resume_time = None
                     return StepReport(accepted=False, h=0.0, next_h=h, f_evals=k * self.iterations,

@@ -251,6 +251,13 @@ class SolveContact(ObjectFaces):
         ``x`` (the point's positions field), objects where they are at time t (s)."""
         f = ti.Vector.zero(x.dtype, 3)
         H = ti.Matrix.zero(x.dtype, 3, 3)
+        f, H = self.object_terms(i, x, m, dt, t, f, H)
+        f, H = self.self_terms(i, x, dt, f, H)
+        return f, H
+
+    @ti.func
+    def object_terms(self, i, x, m, dt, t, f, H):
+        """:meth:`terms`' objects: add their force (N) and block (N/m) on vertex i of mass m."""
         if ti.static(self.has_objects):
             k = self.stiffness * m / (self.penalty_dt[None] * self.penalty_dt[None])
             p = x[i]
@@ -268,8 +275,13 @@ class SolveContact(ObjectFaces):
                         moved = slip - dt * collider.surface_velocity(c, t, q)
                         f, H = self._push(f, H, d, n, k, 1.0, moved, collider.friction[c], dt)
             f, H = self.face_terms(i, x, dt, t, f, H)
+        return f, H
+
+    @ti.func
+    def self_terms(self, i, x, dt, f, H):
+        """:meth:`terms`' self-contact pairs of vertex i: add their force (N) and block (N/m)."""
         if ti.static(self.self_contact):
-            k = self.stiffness * self.mean_mass / (self.penalty_dt[None] * self.penalty_dt[None])
+            k = self.self_stiffness()
             for s in range(ti.min(self.vertex_pair_count[i], self.per_vertex)):
                 pair = self.vertex_pairs[i, s]
                 ids = self.pair_ids[pair]
@@ -284,6 +296,12 @@ class SolveContact(ObjectFaces):
                         slip += w[j] * self.delta[ids[j]]
                     f, H = self._push(f, H, d, gap / d, k, weight, slip, self.self_friction, dt)
         return f, H
+
+    @ti.func
+    def self_stiffness(self):
+        """The self-contact penalty's stiffness (N/m): ``stiffness`` times the mean free
+        particle's m / dt^2, dt the substep's."""
+        return self.stiffness * self.mean_mass / (self.penalty_dt[None] * self.penalty_dt[None])
 
     @ti.func
     def _push(self, f, H, d, n, k, weight, slip, mu, dt):

@@ -38,23 +38,28 @@ class ContactPieces:
     ``pins``, ``contact_pieces``, ``has_self_contact``, ``warm_start``, ``iterations``,
     ``serial``; counts ``pieces``; keeps ``_last_dt``, the last piece's length)."""
 
-    def _contact_substep(self, kernels, state, dt, t_end, use_acceleration, previous_dt) -> int:
+    def _contact_substep(self, kernels, state, dt, t_end, use_acceleration, previous_dt, last: bool = False) -> int:
         """A substep with contact in the solve, in one piece or more: each piece detects at its
         start (free of intersections), starts from the bounded guess and sweeps, detecting
         again every ``contact_refresh`` sweeps. A piece ends early where the scripted pins need
         it (:mod:`.vbd_pins`) and, with ``contact_pieces`` > 1, where the guess would leave the
-        bounds (:meth:`_plan_piece`). Returns the non-finite particles, or ``LOST_PAIRS`` or
-        ``PINS_STUCK`` (:data:`FAILURES` says why)."""
+        bounds (:meth:`_plan_piece`). ``last``: the step's last substep, whose last piece the
+        convergence monitor measures (its start and length). Returns the non-finite particles,
+        or ``LOST_PAIRS`` or ``PINS_STUCK`` (:data:`FAILURES` says why)."""
         contact = self.contact
         contact.penalty_dt[None] = dt
         t, remaining = t_end - dt, dt
         for done in range(MAX_PIECES):
             if contact.refresh(state.x):
                 return LOST_PAIRS
+            if self.solved_start is not None and last:
+                self.solved_start.copy_from(state)  # each piece is a backward Euler step of its own
             piece = self._plan_piece(kernels, state, t, remaining, use_acceleration, previous_dt,
                                      self.contact_pieces - done)
             if piece <= 0.0:
                 return PINS_STUCK
+            if self.solved_start is not None and last:
+                self.solved_h = piece
             bad = self._sweep_piece(kernels, piece, t + piece)
             self.pieces += 1
             self._last_dt = piece

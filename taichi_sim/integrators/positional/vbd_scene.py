@@ -1,9 +1,10 @@
 """vbd and its scene: what :meth:`SceneAttachment.attach_scene` puts in the solve (the scene's
 objects, its self-contact, the energy cap on a closed scene) and what a run says about it
-afterwards (warnings, forces the residual does not model)."""
+afterwards (warnings, and its contact forces for the convergence monitor)."""
 from ...collide.self_contact import SelfCollision
 from ...scene.kinematic import KinematicPins
 from .vbd_contact import SolveContact
+from .vbd_contact_model import solve_forces
 from .vbd_energy import closed_scene
 from .vbd_pins import DrivenPins
 
@@ -75,11 +76,9 @@ class SceneAttachment:
                 f"{self.contact.per_vertex} between detections): the cloth may intersect itself (taichi-sim check "
                 "FILE.npz tells)")
 
-    @property
-    def unmodelled_forces(self) -> str:
-        """The in-solve contact (once attached to a scene that has some): its penalty forces
-        are not in the residual's model, so a run with them does not measure one."""
+    def solve_forces(self, state, t: float, h: float):
+        """The in-solve contact's forces at ``state`` (the result of a piece of ``h`` s ending at
+        ``t`` s), for the convergence monitor (:mod:`.vbd_contact_model`); None without contact."""
         if not self.has_contact:
-            return ""
-        return "self-contact and object contact" if self.has_self_contact and self.contact.has_objects \
-            else ("self-contact" if self.has_self_contact else "object contact")
+            return None
+        return solve_forces(self.contact, self.system, state, self.delta.to_numpy().astype(float), h, t)

@@ -1,0 +1,92 @@
+"""vbd's contact is part of the equation its error estimate measures from: a cloth resting on
+the ground or folded on itself reads as solved when it is, and a known displacement of it
+reads as that displacement (taichi_sim/integrators/positional/vbd_contact_model.py)."""
+import numpy as np
+import pytest
+
+import taichi_sim as ts
+from taichi_sim.stepper import Stepper
+
+
+def resting_cloth(iterations=200):
+    """A small cloth settled on the ground with vbd (its contact in the solve, no friction)."""
+    scene = ts.build_scene("cloth", {"nx": 6, "ny": 6, "pin": "none", "plane": True, "plane_friction": 0.0,
+                                     "height": 0.02, "thickness": 0.01})
+    integrator = ts.create_integrator("vbd", scene.system, iterations=iterations)
+    stepper = Stepper(scene, integrator, 1 / 60, tolerance=1.0)
+    for _ in range(60):
+        stepper.step()
+    stepper.step(check=True)
+    return scene, integrator, stepper
+
+
+def test_a_cloth_resting_on_the_ground_is_solved_and_a_push_into_it_is_measured(f64):
+    # Without the contact's penalty in the model, the resting cloth's unbalanced weight would
+    # read as millimetres of error at every step.
+    scene, integrator, stepper = resting_cloth()
+    monitor = stepper.monitor
+    assert monitor.active and not monitor.reason
+    assert monitor.distances[-1] < 1e-6
+    x, _ = scene.state.to_numpy()
+    pushed = x.copy()
+    pushed[:, 1] -= 5e-4  # every vertex half a millimetre further into the ground
+    scene.state.x.from_numpy(pushed)
+    _, distance = monitor.measure(scene.state, stepper.t, integrator.solved_h)
+    assert distance == pytest.approx(5e-4, rel=0.02)
+
+
+def fold(size=16, steps=99):
+    """cloth-fold at the point where its pile has settled into one piece a step, with
+    self-contact pairs in the solve: (scene, integrator, stepper, saved state, t)."""
+    scene = ts.build_scene("cloth-fold", {"nx": size, "ny": size})
+    integrator = ts.create_integrator("vbd", scene.system)
+    stepper = Stepper(scene, integrator, 1 / 60, tolerance=1.0, raise_work=False)
+    for _ in range(steps):
+        stepper.step()
+    saved = scene.system.make_state()
+    saved.copy_from(scene.state)
+    return scene, integrator, stepper, saved, stepper.t
+
+
+def step_from(saved, t, scene, integrator, stepper, iterations):
+    """One sampled step from the saved state with ``iterations`` sweeps: (x1, estimate)."""
+    scene.state.copy_from(saved)
+    integrator.reset()
+    integrator.iterations = iterations
+    stepper.t = t
+    stepper.step(check=True)
+    return scene.state.to_numpy()[0].astype(float), stepper.monitor.distances[-1]
+
+
+def test_a_folded_cloth_stopped_early_is_estimated_within_a_factor_of_three(f32):
+    # The pile touches itself (self-contact pairs) and the ground; a step of a few sweeps is
+    # compared with the same step swept 3000 times from the same start (one piece each).
+    scene, integrator, stepper, saved, t = fold()
+    reference, settled = step_from(saved, t, scene, integrator, stepper, 3000)
+    assert integrator.contact.pair_total() > 0 and integrator.solved_h == pytest.approx(1 / 60)
+    assert settled < 1e-5
+    for iterations in (5, 20):
+        x1, estimate = step_from(saved, t, scene, integrator, stepper, iterations)
+        true = float(np.max(np.linalg.norm(x1 - reference, axis=1)))
+        assert true > 1e-4  # far enough to tell
+        assert true / 3 <= estimate <= 3 * true, (iterations, estimate, true)
+
+
+def test_the_estimate_follows_a_self_contact_pair_that_is_pushed_closer(f32):
+    # One vertex of a self-contact pair moved 0.3 mm towards its partner: the estimate reads
+    # that move (the pair's coupling is in the Jacobian).
+    scene, integrator, stepper, saved, t = fold()
+    step_from(saved, t, scene, integrator, stepper, 3000)
+    contact = integrator.contact
+    count = contact.pair_total()
+    ids = contact.pair_ids.to_numpy()[:count]
+    free = scene.static_arrays["pinned"] == 0
+    vertex = next(int(i[0]) for i in ids if free[i[0]])
+    x, _ = scene.state.to_numpy()
+    partner = x[ids[ids[:, 0] == vertex][0][1:]].mean(axis=0)
+    direction = (partner - x[vertex]) / np.linalg.norm(partner - x[vertex])
+    moved = x.copy()
+    moved[vertex] += 3e-4 * direction
+    scene.state.x.from_numpy(moved)
+    _, distance = stepper.monitor.measure(scene.state, stepper.t, integrator.solved_h)
+    assert 3e-4 / 1.5 <= distance <= 1.5 * 3e-4
