@@ -1,5 +1,5 @@
 """The kernels compile at Taichi's opt_level 0 too (a third of the compile time of the default;
-docs/first-contact.md, "The suite's time"): Taichi keeps one type per local name, and a ``_``
+docs/lab/suite-time.md): Taichi keeps one type per local name, and a ``_``
 bound to a scalar, then a vector, then a scalar in one kernel (the implicit methods' Newton
 start) compiled at the default level but aborted the process in LLVM at level 0."""
 import os

@@ -10,7 +10,7 @@ from taichi_sim.scene_file import load_scene_file, scene_file_text
 from taichi_sim.stepper import Stepper, bind_integrator
 
 SMALL = {"nx": 4, "ny": 4}
-STIFF_SUBSTEPS = 50  # docs/vbd.md, "cloth-stiff's default": 20 substeps end 5 cm off at 64 x 64
+STIFF_SUBSTEPS = 50  # docs/lab/vbd.md, "cloth-stiff's default": 20 substeps end 5 cm off at 64 x 64
 
 
 def test_the_stiff_cloth_binds_xpbd_with_its_substeps_and_a_caller_overrides_them(f64):

@@ -47,7 +47,7 @@ def test_simulate_says_the_solve_did_the_stages_work_and_names_the_options(tmp_p
                  "symplectic_euler", "--dt", "0.001", "--out", str(tmp_path / "b.npz")]) == 0
     out = capsys.readouterr().out
     assert "2 steps of symplectic_euler to" in out and "cloth-fold: self-contact:" in out
-    # the preset's default is vbd at 1/60 s (docs/vbd.md, "The fold's pace")
+    # the preset's default is vbd at 1/60 s (docs/lab/vbd.md, "The fold's pace")
     assert main(["simulate", "cloth-fold", "--set", "nx=6", "--set", "ny=6", "--steps", "2",
                  "--out", str(tmp_path / "c.npz")]) == 0
     out = capsys.readouterr().out

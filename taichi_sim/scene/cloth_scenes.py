@@ -333,7 +333,7 @@ CLOTH_SCENES = (
                               sphere_spin=10.0, sphere_x=0.15, plane_friction=0.3, restitution=0.0,
                               self_collision=True),
                 # vbd at one step a frame, in pieces while the sphere flings the cloth: it slides
-                # off as with symplectic Euler, in half the wall time (docs/vbd.md, "The fold's pace").
+                # off as with symplectic Euler, in half the wall time (docs/lab/vbd.md, "The fold's pace").
                 build_cloth, default_dt=1 / 60, default_integrator="vbd", explicit_dt=1e-3, **_CLOTH_SIZE),
     ScenePreset("cloth-tear", "a cloth held at two sides, torn by a sphere dropping through it",
                 with_defaults(CLOTH_PARAMS, pin="sides", sphere=True, sphere_y=1.5, sphere_radius=0.2,
@@ -353,7 +353,7 @@ CLOTH_SCENES = (
                               flex_stiffness=20.0),
                 # vbd at one step a frame, its substeps cut into pieces while the cloth collapses:
                 # the pace of the explicit step at a fraction of its wall time (64 x 64: the 5 s
-                # in 42 s, symplectic Euler's first second in 65 s; docs/vbd.md, "The fold's pace").
+                # in 42 s, symplectic Euler's first second in 65 s; docs/lab/vbd.md, "The fold's pace").
                 build_cloth, default_dt=1 / 60, default_integrator="vbd", explicit_dt=1e-3, **_CLOTH_SIZE,
                 # A pile of layers a thickness (1 cm) apart: positions within half of it draw the
                 # same pile, and the collapse's steps are 1-3 mm from their solution at any work
@@ -369,7 +369,7 @@ CLOTH_SCENES = (
     # Nearly inextensible cloth at one step per 60 Hz frame: symplectic Euler would need about
     # 2000 steps per frame here (h < 2 / omega_max), XPBD takes one step of 50 substeps: with
     # XPBD's own 20 the fall ends 5 cm from the motion at 64 x 64, with 50 within 2 cm
-    # (docs/vbd.md, "cloth-stiff's default").
+    # (docs/lab/vbd.md, "cloth-stiff's default").
     # The cloth as a material: the default 1 m^2 cloth's weight as a Neo-Hookean membrane of
     # E t = 1000 N/m with bending, at one implicit Euler step per 60 Hz frame.
     ScenePreset("cloth-membrane", "a cloth as a material: a Neo-Hookean membrane (E t = 1000 N/m, nu = 0.3) "

@@ -101,7 +101,7 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, ContactPieces, Integrator):
             into so that its start guess stays within the contact bounds for all but 0.5 % of
             the vertices (each piece a detection and its sweeps; :mod:`.vbd_pieces`; a scene's
             scripted pins may need more, up to 256); 1: one piece, the guess cut to the bounds,
-            which holds back a collapsing cloth (docs/vbd.md, "The fold's pace").
+            which holds back a collapsing cloth (docs/lab/vbd.md, "The fold's pace").
         object_faces: the cloth's triangles against the objects in the solve too
             (:mod:`.vbd_faces`; default True), where the scene's ``object_faces`` is on: a box's
             edge or a thin object cannot come between the vertices into a face. Off, the

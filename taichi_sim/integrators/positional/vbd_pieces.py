@@ -4,7 +4,7 @@ Each piece detects the contact pairs at its start (where the cloth is free of in
 starts from the bounded guess and sweeps. The bounds keep every vertex within bound_fraction of
 its distance to its nearest contact partner until the next detection, so a vertex whose start
 guess (x0 + dt v0 + dt^2 a) lies farther is cut back to its bound, and a cloth whose parts close
-on each other faster than that per detection falls behind (docs/vbd.md, "The fold's pace"). A
+on each other faster than that per detection falls behind (docs/lab/vbd.md, "The fold's pace"). A
 substep is therefore cut short where
 
 * the scene's scripted pins would move further than their bounds (:mod:`.vbd_pins`; always);
