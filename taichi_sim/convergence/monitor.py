@@ -8,7 +8,8 @@ identical runs sample identical steps): a sample costs about ``SAMPLE_SECONDS_PE
 (3 n)^1.5 s (a sparse factorisation of the Jacobian: 0.5 s for a 64 x 64 grid, 1-2 s for the
 5 000-vertex skirt, whose mesh fills in more, on the 2-vCPU machine of docs/integrators.md), a
 unit of the method's work (an f evaluation, a sweep, a linear iteration) about
-``WORK_SECONDS_PER_PARTICLE`` n s. The last step of a run and the steps a caller asks to check
+``WORK_SECONDS_PER_PARTICLE`` n s, times the method's ``work_weight`` (vbd's sweeps with
+self-contact pairs cost several times a sweep over springs). The last step of a run and the steps a caller asks to check
 are sampled whatever they cost, so that every run has its figure: a run shorter than the work
 one sample pays for spends more than ``BUDGET`` on that one sample. A small scene (a sample
 under ``FREE_SAMPLE_SECONDS``) has its first step sampled too.
@@ -110,7 +111,8 @@ class ConvergenceMonitor:
             n = int(self.model.free.sum())
             # the work (method's units) that pays for one sample within BUDGET (module docstring)
             self.sample_seconds = SAMPLE_SECONDS_PER_DOF * (3 * n) ** 1.5
-            self.sample_work = self.sample_seconds / (BUDGET * WORK_SECONDS_PER_PARTICLE * max(n, 1))
+            unit = WORK_SECONDS_PER_PARTICLE * max(n, 1) * float(getattr(integrator, "work_weight", 1.0))
+            self.sample_work = self.sample_seconds / (BUDGET * unit)
 
     def check_precision(self, state, precision: str, epsilon: float) -> str:
         """Before a run: the bound samples are held to is ``max_residual`` or, where the

@@ -129,6 +129,9 @@ class Integrator(ABC):
     work_cap: float = 0
     """The furthest ``work_option`` may go under a tolerance (the largest count, the smallest
     tolerance)."""
+    work_weight: float = 1.0
+    """What a unit of the method's reported work costs, relative to a sweep over springs (the
+    convergence monitor's cost model: how often a run can pay for a sample)."""
     given_options: frozenset = frozenset()
     """The options the caller set (:func:`~taichi_sim.integrators.create_integrator`)."""
     replaces_parts: frozenset = frozenset()
