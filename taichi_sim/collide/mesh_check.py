@@ -12,6 +12,12 @@ let layers come closer than the user asked for, which is a different simulation.
 The distances are exact closest distances between primitives (numpy, float64), found through a
 uniform grid of boxes grown by the thickness, so only pairs that could be closer than it are
 measured: the check costs about as much as one broad phase.
+
+A thickness nobody chose is different: :func:`contact_thickness` with ``fit`` takes one that fits
+the mesh, ``FIT_SHARE`` of that smallest distance (so the resting cloth keeps a margin of the
+same size to its contacts), no more than the thickness asked for (the scene's default) and no
+less than ``THICKNESS_FLOOR``. A mesh cloth whose user gave no thickness runs with it
+(docs/meshes.md).
 """
 from __future__ import annotations
 
@@ -19,6 +25,15 @@ import numpy as np
 
 from ..errors import ConfigError
 from ..geometry.intersections import self_intersections
+
+#: The share of the rest shape's smallest distance between non-adjacent parts that a fitted
+#: thickness takes: half, so that the cloth at rest is as far from its contacts as they are thick.
+FIT_SHARE = 0.5
+#: m: the thinnest thickness fitted without being asked. The stage decides a touch at a
+#: thousandth of the thickness (its ``delta``), and f32 holds a vertex a metre from the origin to
+#: about 1e-7 m: below half a millimetre that decision nears round-off. A mesh whose parts come
+#: closer than this at rest needs a thickness given by hand (or a coarser or cleaner mesh).
+THICKNESS_FLOOR = 5e-4
 
 
 def check_contact_mesh(x0: np.ndarray, triangles: np.ndarray, thickness: float, *,
@@ -43,6 +58,29 @@ def check_contact_mesh(x0: np.ndarray, triangles: np.ndarray, thickness: float, 
         non-adjacent parts that touch at the start (coincident points) or a start whose
         triangles intersect.
     """
+    return contact_thickness(x0, triangles, thickness, rest=rest, name=name)[1]
+
+
+def contact_thickness(x0: np.ndarray, triangles: np.ndarray, thickness: float, *,
+                      rest: np.ndarray | None = None, fit: bool = False,
+                      name: str = "thickness") -> tuple[float, float]:
+    """The thickness (m) the self-contact stage runs this mesh with, checked as
+    :func:`check_contact_mesh` checks one.
+
+    Args:
+        x0, triangles, rest, name: as for :func:`check_contact_mesh`.
+        thickness: the distance (m) asked for; with ``fit``, the most that is taken.
+        fit: take ``FIT_SHARE`` of the rest shape's smallest distance between non-adjacent parts
+            where that is less than ``thickness``, and no less than ``THICKNESS_FLOOR`` (for a
+            thickness the user did not give: the scene's default as the ceiling).
+    Returns:
+        (the thickness taken (m): ``thickness`` itself without ``fit``; the smallest distance
+        (m) as :func:`check_contact_mesh` returns it, exact whenever the fitted thickness was
+        decided by it).
+    Raises:
+        ConfigError (a ValueError): as :func:`check_contact_mesh`; with ``fit``, naming ``name``
+        when the rest shape's parts come within ``THICKNESS_FLOOR`` of each other.
+    """
     if isinstance(thickness, bool) or not isinstance(thickness, (int, float, np.floating)) \
             or not np.isfinite(thickness) or thickness <= 0:
         raise ConfigError(f"{name} must be a finite number > 0 (m), got {thickness!r}")
@@ -54,7 +92,7 @@ def check_contact_mesh(x0: np.ndarray, triangles: np.ndarray, thickness: float, 
     tris = np.asarray(triangles, np.int64).reshape(-1, 3)
     tris = tris[np.all(tris >= 0, axis=1)]
     if len(tris) == 0:
-        return np.inf
+        return thickness, np.inf
     if tris.max() >= len(x):
         raise ConfigError(f"triangles refers to vertex {tris.max()} but there are {len(x)} particles")
     repeated = np.flatnonzero((tris[:, 0] == tris[:, 1]) | (tris[:, 1] == tris[:, 2]) | (tris[:, 0] == tris[:, 2]))
@@ -78,12 +116,22 @@ def check_contact_mesh(x0: np.ndarray, triangles: np.ndarray, thickness: float, 
         raise ConfigError(f"x: the cloth starts passing through itself ({crossing} pair(s) of intersecting "
                           f"triangles; a jitter too large for the spacing?); contact keeps a start's "
                           f"crossings, it cannot undo them")
-    smallest = min(_vertex_triangle(rest, tris, thickness), _edge_edge(rest, edges, thickness))
+    # fitting, the distance must be exact up to the ceiling over the share: the pairs measured
+    # are those whose boxes, grown by the reach, overlap
+    reach = thickness / FIT_SHARE if fit else thickness
+    smallest = min(_vertex_triangle(rest, tris, reach), _edge_edge(rest, edges, reach))
+    if fit:
+        if smallest <= THICKNESS_FLOOR:
+            raise ConfigError(f"{name}: non-adjacent parts of the cloth come within {smallest:.6g} m of each other "
+                              f"at rest, closer than the thinnest {name} taken without being asked "
+                              f"({THICKNESS_FLOOR:g} m); give a {name} below {smallest:.6g} m, or weld or "
+                              f"coarsen the mesh")
+        thickness = min(thickness, max(THICKNESS_FLOOR, FIT_SHARE * smallest))
     if smallest <= thickness:
         raise ConfigError(f"{name} {thickness:g} m must be below {smallest:.6g} m, the smallest distance "
                           f"between non-adjacent parts of the cloth at rest (contacts closer than the {name} "
                           f"would push the resting cloth apart); use a smaller {name} or a coarser grid")
-    return smallest
+    return thickness, smallest
 
 
 def _positions(x) -> np.ndarray:
