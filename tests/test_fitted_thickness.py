@@ -109,3 +109,23 @@ def test_a_given_thickness_is_used_or_refused_as_before(tmp_path, capsys, f32):
     assert "takes thickness" not in capsys.readouterr().err
     with np.load(out) as data:
         assert float(data["param_thickness"]) == 0.004
+
+
+@pytest.mark.parametrize("quantized", [False, True])
+def test_the_measurements_box_pairs_are_every_overlapping_pair_once(quantized):
+    # the broad phase the measurement (and check_contact_mesh) runs on: against brute force,
+    # boxes on the cells' boundaries included
+    from taichi_sim.collide.mesh_check import _box_pairs
+
+    rng = np.random.default_rng(7)
+    for _ in range(10):
+        if quantized:
+            lo_a, lo_b = rng.integers(0, 20, (200, 3)) * 0.05, rng.integers(0, 20, (150, 3)) * 0.05
+            hi_a, hi_b = lo_a + rng.integers(0, 3, (200, 3)) * 0.05, lo_b + rng.integers(0, 3, (150, 3)) * 0.05
+        else:
+            lo_a, lo_b = rng.uniform(0, 1, (200, 3)), rng.uniform(0, 1, (150, 3))
+            hi_a, hi_b = lo_a + rng.uniform(0, 0.1, (200, 3)), lo_b + rng.uniform(0, 0.1, (150, 3))
+        cell = float(max((hi_a - lo_a).max(), (hi_b - lo_b).max()))
+        pairs = _box_pairs(lo_a, hi_a, lo_b, hi_b, cell)
+        overlap = np.all((lo_a[:, None] <= hi_b[None]) & (lo_b[None] <= hi_a[:, None]), axis=2)
+        assert len(pairs) == overlap.sum() and overlap[pairs[:, 0], pairs[:, 1]].all()

@@ -162,7 +162,8 @@ def _edges(tris: np.ndarray) -> np.ndarray:
 
 
 def _box_pairs(lo_a, hi_a, lo_b, hi_b, cell: float) -> np.ndarray:
-    """(P, 2) ids (a, b) whose closed boxes overlap; every box spans at most 2 cells per axis."""
+    """(P, 2) ids (a, b) whose closed boxes overlap, each pair once; every box spans at most 2
+    cells per axis."""
     origin = np.minimum(lo_a.min(axis=0), lo_b.min(axis=0))
 
     def cells(lo, hi):
@@ -175,10 +176,10 @@ def _box_pairs(lo_a, hi_a, lo_b, hi_b, cell: float) -> np.ndarray:
                     use = (dx < span[:, 0]) & (dy < span[:, 1]) & (dz < span[:, 2])
                     out_id.append(np.flatnonzero(use))
                     out_cell.append(c_lo[use] + np.array([dx, dy, dz]))
-        return np.concatenate(out_id), np.concatenate(out_cell)
+        return np.concatenate(out_id), np.concatenate(out_cell), c_lo, c_lo + span - 1
 
-    id_a, cell_a = cells(lo_a, hi_a)
-    id_b, cell_b = cells(lo_b, hi_b)
+    id_a, cell_a, first_a, last_a = cells(lo_a, hi_a)
+    id_b, cell_b, first_b, last_b = cells(lo_b, hi_b)
     key_lo = np.minimum(cell_a.min(axis=0), cell_b.min(axis=0))
     dims = np.maximum(cell_a.max(axis=0), cell_b.max(axis=0)) - key_lo + 1
     key_a = np.ravel_multi_index((cell_a - key_lo).T, dims)
@@ -189,9 +190,15 @@ def _box_pairs(lo_a, hi_a, lo_b, hi_b, cell: float) -> np.ndarray:
     counts = stop - start
     a = np.repeat(id_a, counts)
     b = id_b[np.repeat(start, counts) + np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)]
+    key = np.repeat(key_a, counts)
     keep = np.all((lo_a[a] <= hi_b[b]) & (lo_b[b] <= hi_a[a]), axis=1)
-    key = np.unique(a[keep] * len(lo_b) + b[keep])  # a pair met in several shared cells, once
-    return np.stack([key // len(lo_b), key % len(lo_b)], axis=1)
+    a, b, key = a[keep], b[keep], key[keep]
+    # A pair met in several shared cells is kept in one: the cell of its overlap's lowest corner
+    # (within both boxes' cells), so nothing needs sorting out afterwards.
+    corner = np.floor((np.maximum(lo_a[a], lo_b[b]) - origin) / cell).astype(np.int64)
+    corner = np.clip(corner, np.maximum(first_a[a], first_b[b]), np.minimum(last_a[a], last_b[b]))
+    once = np.ravel_multi_index((corner - key_lo).T, dims) == key
+    return np.stack([a[once], b[once]], axis=1)
 
 
 def _vertex_triangle(x: np.ndarray, tris: np.ndarray, reach: float) -> float:
