@@ -24,6 +24,9 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import ConfigError
+from ..geometry.distances import point_triangle_distance as _point_triangle_distance
+from ..geometry.distances import segment_distance as _segment_distance
+from ..geometry.distances import segment_point_distance as _segment_point
 from ..geometry.intersections import self_intersections
 
 #: The share of the rest shape's smallest distance between non-adjacent parts that a fitted
@@ -225,45 +228,3 @@ def _edge_edge(x: np.ndarray, edges: np.ndarray, reach: float) -> float:
         return np.inf
     a, b = ends[pairs[:, 0]], ends[pairs[:, 1]]
     return float(_segment_distance(a[:, 0], a[:, 1], b[:, 0], b[:, 1]).min())
-
-
-def _point_triangle_distance(p, a, b, c) -> np.ndarray:
-    """(P,) distances from points p to triangles abc (none degenerate), all (P, 3)."""
-    n = np.cross(b - a, c - a)
-    n /= np.linalg.norm(n, axis=1, keepdims=True)
-    height = np.einsum("ij,ij->i", p - a, n)
-    q = p - height[:, None] * n  # the projection onto the triangle's plane
-    inside = np.ones(len(p), bool)
-    for u, v in ((a, b), (b, c), (c, a)):
-        inside &= np.einsum("ij,ij->i", np.cross(v - u, q - u), n) >= 0
-    edge = np.minimum.reduce([_segment_point(p, a, b), _segment_point(p, b, c), _segment_point(p, c, a)])
-    return np.where(inside, np.abs(height), edge)
-
-
-def _segment_point(p, a, b) -> np.ndarray:
-    d = b - a
-    t = np.clip(np.einsum("ij,ij->i", p - a, d) / np.maximum(np.einsum("ij,ij->i", d, d), 1e-300), 0.0, 1.0)
-    return np.linalg.norm(p - (a + t[:, None] * d), axis=1)
-
-
-def _segment_distance(p1, q1, p2, q2) -> np.ndarray:
-    """(P,) closest distances between segments p1q1 and p2q2 (Ericson, Real-Time Collision
-    Detection, 5.1.9), parallel segments included."""
-    d1, d2, r = q1 - p1, q2 - p2, p1 - p2
-    a = np.einsum("ij,ij->i", d1, d1)
-    e = np.einsum("ij,ij->i", d2, d2)
-    f = np.einsum("ij,ij->i", d2, r)
-    c = np.einsum("ij,ij->i", d1, r)
-    b = np.einsum("ij,ij->i", d1, d2)
-    denom = a * e - b * b
-    s = np.where(denom > 1e-14 * a * e, np.clip((b * f - c * e) / np.where(denom > 0, denom, 1.0), 0.0, 1.0), 0.0)
-    t = (b * s + f) / e
-    s = np.where(t < 0, np.clip(-c / a, 0.0, 1.0), np.where(t > 1, np.clip((b - c) / a, 0.0, 1.0), s))
-    t = np.clip(t, 0.0, 1.0)
-    # the three candidate end-point distances cover the cases the clamping above resolves
-    best = np.linalg.norm((p1 + s[:, None] * d1) - (p2 + t[:, None] * d2), axis=1)
-    for pt, sa, sb in ((p1, p2, q2), (q1, p2, q2)):
-        best = np.minimum(best, _segment_point(pt, sa, sb))
-    for pt, sa, sb in ((p2, p1, q1), (q2, p1, q1)):
-        best = np.minimum(best, _segment_point(pt, sa, sb))
-    return best
