@@ -26,7 +26,6 @@ import numpy as np
 from ..errors import ConfigError
 from ..geometry.distances import point_triangle_distance as _point_triangle_distance
 from ..geometry.distances import segment_distance as _segment_distance
-from ..geometry.distances import segment_point_distance as _segment_point
 from ..geometry.intersections import self_intersections
 
 #: The share of the rest shape's smallest distance between non-adjacent parts that a fitted
