@@ -8,7 +8,7 @@ import warnings
 from . import interrupt
 from .cli_export import cmd_export, export_frames, export_request
 from .cli_parser import EXIT_USAGE, build_parser
-from .errors import ConfigError, InputWarning
+from .errors import ConfigError, InputNote, InputWarning
 
 # The most steps one `simulate` takes. The cheapest scene (the circle ODE, RK4) runs at about a
 # thousand steps a second on a loaded 2-core machine, a few thousand on an idle one: 10^8 steps
@@ -501,10 +501,11 @@ def _main(argv: list[str] | None) -> int:
             return cmd_export(args)
         if args.command is None:
             return cmd_default()
-        with warnings.catch_warnings():  # input warnings as one line each, like the errors
+        with warnings.catch_warnings():  # input warnings and notes as one line each, like the errors
             shown = warnings.showwarning
             warnings.showwarning = lambda message, category, *rest, **kw: (
                 print(f"taichi-sim: warning: {message}", file=sys.stderr) if issubclass(category, InputWarning)
+                else print(f"taichi-sim: {message}", file=sys.stderr) if issubclass(category, InputNote)
                 else shown(message, category, *rest, **kw))
             return {"list": cmd_list, "simulate": cmd_simulate, "demo": cmd_demo,
                     "record": cmd_record, "bench": cmd_bench, "advise": cmd_advise,

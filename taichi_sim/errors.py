@@ -40,3 +40,9 @@ def close_names(name: str, known: list[str]) -> list[str]:
 class InputWarning(UserWarning):
     """Input that is used, but perhaps not as meant (a mesh with non-manifold edges, several
     pieces, or triangles removed on loading). The CLI prints each as one line on stderr."""
+
+
+class InputNote(UserWarning):
+    """A value the toolkit chose from the input where the user gave none (a mesh cloth's
+    self-contact thickness fitted to its rest shape). The CLI prints each as one line on stderr,
+    ``taichi-sim: ...``, as it announces its other chosen defaults."""

@@ -4,12 +4,15 @@ Three questions, each answered for every saved frame (``x_history``, or the fina
 whether any two triangles of the cloth intersect (:func:`~taichi_sim.geometry.self_intersections`,
 exact predicates); whether any vertex lies inside one of the scene's objects
 (:func:`~taichi_sim.geometry.inside.inside_objects`: spheres, capsules and boxes where the run
-kept their centres with the frames, the ground plane always; a collider mesh is not checked;
-pinned vertices, which no collider moves, are left out); and whether an object reaches into a
-face between its vertices: points on each triangle (:func:`~taichi_sim.geometry.inside.face_samples`,
-25 a triangle) deeper inside a sphere, capsule or box than ``FACE_SHARE`` of its thinnest size
-(triangles with a pinned corner are left out: a pin inside an object drags its triangles in,
-which no collider can undo).
+kept their centres with the frames, the ground plane always; the collider mesh where the run
+kept its pose with the frames, :func:`~taichi_sim.geometry.mesh_inside.mesh_depths`; pinned
+vertices, which no collider moves, are left out); and whether an object reaches into a face
+between its vertices: points on each triangle (:func:`~taichi_sim.geometry.inside.face_samples`,
+25 a triangle) deeper inside a sphere, capsule or box than ``FACE_SHARE`` of its thinnest size,
+or deeper inside the collider mesh than ``INSIDE_TOLERANCE`` (a mesh has no thinnest size, and
+its collider keeps vertices a skin away, so any depth is a body poking between them; triangles
+with a pinned corner are left out: a pin inside an object drags its triangles in, which no
+collider can undo).
 """
 from __future__ import annotations
 
@@ -20,11 +23,14 @@ import numpy as np
 
 from .errors import ConfigError
 from .geometry import inside_objects, self_intersections
-from .geometry.inside import FACE_DIVISIONS, FACE_SHARE, face_depths
+from .geometry.inside import FACE_DIVISIONS, FACE_SHARE, INSIDE_TOLERANCE, face_depths, face_samples
+from .geometry.mesh_inside import mesh_depths
 
 _OBJECT_KEYS = ("sphere_radius", "capsule_radius", "capsule_half_axis", "box_half_extents",
                 "plane_point", "plane_normal")
 _MOVING = ("sphere", "capsule", "box")
+_MESH_KEYS = ("collider_mesh_vertices", "collider_mesh_triangles", "collider_mesh_center",
+              "collider_mesh_vertices_history", "collider_mesh_center_history")
 
 
 def load_run(path: str) -> dict[str, np.ndarray]:
@@ -34,7 +40,7 @@ def load_run(path: str) -> dict[str, np.ndarray]:
     if os.path.isfile(path) and not zipfile.is_zipfile(path):
         raise ConfigError(f"{path} is not a run's npz (not a zip archive): give a file "
                           "written by `taichi-sim simulate --out RUN.npz`")
-    wanted = ("triangles", "x", "x_history", "t_history", "t", "scene", "pinned", *_OBJECT_KEYS,
+    wanted = ("triangles", "x", "x_history", "t_history", "t", "scene", "pinned", *_OBJECT_KEYS, *_MESH_KEYS,
               *(f"{kind}_center" for kind in _MOVING), *(f"{kind}_center_history" for kind in _MOVING))
     try:
         with np.load(path) as data:
@@ -72,13 +78,45 @@ def objects_at(arrays: dict, frame: int, history: bool) -> tuple[dict, list[str]
     return out, unchecked
 
 
+def mesh_at(arrays: dict, frame: int, history: bool) -> tuple[np.ndarray | None, bool]:
+    """(The collider mesh's vertices (V, 3) in the world (m) at frame ``frame``, or None; whether
+    the file has a collider mesh it cannot place there). A saved history places it by the poses
+    kept with the frames (``collider_mesh_center_history``, and ``collider_mesh_vertices_history``
+    for a sequence of frames; a rigid mesh's vertices are the file's); the final frame alone by
+    the pose the file holds (at its end)."""
+    if "collider_mesh_triangles" not in arrays:
+        return None, False
+    if not history:
+        vertices, center = arrays["collider_mesh_vertices"], arrays["collider_mesh_center"]
+    elif "collider_mesh_center_history" not in arrays:
+        return None, True
+    else:
+        center = arrays["collider_mesh_center_history"][frame]
+        moving = arrays.get("collider_mesh_vertices_history")
+        vertices = arrays["collider_mesh_vertices"] if moving is None else moving[frame]
+    return np.asarray(vertices, np.float64).reshape(-1, 3) + np.asarray(center, np.float64).reshape(1, 3), False
+
+
+def _check_mesh_poses(arrays: dict, frames: int, history: bool) -> None:
+    """ConfigError for a collider mesh's poses that do not match the frames (a file not written
+    by a run)."""
+    if not history or "collider_mesh_triangles" not in arrays:
+        return
+    for key in ("collider_mesh_center_history", "collider_mesh_vertices_history"):
+        if key in arrays and len(arrays[key]) != frames:
+            raise ConfigError(f"{key} holds {len(arrays[key])} pose(s) for {frames} saved frame(s): "
+                              "not a run's npz")
+
+
 def check_run(arrays: dict, progress=lambda frames: frames) -> tuple[list[str], bool]:
     """(The report's lines, whether every frame passed) for a run's arrays (:func:`load_run`);
     ``progress`` wraps the frames' iteration (a progress bar)."""
     frames, times, history = frames_of(arrays)
     name = str(arrays.get("scene", "run"))
     counts, flat = [], 0
-    inside, kinds_seen, unchecked, faces = [], set(), [], []
+    inside, kinds_seen, unchecked, faces, mesh_faces = [], set(), [], [], []
+    _check_mesh_poses(arrays, len(frames), history)
+    mesh_triangles = np.asarray(arrays.get("collider_mesh_triangles", np.zeros((0, 3))), np.int64).reshape(-1, 3)
     # pinned vertices stay where their pins put them: no collider moves them
     free = ~np.asarray(arrays["pinned"], bool) if "pinned" in arrays else slice(None)
     face_tris = np.asarray(arrays["triangles"]).reshape(-1, 3)
@@ -93,6 +131,12 @@ def check_run(arrays: dict, progress=lambda frames: frames) -> tuple[list[str], 
         flat = max(flat, len(report.degenerate))
         objects, unchecked = objects_at(arrays, k, history)
         found = {kind: int(mask.sum()) for kind, mask in inside_objects(x[free], objects).items()}
+        mesh, mesh_unplaced = mesh_at(arrays, k, history)
+        if mesh is not None:
+            found["collider_mesh"] = int((mesh_depths(x[free], mesh, mesh_triangles) > INSIDE_TOLERANCE).sum())
+            mesh_faces.append(_faces_in_mesh(x, face_tris, mesh, mesh_triangles))
+        elif mesh_unplaced:
+            unchecked.append("collider_mesh")
         kinds_seen.update(found)
         inside.append({kind: n for kind, n in found.items() if n})
         faces.append(_deepest_face_point(x, face_tris, objects))
@@ -127,15 +171,38 @@ def check_run(arrays: dict, progress=lambda frames: frames) -> tuple[list[str], 
         lines.append(f"{name}: {len(face_bad)} of {len(faces)} frame(s) have a face reaching into an object "
                      f"({_face_note()}); first at t = {times[face_bad[0]]:.6g} s, deepest {1000 * depth:.3g} mm "
                      f"inside the {_object_name(kind)} at t = {times[worst]:.6g} s")
+    mesh_bad = [k for k, (count, _) in enumerate(mesh_faces) if count]
+    mesh_note = f"{_face_points()} points a triangle, deeper than {INSIDE_TOLERANCE:g} m"
+    if mesh_faces and not mesh_bad:
+        lines.append(f"{name}: no face reaches into the collider mesh in any frame ({mesh_note})")
+    elif mesh_bad:
+        worst = max(mesh_bad, key=lambda k: mesh_faces[k][1])
+        lines.append(f"{name}: {len(mesh_bad)} of {len(mesh_faces)} frame(s) have a face reaching into the collider "
+                     f"mesh ({mesh_note}); first at t = {times[mesh_bad[0]]:.6g} s, deepest "
+                     f"{1000 * mesh_faces[worst][1]:.3g} mm inside it at t = {times[worst]:.6g} s")
     if unchecked:
         lines.append(f"{name}: the {' and '.join(_object_name(k) for k in unchecked)} not checked: the file keeps "
                      f"no centres with its frames (saved by an older version)")
-    return lines, not counts.any() and not bad and not face_bad
+    return lines, not counts.any() and not bad and not face_bad and not mesh_bad
+
+
+def _face_points() -> int:
+    return (FACE_DIVISIONS + 1) * (FACE_DIVISIONS + 2) // 2 - 3
+
+
+def _faces_in_mesh(x, triangles, mesh, mesh_triangles) -> tuple[int, float]:
+    """(How many of the cloth's ``triangles`` have a point of
+    :func:`~taichi_sim.geometry.inside.face_samples` deeper than ``INSIDE_TOLERANCE`` inside the
+    collider mesh (vertices ``mesh`` (V, 3) m in the world), the deepest such point's depth (m))."""
+    if len(triangles) == 0:
+        return 0, 0.0
+    depth = mesh_depths(face_samples(x, triangles).reshape(-1, 3), mesh, mesh_triangles)
+    deepest = depth.reshape(len(triangles), -1).max(axis=1)
+    return int((deepest > INSIDE_TOLERANCE).sum()), float(deepest.max())
 
 
 def _face_note() -> str:
-    points = (FACE_DIVISIONS + 1) * (FACE_DIVISIONS + 2) // 2 - 3
-    return f"{points} points a triangle, deeper than {100 * FACE_SHARE:g} % of the object's thinnest size"
+    return f"{_face_points()} points a triangle, deeper than {100 * FACE_SHARE:g} % of the object's thinnest size"
 
 
 def _deepest_face_point(x, triangles, objects):
@@ -152,4 +219,5 @@ def _deepest_face_point(x, triangles, objects):
 
 
 def _object_name(kind: str) -> str:
-    return {"plane": "ground plane", "sphere": "spheres", "capsule": "capsules", "box": "boxes"}[kind]
+    return {"plane": "ground plane", "sphere": "spheres", "capsule": "capsules", "box": "boxes",
+            "collider_mesh": "collider mesh"}[kind]

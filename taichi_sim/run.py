@@ -61,8 +61,10 @@ class RunResult:
         x_history, t_history: with ``save_every``, the positions (S, N, 3) (m) (for a
             first-order system its state, (S, N, dim)) at t = 0, every ``save_every`` accepted
             steps and at the end, and their times (S,) (s); None otherwise.
-        object_history: with ``save_every``, where the scene's spheres, capsules and boxes were
-            at those times: ``sphere_center_history`` (S, K, 3) (m) and the like; empty
+        object_history: with ``save_every``, where the scene's spheres, capsules, boxes and
+            collider mesh were at those times: ``sphere_center_history`` (S, K, 3) (m) and the
+            like (``collider_mesh_center_history`` (S, 3), ``collider_mesh_vertices_history``
+            (S, V, 3) for a sequence of frames); empty
             otherwise (what `taichi-sim check` tests the saved frames against).
     """
 
@@ -306,7 +308,8 @@ def _integrator_warnings(integrator) -> tuple[str, ...]:
 
 class _History:
     """Frames of a run's positions, copied from the device as they are kept, with where the
-    scene's objects (spheres, capsules, boxes: the parts with ``centers_at``) were then."""
+    scene's objects (spheres, capsules, boxes, a collider mesh: the parts with ``centers_at``)
+    were then."""
 
     def __init__(self, scene: Scene):
         self.scene = scene

@@ -14,7 +14,9 @@ import taichi_sim as ts
 from taichi_sim.app.contacts_view import ContactsView, unavailable
 from taichi_sim.app.input import KEYMAP, CameraControl, apply_key, help_lines
 from taichi_sim.app.session import Session
-from taichi_sim.collide.mesh_check import _point_triangle_distance, _segment_distance, _segment_point
+from taichi_sim.geometry.distances import point_triangle_distance as _point_triangle_distance
+from taichi_sim.geometry.distances import segment_distance as _segment_distance
+from taichi_sim.geometry.distances import segment_point_distance as _segment_point
 from taichi_sim.integrators import create_integrator
 from taichi_sim.integrators.positional.vbd_contact import OBJECT_CONTACT, SELF_CONTACT
 from taichi_sim.render import OrbitCamera

@@ -12,13 +12,30 @@ let layers come closer than the user asked for, which is a different simulation.
 The distances are exact closest distances between primitives (numpy, float64), found through a
 uniform grid of boxes grown by the thickness, so only pairs that could be closer than it are
 measured: the check costs about as much as one broad phase.
+
+A thickness nobody chose is different: :func:`contact_thickness` with ``fit`` takes one that fits
+the mesh, ``FIT_SHARE`` of that smallest distance (so the resting cloth keeps a margin of the
+same size to its contacts), no more than the thickness asked for (the scene's default) and no
+less than ``THICKNESS_FLOOR``. A mesh cloth whose user gave no thickness runs with it
+(docs/meshes.md).
 """
 from __future__ import annotations
 
 import numpy as np
 
 from ..errors import ConfigError
+from ..geometry.distances import point_triangle_distance as _point_triangle_distance
+from ..geometry.distances import segment_distance as _segment_distance
 from ..geometry.intersections import self_intersections
+
+#: The share of the rest shape's smallest distance between non-adjacent parts that a fitted
+#: thickness takes: half, so that the cloth at rest is as far from its contacts as they are thick.
+FIT_SHARE = 0.5
+#: m: the thinnest thickness fitted without being asked. The stage decides a touch at a
+#: thousandth of the thickness (its ``delta``), and f32 holds a vertex a metre from the origin to
+#: about 1e-7 m: below half a millimetre that decision nears round-off. A mesh whose parts come
+#: closer than this at rest needs a thickness given by hand (or a coarser or cleaner mesh).
+THICKNESS_FLOOR = 5e-4
 
 
 def check_contact_mesh(x0: np.ndarray, triangles: np.ndarray, thickness: float, *,
@@ -43,6 +60,29 @@ def check_contact_mesh(x0: np.ndarray, triangles: np.ndarray, thickness: float, 
         non-adjacent parts that touch at the start (coincident points) or a start whose
         triangles intersect.
     """
+    return contact_thickness(x0, triangles, thickness, rest=rest, name=name)[1]
+
+
+def contact_thickness(x0: np.ndarray, triangles: np.ndarray, thickness: float, *,
+                      rest: np.ndarray | None = None, fit: bool = False,
+                      name: str = "thickness") -> tuple[float, float]:
+    """The thickness (m) the self-contact stage runs this mesh with, checked as
+    :func:`check_contact_mesh` checks one.
+
+    Args:
+        x0, triangles, rest, name: as for :func:`check_contact_mesh`.
+        thickness: the distance (m) asked for; with ``fit``, the most that is taken.
+        fit: take ``FIT_SHARE`` of the rest shape's smallest distance between non-adjacent parts
+            where that is less than ``thickness``, and no less than ``THICKNESS_FLOOR`` (for a
+            thickness the user did not give: the scene's default as the ceiling).
+    Returns:
+        (the thickness taken (m): ``thickness`` itself without ``fit``; the smallest distance
+        (m) as :func:`check_contact_mesh` returns it, exact whenever the fitted thickness was
+        decided by it).
+    Raises:
+        ConfigError (a ValueError): as :func:`check_contact_mesh`; with ``fit``, naming ``name``
+        when the rest shape's parts come within ``THICKNESS_FLOOR`` of each other.
+    """
     if isinstance(thickness, bool) or not isinstance(thickness, (int, float, np.floating)) \
             or not np.isfinite(thickness) or thickness <= 0:
         raise ConfigError(f"{name} must be a finite number > 0 (m), got {thickness!r}")
@@ -54,7 +94,7 @@ def check_contact_mesh(x0: np.ndarray, triangles: np.ndarray, thickness: float, 
     tris = np.asarray(triangles, np.int64).reshape(-1, 3)
     tris = tris[np.all(tris >= 0, axis=1)]
     if len(tris) == 0:
-        return np.inf
+        return thickness, np.inf
     if tris.max() >= len(x):
         raise ConfigError(f"triangles refers to vertex {tris.max()} but there are {len(x)} particles")
     repeated = np.flatnonzero((tris[:, 0] == tris[:, 1]) | (tris[:, 1] == tris[:, 2]) | (tris[:, 0] == tris[:, 2]))
@@ -78,12 +118,22 @@ def check_contact_mesh(x0: np.ndarray, triangles: np.ndarray, thickness: float, 
         raise ConfigError(f"x: the cloth starts passing through itself ({crossing} pair(s) of intersecting "
                           f"triangles; a jitter too large for the spacing?); contact keeps a start's "
                           f"crossings, it cannot undo them")
-    smallest = min(_vertex_triangle(rest, tris, thickness), _edge_edge(rest, edges, thickness))
+    # fitting, the distance must be exact up to the ceiling over the share: the pairs measured
+    # are those whose boxes, grown by the reach, overlap
+    reach = thickness / FIT_SHARE if fit else thickness
+    smallest = min(_vertex_triangle(rest, tris, reach), _edge_edge(rest, edges, reach))
+    if fit:
+        if smallest <= THICKNESS_FLOOR:
+            raise ConfigError(f"{name}: non-adjacent parts of the cloth come within {smallest:.6g} m of each other "
+                              f"at rest, closer than the thinnest {name} taken without being asked "
+                              f"({THICKNESS_FLOOR:g} m); give a {name} below {smallest:.6g} m, or weld or "
+                              f"coarsen the mesh")
+        thickness = min(thickness, max(THICKNESS_FLOOR, FIT_SHARE * smallest))
     if smallest <= thickness:
         raise ConfigError(f"{name} {thickness:g} m must be below {smallest:.6g} m, the smallest distance "
                           f"between non-adjacent parts of the cloth at rest (contacts closer than the {name} "
                           f"would push the resting cloth apart); use a smaller {name} or a coarser grid")
-    return smallest
+    return thickness, smallest
 
 
 def _positions(x) -> np.ndarray:
@@ -114,7 +164,8 @@ def _edges(tris: np.ndarray) -> np.ndarray:
 
 
 def _box_pairs(lo_a, hi_a, lo_b, hi_b, cell: float) -> np.ndarray:
-    """(P, 2) ids (a, b) whose closed boxes overlap; every box spans at most 2 cells per axis."""
+    """(P, 2) ids (a, b) whose closed boxes overlap, each pair once; every box spans at most 2
+    cells per axis."""
     origin = np.minimum(lo_a.min(axis=0), lo_b.min(axis=0))
 
     def cells(lo, hi):
@@ -127,10 +178,10 @@ def _box_pairs(lo_a, hi_a, lo_b, hi_b, cell: float) -> np.ndarray:
                     use = (dx < span[:, 0]) & (dy < span[:, 1]) & (dz < span[:, 2])
                     out_id.append(np.flatnonzero(use))
                     out_cell.append(c_lo[use] + np.array([dx, dy, dz]))
-        return np.concatenate(out_id), np.concatenate(out_cell)
+        return np.concatenate(out_id), np.concatenate(out_cell), c_lo, c_lo + span - 1
 
-    id_a, cell_a = cells(lo_a, hi_a)
-    id_b, cell_b = cells(lo_b, hi_b)
+    id_a, cell_a, first_a, last_a = cells(lo_a, hi_a)
+    id_b, cell_b, first_b, last_b = cells(lo_b, hi_b)
     key_lo = np.minimum(cell_a.min(axis=0), cell_b.min(axis=0))
     dims = np.maximum(cell_a.max(axis=0), cell_b.max(axis=0)) - key_lo + 1
     key_a = np.ravel_multi_index((cell_a - key_lo).T, dims)
@@ -141,9 +192,15 @@ def _box_pairs(lo_a, hi_a, lo_b, hi_b, cell: float) -> np.ndarray:
     counts = stop - start
     a = np.repeat(id_a, counts)
     b = id_b[np.repeat(start, counts) + np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)]
+    key = np.repeat(key_a, counts)
     keep = np.all((lo_a[a] <= hi_b[b]) & (lo_b[b] <= hi_a[a]), axis=1)
-    key = np.unique(a[keep] * len(lo_b) + b[keep])  # a pair met in several shared cells, once
-    return np.stack([key // len(lo_b), key % len(lo_b)], axis=1)
+    a, b, key = a[keep], b[keep], key[keep]
+    # A pair met in several shared cells is kept in one: the cell of its overlap's lowest corner
+    # (within both boxes' cells), so nothing needs sorting out afterwards.
+    corner = np.floor((np.maximum(lo_a[a], lo_b[b]) - origin) / cell).astype(np.int64)
+    corner = np.clip(corner, np.maximum(first_a[a], first_b[b]), np.minimum(last_a[a], last_b[b]))
+    once = np.ravel_multi_index((corner - key_lo).T, dims) == key
+    return np.stack([a[once], b[once]], axis=1)
 
 
 def _vertex_triangle(x: np.ndarray, tris: np.ndarray, reach: float) -> float:
@@ -170,45 +227,3 @@ def _edge_edge(x: np.ndarray, edges: np.ndarray, reach: float) -> float:
         return np.inf
     a, b = ends[pairs[:, 0]], ends[pairs[:, 1]]
     return float(_segment_distance(a[:, 0], a[:, 1], b[:, 0], b[:, 1]).min())
-
-
-def _point_triangle_distance(p, a, b, c) -> np.ndarray:
-    """(P,) distances from points p to triangles abc (none degenerate), all (P, 3)."""
-    n = np.cross(b - a, c - a)
-    n /= np.linalg.norm(n, axis=1, keepdims=True)
-    height = np.einsum("ij,ij->i", p - a, n)
-    q = p - height[:, None] * n  # the projection onto the triangle's plane
-    inside = np.ones(len(p), bool)
-    for u, v in ((a, b), (b, c), (c, a)):
-        inside &= np.einsum("ij,ij->i", np.cross(v - u, q - u), n) >= 0
-    edge = np.minimum.reduce([_segment_point(p, a, b), _segment_point(p, b, c), _segment_point(p, c, a)])
-    return np.where(inside, np.abs(height), edge)
-
-
-def _segment_point(p, a, b) -> np.ndarray:
-    d = b - a
-    t = np.clip(np.einsum("ij,ij->i", p - a, d) / np.maximum(np.einsum("ij,ij->i", d, d), 1e-300), 0.0, 1.0)
-    return np.linalg.norm(p - (a + t[:, None] * d), axis=1)
-
-
-def _segment_distance(p1, q1, p2, q2) -> np.ndarray:
-    """(P,) closest distances between segments p1q1 and p2q2 (Ericson, Real-Time Collision
-    Detection, 5.1.9), parallel segments included."""
-    d1, d2, r = q1 - p1, q2 - p2, p1 - p2
-    a = np.einsum("ij,ij->i", d1, d1)
-    e = np.einsum("ij,ij->i", d2, d2)
-    f = np.einsum("ij,ij->i", d2, r)
-    c = np.einsum("ij,ij->i", d1, r)
-    b = np.einsum("ij,ij->i", d1, d2)
-    denom = a * e - b * b
-    s = np.where(denom > 1e-14 * a * e, np.clip((b * f - c * e) / np.where(denom > 0, denom, 1.0), 0.0, 1.0), 0.0)
-    t = (b * s + f) / e
-    s = np.where(t < 0, np.clip(-c / a, 0.0, 1.0), np.where(t > 1, np.clip((b - c) / a, 0.0, 1.0), s))
-    t = np.clip(t, 0.0, 1.0)
-    # the three candidate end-point distances cover the cases the clamping above resolves
-    best = np.linalg.norm((p1 + s[:, None] * d1) - (p2 + t[:, None] * d2), axis=1)
-    for pt, sa, sb in ((p1, p2, q2), (q1, p2, q2)):
-        best = np.minimum(best, _segment_point(pt, sa, sb))
-    for pt, sa, sb in ((p2, p1, q1), (q2, p1, q1)):
-        best = np.minimum(best, _segment_point(pt, sa, sb))
-    return best

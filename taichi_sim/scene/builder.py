@@ -1,12 +1,14 @@
 """SceneBuilder: collect what a particle scene asks for, allocate fields once in finalize()."""
 from __future__ import annotations
 
+import warnings
 from contextlib import contextmanager
 from contextvars import ContextVar
 from typing import Any
 
 import numpy as np
 
+from ..errors import InputNote
 from ..forces import Drag, GrabSpring, Gravity, Springs, Turbulence, Wind
 from ..forces.membrane import IsometricBending, Membrane, MembraneMaterial, bending_stencils
 from ..forces.springs.grid import GridSprings, grid_layout
@@ -279,10 +281,17 @@ class SceneBuilder:
             raise ValueError("plane_normal must be a nonzero 3-vector")
         self._plane = (point, normal, float(restitution), float(friction))
 
-    def enable_self_collision(self, thickness: float, friction: float = 0.0, iterations: int = 4) -> None:
+    def enable_self_collision(self, thickness: float, friction: float = 0.0, iterations: int = 4, *,
+                              fit: bool = False) -> None:
         """Keep the cloth's vertices ``thickness`` (m) off its other triangles after every step
-        (see :class:`~taichi_sim.collide.SelfCollision`; needs triangles)."""
-        self._self_collision = (float(thickness), float(friction), int(iterations))
+        (see :class:`~taichi_sim.collide.SelfCollision`; needs triangles). ``fit``: the user gave
+        no thickness and ``thickness`` is the scene's default: ``finalize`` takes half the rest
+        shape's smallest distance between non-adjacent parts where that is less, at least
+        :data:`~taichi_sim.collide.mesh_check.THICKNESS_FLOOR`
+        (:func:`~taichi_sim.collide.mesh_check.contact_thickness`), says so in one
+        :class:`~taichi_sim.errors.InputNote`, and the scene's ``params["thickness"]`` holds the
+        thickness taken (what the npz records and vbd's in-solve contact follows)."""
+        self._self_collision = (float(thickness), float(friction), int(iterations), bool(fit))
 
     def add_kinematic(self, ids, path) -> None:
         """Move pinned particles ``ids`` along a script between steps (see
@@ -434,13 +443,20 @@ class SceneBuilder:
             if mesh is None:
                 raise ValueError("self_collision acts on triangles: add_triangles first")
             from ..collide import SelfCollision
-            from ..collide.mesh_check import check_contact_mesh
+            from ..collide.mesh_check import THICKNESS_FLOOR, contact_thickness
 
-            thickness, friction, iterations = self._self_collision
+            asked, friction, iterations, fit = self._self_collision
             # The thickness is checked against the rest shape (before displace(): a seeded jitter
             # is a disturbance the contacts may smooth out, not a shape the cloth returns to);
             # the start is checked for coincident points and flat triangles all the same.
-            check_contact_mesh(x0, mesh.triangles_np, thickness, rest=np.concatenate(self._rest_x))
+            thickness, gap = contact_thickness(x0, mesh.triangles_np, asked, rest=np.concatenate(self._rest_x),
+                                               fit=fit)
+            if thickness != asked:
+                params = {**params, "thickness": thickness}
+                floor = f", at least {THICKNESS_FLOOR:g} m" if thickness == THICKNESS_FLOOR else ""
+                warnings.warn(f"{name}: self_collision takes thickness {thickness:.3g} m from the mesh (half the "
+                              f"{gap:.3g} m between its closest non-adjacent parts at rest{floor}), not the default "
+                              f"{asked:g} m; give thickness to choose", InputNote, stacklevel=2)
             floor = None if plane is None else (plane.point_np, plane.normal_np)
             obstacles = sorted((p for p in parts if p.is_obstacle), key=lambda p: p.order)
             parts.append(SelfCollision(system, mesh, x0, thickness=thickness, friction=friction,

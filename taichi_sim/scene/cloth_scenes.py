@@ -266,10 +266,13 @@ def build_cloth(preset: ScenePreset, p: dict[str, Any], seed: int) -> Scene:
     return scene
 
 
-def add_cloth_extras(b: SceneBuilder, p: dict[str, Any], seed: int, grab_mass: float) -> None:
+def add_cloth_extras(b: SceneBuilder, p: dict[str, Any], seed: int, grab_mass: float, *,
+                     fit_thickness: bool = False) -> None:
     """The extras any cloth (a grid or a mesh) switches on with its parameters: wind, spheres,
     capsules, boxes, the ground, self-collision and grab (its dashpot critically damped for a
-    particle of ``grab_mass``, kg). Wants the cloth's particles, springs and triangles added."""
+    particle of ``grab_mass``, kg). Wants the cloth's particles, springs and triangles added.
+    ``fit_thickness``: self-collision fits its thickness to the cloth's rest shape, ``thickness``
+    at most (:meth:`~taichi_sim.scene.builder.SceneBuilder.enable_self_collision`)."""
     if p["wind"]:
         b.set_wind(speed=p["wind_speed"], heading=p["wind_heading"], gust=p["wind_gust"],
                    gust_frequency=p["wind_gust_frequency"], drag_coefficient=p["wind_drag"], seed=seed)
@@ -290,7 +293,8 @@ def add_cloth_extras(b: SceneBuilder, p: dict[str, Any], seed: int, grab_mass: f
         b.set_plane((0.0, p["plane_height"], 0.0), (0.0, 1.0, 0.0), min(p["restitution"], 1.0),
                     p["plane_friction"])
     if p["self_collision"]:
-        b.enable_self_collision(p["thickness"], p["self_friction"], int(p["collision_iterations"]))
+        b.enable_self_collision(p["thickness"], p["self_friction"], int(p["collision_iterations"]),
+                                fit=fit_thickness)
     if p["grab"]:
         b.enable_grab(p["grab_stiffness"], damping=2 * math.sqrt(p["grab_stiffness"] * grab_mass))
 

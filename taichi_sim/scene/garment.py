@@ -130,7 +130,7 @@ def garment_mesh(p: dict[str, Any]) -> ClothMesh:
 
 def build_garment(preset: ScenePreset, p: dict[str, Any], seed: int) -> Scene:
     b = SceneBuilder()
-    add_mesh_cloth(b, p, seed, garment_mesh(p))
+    add_mesh_cloth(b, p, seed, garment_mesh(p), default_thickness=preset.param("thickness").default)
     if p["body"]:
         for centre, half_axis, radius in BODY:
             b.add_capsule(SpherePath(centre), radius, half_axis, p["body_friction"])

@@ -133,11 +133,15 @@ PIN_HELP = ("none, ids:3,17,42 (vertex ids), box:x0,y0,z0,x1,y1,z1 (m), top:D or
 
 
 def add_mesh_cloth(b: SceneBuilder, p: dict[str, Any], seed: int, mesh: ClothMesh, *,
-                   mass: np.ndarray | None = None, pinned: np.ndarray | None = None) -> None:
+                   mass: np.ndarray | None = None, pinned: np.ndarray | None = None,
+                   default_thickness: float | None = None) -> None:
     """Add ``mesh`` to ``b`` as cloth with the parameters ``p`` (those of :data:`MESH_CLOTH_PARAMS`),
     rest lengths as the mesh is: its vertices (``mass``, kg, default :func:`vertex_masses` at
     ``density``; ``pinned``, default from the ``pin`` spec), its springs, its triangles, seeded
-    jitter, tearing and every extra (:func:`~taichi_sim.scene.cloth_scenes.add_cloth_extras`)."""
+    jitter, tearing and every extra (:func:`~taichi_sim.scene.cloth_scenes.add_cloth_extras`).
+    ``default_thickness`` (m): the scene's default ``thickness``; where ``p`` keeps it (the user
+    gave none), self-contact takes a thickness that fits the mesh, at most that
+    (:meth:`SceneBuilder.enable_self_collision`'s ``fit``)."""
     if mass is None:
         mass = vertex_masses(mesh.x, mesh.triangles, p["density"])
     if pinned is None:
@@ -164,7 +168,10 @@ def add_mesh_cloth(b: SceneBuilder, p: dict[str, Any], seed: int, mesh: ClothMes
         strain = np.full(len(ends), p["tear_strain"], float)
         strain[kind == topo.FLEX] *= p["tear_flex_factor"]
         b.set_tearing(strain)
-    add_cloth_extras(b, p, seed, float(np.mean(mass)))
+    # a thickness equal to the default counts as not given: a scene file or the launcher may
+    # hand on every default, and the default is the ceiling of the fitted thickness anyway
+    add_cloth_extras(b, p, seed, float(np.mean(mass)),
+                     fit_thickness=default_thickness is not None and p["thickness"] == default_thickness)
 
 
 def finish_mesh_cloth(preset, b: SceneBuilder, p: dict[str, Any], seed: int):

@@ -28,7 +28,7 @@ def scene_mesh(p: dict[str, Any]) -> ClothMesh:
 
 def build_mesh(preset: ScenePreset, p: dict[str, Any], seed: int) -> Scene:
     b = SceneBuilder()
-    add_mesh_cloth(b, p, seed, scene_mesh(p))
+    add_mesh_cloth(b, p, seed, scene_mesh(p), default_thickness=preset.param("thickness").default)
     return finish_mesh_cloth(preset, b, p, seed)
 
 

@@ -77,8 +77,10 @@ class Scene:
         return dict(self.integrator_options.get(integrator, {}))
 
     def object_centers(self, t: float) -> dict[str, np.ndarray]:
-        """Where the spheres, capsules and boxes are at time ``t`` (s), as the npz's keys:
-        ``{"sphere_center": (K, 3), ...}`` (m); empty without such objects."""
+        """Where the spheres, capsules, boxes and the collider mesh are at time ``t`` (s), as the
+        npz's keys: ``{"sphere_center": (K, 3), ...}`` (m; a collider mesh's
+        ``collider_mesh_center`` (3,) and, animated, its ``collider_mesh_vertices``); empty
+        without such objects."""
         return {k: v for part in self.parts if hasattr(part, "centers_at") for k, v in part.centers_at(t).items()}
 
     def start_warning(self) -> str:

@@ -208,6 +208,16 @@ class MeshCollider(ScenePart):
         """(3,) float64: where the mesh's origin is now (m)."""
         return np.asarray(self.spec.path.at(self.t)[0], np.float64)
 
+    def centers_at(self, t: float) -> dict[str, np.ndarray]:
+        """Where the mesh is at time t (s), as the npz's keys (a run keeps them with its saved
+        frames, ``..._history``, for `check` to judge the frames against): its origin on the
+        path, ``collider_mesh_center`` (3,) m, and for a sequence of frames its vertices then,
+        ``collider_mesh_vertices`` (V, 3) m in its own frame (a rigid mesh's stay as built)."""
+        out = {"collider_mesh_center": np.asarray(self.spec.path.at(t)[0], np.float64)}
+        if self.player.animated:
+            out["collider_mesh_vertices"] = self.player.vertices(t)
+        return out
+
     def features(self) -> dict:
         return {"collider_mesh": len(self.triangles_np)}
 
