@@ -32,6 +32,7 @@ from .residual import (
     rounding_floor,
     unmodelled,
 )
+from .terms import combined, continuum_terms, term_forces
 
 #: Default ``--tolerance`` (m): the distance a step's positions may be from the solution of the
 #: equation its method declares (the largest over the particles) before the run says so.
@@ -97,6 +98,8 @@ class ConvergenceMonitor:
         self.bound = self.max_residual
         self._start = None
         self._solve_forces = getattr(integrator, "solve_forces", None)
+        self._terms = continuum_terms(scene.system)
+        self._stage = None  # a scratch state for a midpoint stage's terms
         self.clear()
         if self.active:
             self.model = ForceModel(scene)
@@ -168,8 +171,10 @@ class ConvergenceMonitor:
             h = self.integrator.solved_h
         x0, v0 = self._start.to_numpy()
         x1, v1 = state.to_numpy()
-        # the method's own forces (vbd's contact), at the result
+        # the method's own forces (vbd's contact) and the cloth's continuum terms, at the stage
         extra = self._solve_forces(state, t, h) if self._solve_forces is not None else None
+        if self._terms:
+            extra = combined(extra, self._term_forces(state, x0, v0, x1, v1, t, h))
         value = relative_residual(self.model, self.equation, x0, v0, x1, v1, h, extra)
         distance = self.distance_model.distance(x0, v0, x1, v1, h, extra) if h > 0 else math.nan
         self.record(t, value, distance)
@@ -185,6 +190,18 @@ class ConvergenceMonitor:
             self.worst, self.worst_t = value, t
         if _larger(distance, self.worst_distance):
             self.worst_distance, self.worst_distance_t = distance, t
+
+    def _term_forces(self, state, x0, v0, x1, v1, t: float, h: float):
+        """The continuum terms' forces at the stage the equation is taken at: the result for
+        backward Euler, the midpoint (written to a scratch state) for implicit midpoint."""
+        pinned = ~self.model.free
+        v0, v1 = v0.copy(), v1.copy()
+        v0[pinned] = v1[pinned] = 0.0  # as the residual: a pin is at rest within a step
+        x, v, tau, _ = self.distance_model.stage(x0, v0, x1, v1, h)
+        if self._stage is None:
+            self._stage = self.model.scene.system.make_state()
+        self._stage.from_numpy(x, v)
+        return term_forces(self.model.scene.system, self._terms, self._stage, tau, t)
 
     def forget_last(self) -> None:
         """Drop the last sample (its step is being solved again); the worst figures are

@@ -164,10 +164,6 @@ class Integrator(ABC):
                 f"integrator {self.name!r} cannot step a cloth of material {'+'.join(models)}: its solve holds "
                 f"springs only, and it would take the membrane and bending forces explicitly at its large "
                 f"steps; pick implicit_euler, implicit_midpoint or an explicit method (symplectic_euler, rk4)")
-        if models and self.equation is not None:
-            # the residual's force model (convergence.py) holds springs only: a residual measured
-            # without the membrane's forces would be wrong, so the run does not measure it
-            self.unmodelled_forces = f"membrane ({'+'.join(models)})"
         self.system = system
 
     initial_step_f_evals: int = 0
