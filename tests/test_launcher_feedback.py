@@ -77,6 +77,10 @@ def test_a_built_scene_switches_without_waiting_for_a_compile_and_a_pause_holds_
                                          setattr(session.runners[0], "compiled", True))
     assert _frame(notice, session, log) is None and session.scene_name == "pendulum"
     assert log == [RUN, SWITCH]
+    notice.request_scene("garment")  # a key: asked before the frame, which must show it first
+    assert _frame(notice, session, log).startswith("compiling garment... (first visit")
+    assert log[-1] == RUN and session.scene_name == "pendulum"
+    assert _frame(notice, session, log) is None and log[-1] == SWITCH and session.scene_name == "garment"
     session.runners[0].compiled, session.paused = False, True  # a new method, paused: no step to hold
     assert _frame(notice, session, log) is None and log[-1] == RUN
     session.paused = False
