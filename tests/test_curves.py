@@ -258,6 +258,7 @@ def _draw_curve_strip(out: str) -> None:
         editor = launcher.editor
         editor.add(1.0, 300.0)
         editor.add(6.0, 1200.0)
+        launcher.draw_frame()  # says the first step compiles, and steps nothing
         launcher.draw_frame()
         np.savez(out, image=launcher.renderer.read_image(), markers=np.asarray(editor.markers()),
                  now=editor.time_marker(), t=session.runners[0].t)

@@ -49,6 +49,17 @@ def xvfb():
         server.wait(timeout=10)
 
 
+def test_the_screen_size_is_read_from_the_display(xvfb, monkeypatch):
+    from taichi_sim.app.display import screen_area
+
+    monkeypatch.setenv("DISPLAY", xvfb)
+    assert screen_area() == (0, 0, 1280, 800)
+    monkeypatch.setenv("DISPLAY", ":9999")  # no server there: unknown, not an error
+    assert screen_area() is None
+    monkeypatch.delenv("DISPLAY")
+    assert screen_area() is None
+
+
 def _xdotool(display, *args) -> str:
     return subprocess.run(["xdotool", *args], env={**os.environ, "DISPLAY": display}, check=True,
                           capture_output=True, text=True, timeout=10).stdout.strip()
@@ -97,6 +108,10 @@ def test_switch_scene_drag_the_cloth_and_close(xvfb, tmp_path):
         status = _wait("the launcher's first status", lambda: _status(status_path), launcher, start)
         assert status["scene"] == "pendulum" and status["t"] >= 0
         window = _wait("the window", lambda: _find_window(xvfb), launcher, start)
+        # on the 1280 x 800 screen, the whole window (the Status panel at its right edge too)
+        geometry = dict(line.split("=") for line in _xdotool(xvfb, "getwindowgeometry", "--shell", window).split())
+        x, y, w, h = (int(geometry[k]) for k in ("X", "Y", "WIDTH", "HEIGHT"))
+        assert 0 <= x and x + w <= 1280 and 0 <= y and y + h <= 800, geometry
 
         # switch scene with the keyboard: Down steps through the scenes in the registry's order
         names = list(ts.SCENES)

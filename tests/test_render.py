@@ -295,13 +295,15 @@ def test_launcher_draws_panel_hud_and_help_offscreen(window):
     session = Session("simple", ["euler"], dt=0.1)
     session.show_help = True
     launcher = Launcher(session, SIZE, window=window)
+    launcher.draw_frame()  # the first frame says the first step compiles: it steps nothing
+    assert session.runners[0].steps == 0 and "compiling euler" in launcher.notice.text(session)
     for _ in range(3):  # each frame is read back, as window.show() would present it
         launcher.draw_frame()
         image = launcher.renderer.read_image()
     assert session.runners[0].steps == 30
     assert not background_mask(image)[:, : SIZE[0] // 5].all()  # the control panel is drawn
     assert any("t = 3.000 s" in line for line in session.hud_lines())
-    assert launcher.renderer.drawers[0].trail_count == 3  # one sample per frame
+    assert launcher.renderer.drawers[0].trail_count == 4  # one sample per frame, the unstepped first too
     session.reset()
     session.toggle_pause()
     launcher.draw_frame()
@@ -309,29 +311,53 @@ def test_launcher_draws_panel_hud_and_help_offscreen(window):
     assert launcher.renderer.drawers[0].trail_count == 1  # restarted, not joined to the old path
 
 
-def test_a_scene_switch_says_so_in_a_shown_frame_before_it_compiles(window, monkeypatch):
-    """The switch waits one frame, whose HUD says what is about to hold the window; the first
-    frame after it reports its compile time, not a cost per frame."""
+def test_a_scene_switch_shows_its_notice_before_anything_compiles(window, monkeypatch):
+    """In order: the frame that asks for a scene draws "compiling <scene>"; the next one builds
+    it and draws it unstepped with the first step's notice; only the one after steps (and
+    compiles). Then ms/frame leaves that first step out: it is reported as the compile time."""
     from taichi_sim.app import session as session_module
     from taichi_sim.app.launcher import Launcher
 
     session = Session("simple", ["euler"], dt=0.1)
     launcher = Launcher(session, SIZE, window=window)
-    launcher.draw_frame()
+    for _ in range(2):
+        launcher.draw_frame()
+    events = []
+    monkeypatch.setattr(launcher, "_notice_box", lambda text: events.append(("notice", text)))
+    select = session.select_scene
+    monkeypatch.setattr(session, "select_scene", lambda name: (events.append(("build", name)), select(name)))
+    advance = Runner.advance
+    monkeypatch.setattr(Runner, "advance", lambda r, d: (events.append(("step", r.scene is not old)),
+                                                         advance(r, d)))
+    old = session.scenes[0]
+
+    def frame():
+        events.append(("frame", launcher.frames))
+        launcher.draw_frame()
+
     launcher.request_scene("spring")
-    assert "compiling spring" in launcher.switching_notice()
-    launcher.draw_frame()  # the frame that shows the notice: still the old scene
-    assert session.scene_name == "simple" and launcher.switching is not None
-    launcher.draw_frame()  # built, compiled and stepped
-    assert session.scene_name == "spring" and launcher.switching_notice() is None
+    for _ in range(4):
+        frame()
+    kinds = [(kind, value if kind == "step" else None) for kind, value in events]
+    assert kinds == [("frame", None), ("step", False), ("notice", None),  # the old scene, the notice
+                     ("frame", None), ("build", None), ("notice", None),  # built, drawn unstepped
+                     ("frame", None), ("step", True),  # the first step: it compiles
+                     ("frame", None), ("step", True)]
+    assert "compiling spring" in events[2][1] and "first visit" in events[2][1]
+    assert "compiling euler for spring: the first step" in events[5][1]
+    assert session.scene_name == "spring" and launcher.notice.text(session) is None
     runner = session.runners[0]
-    assert runner.compile_s > 0 and runner.sim_ms == 0.0
-    assert any("first frame" in line and "compiling kernels" in line for line in session.hud_lines())
+    assert runner.compile_s > 0 and 0 < runner.sim_ms < 1e3 * runner.compile_s
     monkeypatch.setattr(session_module, "COMPILE_NOTE_S", 0.0)
-    launcher.draw_frame()
-    assert runner.sim_ms > 0 and any(" ms/frame" in line for line in session.hud_lines())
+    assert any(f"{runner.sim_ms:.1f} ms/frame" in line for line in session.hud_lines())
     launcher.request_scene("simple")  # built before: nothing to compile
-    assert launcher.switching_notice() == "switching to simple..."
+    assert launcher.notice.text(session) == "switching to simple..."
+    del events[:]
+    for _ in range(3):
+        frame()
+    assert session.scene_name == "simple" and [kind for kind, _ in events] == \
+        ["frame", "step", "notice", "frame", "build", "frame", "step"]  # no notice once built
+    assert not launcher.compiled
 
 
 @pytest.mark.parametrize("scene", ["cloth", "pendulum"])

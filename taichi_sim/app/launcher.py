@@ -27,16 +27,19 @@ from ..render.vulkan import open_window, take_back_imgui_ini, watch_imgui_ini
 from ..scene import SCENES
 from .contacts_view import GREY, ContactsView
 from .curve_panel import CurvePanel
-from .display import display_problem
+from .display import display_problem, fit_window, screen_area
 from .energy import curves_of
 from .energy_view import EnergyView, panel_centres
 from .input import KEYMAP, CameraControl, GrabberHook, apply_key, help_lines
+from .notice import RUN, SWITCH, CompileNotice
+from .pacing import FrameClock
 from .session import DT_RANGE, SUBSTEPS_MAX, Session, compatible_integrators
 
 PANEL = (0.0, 0.0, 0.27, 1.0)  # control panel: x, y, width, height (fractions of the window)
 HUD = (0.62, 0.0, 0.38, 0.3)
 HUD_CHAR_PX = 7.5  # width of a character of GGUI's font, for wrapping the HUD's lines
 HELP = (0.33, 0.1, 0.36, 0.68)  # x, y, width and the most height (help_window fits it to the lines)
+NOTICE = (0.34, 0.5, 0.4)  # the compile notice's x, y and width: below the middle of the view
 LINE_PX = 17  # height of a line of GGUI's text, for sizing a panel to its lines
 WARNING = (1.0, 0.45, 0.38)
 CURRENT = (0.55, 0.85, 1.0)  # the current entry of a list
@@ -70,7 +73,8 @@ def _main_thread() -> bool:
 class Launcher:
     """Runs ``session`` in a window of ``size`` = (width, height) pixels.
 
-    ``window`` defaults to a new on-screen one (raises
+    ``window`` defaults to a new on-screen one, ``size`` cut to fit the screen it opens on
+    (:func:`~taichi_sim.app.display.fit_window`; :attr:`size` is the size it got) (raises
     :class:`~taichi_sim.render.RenderUnavailable` with a one-line reason when no usable display
     or Vulkan exists); pass an offscreen window (see :func:`~taichi_sim.render.open_window`) to
     draw frames with :meth:`draw_frame` without a display (input then is not polled).
@@ -79,7 +83,6 @@ class Launcher:
     def __init__(self, session: Session, size: tuple[int, int] = (1280, 800), *, window=None,
                  curves_path: str | os.PathLike | None = None):
         self.session = session
-        self.size = size
         self.owns_window = window is None
         self._ini = watch_imgui_ini()
         if window is None:
@@ -87,7 +90,9 @@ class Launcher:
             if problem is not None:  # GLFW would end the process with "cannot initialize GLFW"
                 raise RenderUnavailable(f"an on-screen window needs a usable display: {problem}; "
                                         "record a video instead with `taichi-sim record`")
-            window = open_window("taichi-sim", size, visible=True)
+            pos, size = fit_window(size, screen_area())  # a 1280 x 800 window hid the Status panel
+            window = open_window("taichi-sim", size, visible=True, pos=pos)
+        self.size = tuple(size)
         self.window = window
         self.gui = self.window.get_gui()
         self.generation = -1
@@ -95,7 +100,8 @@ class Launcher:
         self.frames = 0
         self.error = ""
         self.picking: int | None = None  # the panel whose integrator list is open
-        self.switching: tuple[str, bool] | None = None  # (scene to build, notice shown yet)
+        self.notice = CompileNotice()
+        self.compiled = False  # whether the last frame drawn built or first stepped something
         self._renderers: dict = {}  # one per set of scenes, reused when the session comes back
         self.status_path = os.environ.get(STATUS_ENV) or None
         self._status_at = 0.0
@@ -104,6 +110,8 @@ class Launcher:
         self.show_curves = bool(session.curves)
         self.energy_view = EnergyView(CHART_AREA, LEGEND)
         self.contacts_view = ContactsView()  # gathers only while its toggle is on
+        if self.owns_window:  # the renderer and the first frame compile: say so in a frame first
+            self.show_notice_only(f"compiling {session.scene_name}... (building the renderer)")
         self._rebuild()
 
     def _rebuild(self) -> None:
@@ -130,7 +138,7 @@ class Launcher:
     def run(self) -> None:
         """The interactive loop, until the window closes or Escape is pressed; then
         :meth:`close`."""
-        last = time.perf_counter()
+        clock = FrameClock(time.perf_counter())
         interval = None
         # A polite kill (SIGTERM) ends the loop like Escape, so close() still cleans up.
         previous = signal.signal(signal.SIGTERM, _terminate) if _main_thread() else None
@@ -140,8 +148,8 @@ class Launcher:
                 self.draw_frame(interval)
                 self.window.show()
                 now = time.perf_counter()
-                interval, last = now - last, now
-                self.fps = 0.9 * self.fps + 0.1 / max(interval, 1e-6)
+                interval = clock.tick(now, compiled=self.compiled)
+                self.fps = clock.fps
                 if self.status_path and now - self._status_at >= STATUS_EVERY:
                     self.write_status()
                     self._status_at = now
@@ -165,7 +173,7 @@ class Launcher:
     def write_status(self, *, final: bool = False) -> None:
         """Write the status JSON to :attr:`status_path` (through a temporary file, so a reader
         never sees half of it): scene, integrators, step, time, steps, frames, real-time factor,
-        grab moves, and for panel 0 the window pixel (x right, y down) of the free particle
+        the compile notice on screen (or null), grab moves, and for panel 0 the window pixel (x right, y down) of the free particle
         nearest the middle of the free ones; with ``final``, panel 0's positions (m) too."""
         s, r = self.session, self.session.runners[0]
         x = np.asarray(r.display.to_numpy() if hasattr(r.display, "to_numpy") else r.display, np.float64)
@@ -177,7 +185,7 @@ class Launcher:
                   "integrators": s.integrators, "dt": s.dt, "seed": s.seed, "precision": runtime.precision(),
                   "t": r.t, "steps": r.steps,
                   "frames": self.frames, "real_time": s.real_time, "factor": s.pacer.factor,
-                  "status": s.status(), "grab_moves": -1 if r.scene.grabber is None else r.scene.grabber.moves,
+                  "status": s.status(), "notice": self.notice.text(s), "grab_moves": -1 if r.scene.grabber is None else r.scene.grabber.moves,
                   "final": final}
         if free.any() and np.all(np.isfinite(x[free])):
             middle = x[free].mean(axis=0)
@@ -229,43 +237,36 @@ class Launcher:
                             middle=self.window.is_pressed(ti.ui.MMB), over_panel=over)
 
     def request_scene(self, name: str) -> None:
-        """Switch to preset ``name`` after the next frame is shown: building a scene and
-        compiling its kernels holds this thread (Taichi compiles where a kernel is first called,
-        and GGUI draws only from the thread that opened the window) for up to a minute on a
-        first visit, so the HUD says so first instead of leaving a frozen window unexplained."""
-        if self.switching is None or self.switching[0] != name:
-            self.switching = (name, False)
+        """Switch to preset ``name`` once a frame saying so has been shown (see
+        :mod:`~taichi_sim.app.notice`: building a scene and compiling its kernels holds the
+        window for up to a minute on a first visit)."""
+        self.notice.request_scene(name)
 
-    def _switch_if_shown(self) -> None:
-        """Do the requested switch once a frame with its notice has been shown."""
-        name, shown = self.switching
-        if not shown:
-            self.switching = (name, True)
-            return
-        self.switching = None
-        self._guard(self.session.select_scene, name)
-
-    def switching_notice(self) -> str | None:
-        """The HUD's line while a requested scene switch waits for its frame, or None."""
-        if self.switching is None:
-            return None
-        name = self.switching[0]
-        if self.session.is_built(name):
-            return f"switching to {name}..."
-        return (f"compiling {name}... (first visit: Taichi builds its kernels; the window "
-                f"waits, up to a minute; later visits are instant)")
+    def show_notice_only(self, text: str) -> None:
+        """Show a frame with nothing but ``text`` over a blank view (an on-screen window
+        before its first scene is drawn: the renderer's build compiles)."""
+        for _ in range(2):  # ImGui draws a panel from its second frame on (the first sizes it)
+            self.window.get_canvas().set_background_color((0.07, 0.07, 0.09))
+            self._notice_box(text)
+            self.window.show()
 
     def draw_frame(self, interval: float | None = None) -> None:
         """Advance the session one frame (``interval``: wall seconds since the last one, for
-        pacing to the clock) and draw the scenes, the panel, the HUD and the help."""
-        if self.switching is not None:
-            self._switch_if_shown()
+        pacing to the clock) and draw the scenes, the panel, the HUD and the help. A frame whose
+        step would compile, or that builds a requested scene, waits for a frame that says so
+        (:class:`~taichi_sim.app.notice.CompileNotice`); :attr:`compiled` says whether this
+        one built or first stepped anything."""
+        plan = self.notice.plan(self.session)
+        self.compiled = plan != RUN or bool(self.session.about_to_compile())
+        if plan == SWITCH:
+            self._guard(self.session.select_scene, self.notice.take_scene())
         if self.session.generation != self.generation:
             self._rebuild()
         elif self.session.resets != self.resets:
             self.renderer.clear_trails()
             self.resets = self.session.resets
-        self.session.frame(interval)
+        if plan == RUN:  # a new scene or method is drawn unstepped until its notice is up
+            self.session.frame(interval)
         self.frames += 1
         if not self.control.user_moved:
             self.renderer.follow([r.last_good for r in self.session.runners])
@@ -279,6 +280,20 @@ class Launcher:
             self._curves()
         if self.session.show_help:
             self._help()
+        text = self.notice.text(self.session)  # after the panel: a click there shows at once
+        if text is not None:
+            self._notice_box(text)
+        self.notice.shown(text)
+
+    def _notice_box(self, text: str) -> None:
+        """The compile notice, wrapped, in a panel over the middle of the view."""
+        width = max(20, int(NOTICE[2] * self.size[0] / HUD_CHAR_PX) - 2)
+        lines = textwrap.wrap(text, width, subsequent_indent="  ")
+        height = min(0.45, (len(lines) + 2.5) * LINE_PX / self.size[1])
+        # one ImGui id per line count: ImGui keeps the size a panel had when it first showed
+        with self.gui.sub_window(f"Please wait##{len(lines)}", NOTICE[0], NOTICE[1], NOTICE[2], height) as g:
+            for line in lines:
+                g.text(line, CURRENT)
 
     def _update_overlay(self) -> None:
         """Lay out the energy charts (hidden while the curve editor has their strip) and the
@@ -417,9 +432,6 @@ class Launcher:
         with self.gui.sub_window("Status", *HUD) as g:
             # GGUI clips text at the panel's edge: wrap it (the monospace font is ~7.5 px wide).
             width = max(20, int(HUD[2] * self.size[0] / HUD_CHAR_PX) - 2)
-            notice = self.switching_notice()
-            for part in textwrap.wrap(notice or "", width, subsequent_indent="  "):
-                g.text(part, CURRENT)
             for line in s.hud_lines(self.fps):
                 colour = WARNING if any(word in line for word in ("diverged", "not converged", "stiff",
                                                                   "x real time")) else None

@@ -102,3 +102,33 @@ def factor_text(factor: float | None) -> str:
     if factor is None or abs(factor - 1.0) <= SHOW_FACTOR_TOLERANCE:
         return ""
     return f"{factor:.2g}x real time"
+
+
+class FrameClock:
+    """The launcher's clock between frames: the wall interval each frame paces to and the
+    frames per second the HUD shows, both leaving out frames that compiled kernels.
+
+    Args:
+        now: the wall time (s, ``time.perf_counter()``) the first frame starts.
+
+    Call ``tick(now, compiled=...)`` after each frame is shown; it returns the interval (s) to
+    pace the next frame by. A frame that built a scene or took its first step holds the window
+    for seconds: counted, it would read as a frame rate near zero, and the pacer's real-time
+    factor would fall far behind for a second after it, though nothing ran slowly.
+    """
+
+    def __init__(self, now: float):
+        self.last = float(now)
+        self.interval: float | None = None  # the last frame's wall time that compiled nothing
+        self.fps = 0.0  # smoothed frames per second
+
+    def tick(self, now: float, *, compiled: bool = False) -> float | None:
+        """The frame that started at the last tick ended at ``now`` (s); ``compiled``: it built
+        or first stepped something. Returns the interval to pace the next frame by: this
+        frame's, or after a compiling frame the last one before it (None before any)."""
+        interval, self.last = float(now) - self.last, float(now)
+        if compiled:
+            return self.interval
+        self.interval = interval
+        self.fps = 0.9 * self.fps + 0.1 / max(interval, 1e-6)
+        return interval

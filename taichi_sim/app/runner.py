@@ -175,6 +175,12 @@ class Runner:
         return self.stepper.failure is not None
 
     @property
+    def compiled(self) -> bool:
+        """Whether the current method has stepped this scene (its kernels are built): the next
+        :meth:`advance` compiles when not."""
+        return self.name in self._compiled
+
+    @property
     def display(self):
         """What to draw: the scene's position field, or the last finite positions once frozen."""
         return self.last_good if self.frozen else self.scene.state.x

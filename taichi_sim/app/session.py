@@ -406,6 +406,14 @@ class Session:
         if interval is not None and not self.frozen:
             self.pacer.observe(interval, simulated, wall)
 
+    def about_to_compile(self) -> list[Runner]:
+        """The runners whose next step compiles their method's kernels: those the next
+        :meth:`frame` steps (none while paused; not the frozen ones) for the first time with
+        their current method."""
+        if self.paused:
+            return []
+        return [r for r in self.runners if not r.frozen and not r.compiled]
+
     @property
     def frozen(self) -> bool:
         """Whether every panel has stopped (diverged or failed)."""

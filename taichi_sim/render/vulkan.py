@@ -84,8 +84,10 @@ def take_back_imgui_ini(path: Path | None = None) -> None:
         pass  # the directory went away or turned read-only: nothing of ours to take back
 
 
-def open_window(title: str, size: tuple[int, int], *, visible: bool = False):
-    """A ``ti.ui.Window`` of ``size`` = (width, height) pixels (Taichi must be initialised).
+def open_window(title: str, size: tuple[int, int], *, visible: bool = False,
+                pos: tuple[int, int] = (100, 100)):
+    """A ``ti.ui.Window`` of ``size`` = (width, height) pixels (Taichi must be initialised),
+    its top-left corner at desktop pixel ``pos`` when ``visible`` (a window manager may move it).
 
     ``visible=False`` renders offscreen (read frames with ``get_image_buffer_as_numpy``; never
     call ``show()`` on it). Raises :class:`RenderUnavailable` with a one-line reason and fix when
@@ -104,7 +106,8 @@ def open_window(title: str, size: tuple[int, int], *, visible: bool = False):
     zero_ggui_vertex_staging()
     try:
         with _quiet_stderr():
-            return ti.ui.Window(title, tuple(int(s) for s in size), vsync=visible, show_window=visible)
+            return ti.ui.Window(title, tuple(int(s) for s in size), vsync=visible, show_window=visible,
+                                pos=tuple(int(p) for p in pos))
     except Exception as exc:  # RuntimeError from Taichi's RHI, or a wheel built without GGUI
         reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise RenderUnavailable(f"rendering needs Vulkan and it is not usable here ({reason}): "
