@@ -1,6 +1,6 @@
 """vbd's contact is part of the equation its error estimate measures from: a cloth resting on
 the ground or folded on itself reads as solved when it is, and a known displacement of it
-reads as that displacement (taichi_sim/integrators/positional/vbd_contact_model.py)."""
+reads as that displacement (taichi_sim/integrators/positional/vbd/contact_model.py)."""
 import numpy as np
 import pytest
 

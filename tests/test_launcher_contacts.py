@@ -18,7 +18,7 @@ from taichi_sim.geometry.distances import point_triangle_distance as _point_tria
 from taichi_sim.geometry.distances import segment_distance as _segment_distance
 from taichi_sim.geometry.distances import segment_point_distance as _segment_point
 from taichi_sim.integrators import create_integrator
-from taichi_sim.integrators.positional.vbd_contact import OBJECT_CONTACT, SELF_CONTACT
+from taichi_sim.integrators.positional.vbd.contact import OBJECT_CONTACT, SELF_CONTACT
 from taichi_sim.render import OrbitCamera
 from taichi_sim.render.contacts import OBJECT, SELF
 

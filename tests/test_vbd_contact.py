@@ -13,8 +13,8 @@ import taichi_sim as ts
 from taichi_sim.errors import ConfigError
 from taichi_sim.geometry import self_intersections
 from taichi_sim.integrators import create_integrator
-from taichi_sim.integrators.positional import vbd as vbd_module
-from taichi_sim.integrators.positional import vbd_contact
+from taichi_sim.integrators.positional.vbd import contact as vbd_contact
+from taichi_sim.integrators.positional.vbd import solver as vbd_module
 from taichi_sim.scene.builder import SceneBuilder
 from taichi_sim.scene.colliders import SpherePath
 

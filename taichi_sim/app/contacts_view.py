@@ -1,7 +1,7 @@
 """The launcher's contacts toggle: what each panel's solve holds in contact, drawn over its scene.
 
 A method that keeps contacts in its solve exposes them as its ``contact`` attribute (``vbd``:
-:class:`~taichi_sim.integrators.positional.vbd_contact.SolveContact`, set once it is attached to
+:class:`~taichi_sim.integrators.positional.vbd.contact.SolveContact`, set once it is attached to
 a scene with objects or with ``self_contact``). For each such panel a
 :class:`~taichi_sim.render.contacts.ContactDrawer` (made once per contact object and kept:
 Taichi never gives fields or kernels back) gathers the marked vertices and the pairs' closest

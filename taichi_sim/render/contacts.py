@@ -1,7 +1,7 @@
 """Drawing the contacts an integrator's solve holds (the launcher's contacts toggle).
 
 A :class:`ContactDrawer` reads one contact object through its public view (``mark_contacts``,
-``pair_segment``, ``pair_total``: :class:`~taichi_sim.integrators.positional.vbd_contact.SolveContact`)
+``pair_segment``, ``pair_total``: :class:`~taichi_sim.integrators.positional.vbd.contact.SolveContact`)
 and turns it into GGUI geometry: the vertices in a self-contact pair and those touching an
 object as small particles in their own colours, and a line between the closest points of each
 pair. Its fields are allocated once; a frame costs one kernel launch (marking, compaction and
@@ -10,7 +10,7 @@ segments together) and is only gathered while the toggle is on. It reads; it nev
 import numpy as np
 import taichi as ti
 
-from ..integrators.positional.vbd_contact import OBJECT_CONTACT, SELF_CONTACT
+from ..integrators.positional.vbd.contact import OBJECT_CONTACT, SELF_CONTACT
 
 SELF = (1.00, 0.20, 0.85)      # a vertex in a self-contact pair: magenta, on neither gingham colour
 OBJECT = (0.25, 1.00, 0.35)    # a vertex within the contact radius of an object: green

@@ -10,7 +10,7 @@ move on a straight line from x(t - h) to x(t) over the step, as it assumes of ev
 
 The one exception: ``vbd`` with self-contact in its solve moves the pins itself, inside its
 substeps and under its contact bounds, and the Stepper skips this event for it
-(:mod:`taichi_sim.integrators.positional.vbd_pins`): a jump between steps would pass those
+(:mod:`taichi_sim.integrators.positional.vbd.pins`): a jump between steps would pass those
 bounds.
 """
 

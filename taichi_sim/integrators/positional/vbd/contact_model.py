@@ -1,5 +1,5 @@
 """vbd's contact terms as forces of its equation, for the convergence monitor: the same penalty
-energies and friction the sweeps solve (:class:`~.vbd_contact.SolveContact`), taken at the
+energies and friction the sweeps solve (:class:`~.contact.SolveContact`), taken at the
 step's result (:class:`~taichi_sim.integrators.equation.SolveForces`).
 
 The objects' terms (plane, spheres, capsules, boxes, the triangles against them) touch one
@@ -12,7 +12,7 @@ import numpy as np
 import scipy.sparse as sp
 import taichi as ti
 
-from ..equation import SolveForces
+from ...equation import SolveForces
 
 
 @ti.kernel

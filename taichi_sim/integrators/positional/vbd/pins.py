@@ -12,12 +12,12 @@ each piece of a substep the pins move from where they are to where the script pu
 piece's end, in the solve, where the other vertices see them, and a piece is made short enough
 that no pin moves further than its bound (the script's path is not linear in time, so the
 length is found by shortening until it fits). A pin pressed against the cloth has a small bound
-and makes short pieces: each piece is a detection and its sweeps (:mod:`.vbd_pieces`, docs/vbd.md, "Scripted pins").
+and makes short pieces: each piece is a detection and its sweeps (:mod:`.pieces`, docs/vbd.md, "Scripted pins").
 """
 import numpy as np
 import taichi as ti
 
-from ... import runtime
+from .... import runtime
 
 FIT = 0.9  # a shortened piece aims at this share of the pins' bound (the path bends)
 
@@ -29,7 +29,7 @@ class DrivenPins:
     Args:
         part: the scene's kinematic part (``ids_np``: (k,) particle ids; ``path.at(t)`` ->
             ((k, 3) positions (m), (k, 3) velocities (m/s))).
-        contact: the solve's :class:`~.vbd_contact.SolveContact` with self-contact (its
+        contact: the solve's :class:`~.contact.SolveContact` with self-contact (its
             ``nearest`` distances and ``fraction`` make each pin's bound).
         n: particles of the system.
     """

@@ -17,8 +17,8 @@ contact would read as a gain) and with ``energy_cap=False``.
 """
 import taichi as ti
 
-from ... import runtime
-from ...part import MovingSource
+from .... import runtime
+from ....part import MovingSource
 
 CAP_BISECTIONS = 8  # the shortened substep's a is within 2^-8 of a point where E = E0
 CAP_TOLERANCE = 1e3  # machine epsilons of the energy's scale (sum of |U_i| and K_i): round-off
@@ -33,64 +33,74 @@ def closed_scene(scene) -> bool:
     return all(isinstance(source, MovingSource) and not source.speed > 0 for source in sources)
 
 
+@ti.data_oriented
 class EnergyCap:
-    """Mixin of :class:`~.vbd.VBD`: the cap's kernel function (fields from the VBD: ``point``,
-    ``start_x``, ``delta``, ``system``; ``capped`` counts the substeps it shortened)."""
+    """The cap of :class:`~.solver.VBD` on a closed scene (module docstring): :meth:`apply` at a
+    substep's end; ``capped`` counts the substeps it shortened.
 
-    def _cap_tolerance(self) -> float:
-        return CAP_TOLERANCE * runtime.machine_epsilon()
+    Args:
+        system: the particle system (``particle_count``, ``free``, ``mass``,
+            ``potential_and_dissipation_at``).
+    """
+
+    def __init__(self, system):
+        self.system = system
+        self.capped = ti.field(ti.i32, shape=())  # substeps the cap shortened
+        self.tolerance = CAP_TOLERANCE * runtime.machine_epsilon()
 
     @ti.func
-    def _energy_at(self, alpha, dt):
+    def apply(self, y, point, start_x, delta, dt, serial: ti.template()):
+        """Shorten the substep of dt seconds toward its start ``y`` (still x0, v0) until its
+        energy is at most the start's: ``delta`` (x - x0, m) is scaled in place; ``point`` (the
+        iterate, a state) and ``start_x`` (x0, m) as the solve keeps them. With ``serial`` (the
+        sweeps run on one thread: a small cloth on a CPU) so does this; else E0 and E(1) are
+        parallel loops and the bisection (rare) runs on one thread."""
+        if ti.static(serial):
+            ti.loop_config(serialize=True)
+            for _ in range(1):
+                self._shorten(y, point, start_x, delta, dt)
+        else:
+            self._shorten(y, point, start_x, delta, dt)
+
+    @ti.func
+    def _energy_at(self, alpha, point, start_x, delta, dt):
         """E at x0 + alpha (x - x0), v = alpha (x - x0) / dt (J), the iterate ``point`` put there;
         a top-level loop where called at a kernel's top level, else serial."""
-        e = ti.cast(0.0, self.delta.dtype)
+        e = ti.cast(0.0, delta.dtype)
         for i in range(self.system.particle_count):
             if self.system.free[i]:
-                self.point.x[i] = self.start_x[i] + alpha * self.delta[i]
-                self.point.v[i] = alpha * self.delta[i] / dt
+                point.x[i] = start_x[i] + alpha * delta[i]
+                point.v[i] = alpha * delta[i] / dt
         for i in range(self.system.particle_count):
-            u, r = self.system.potential_and_dissipation_at(i, self.point)
+            u, r = self.system.potential_and_dissipation_at(i, point)
             e += u
             if self.system.free[i]:
-                e += 0.5 * self.system.mass[i] * self.point.v[i].norm_sqr()
+                e += 0.5 * self.system.mass[i] * point.v[i].norm_sqr()
         return e
 
     @ti.func
-    def _cap_energy(self, y, dt):
-        """Shorten the substep toward its start ``y`` (still x0, v0) until its energy is at most
-        the start's. Where the sweeps run on one thread (a small cloth on a CPU) so does this;
-        else E0 and E(1) are parallel loops and the bisection (rare) runs on one thread."""
-        if ti.static(self.serial):
-            ti.loop_config(serialize=True)
-            for _ in range(1):
-                self._cap_body(y, dt)
-        else:
-            self._cap_body(y, dt)
-
-    @ti.func
-    def _cap_body(self, y, dt):
-        e0 = ti.cast(0.0, self.delta.dtype)
-        scale = ti.cast(0.0, self.delta.dtype)
+    def _shorten(self, y, point, start_x, delta, dt):
+        e0 = ti.cast(0.0, delta.dtype)
+        scale = ti.cast(0.0, delta.dtype)
         for i in range(self.system.particle_count):
             u0, r0 = self.system.potential_and_dissipation_at(i, y)
-            k0 = ti.cast(0.0, self.delta.dtype)
+            k0 = ti.cast(0.0, delta.dtype)
             if self.system.free[i]:
                 k0 = 0.5 * self.system.mass[i] * y.v[i].norm_sqr()
             e0 += u0 + k0
             scale += ti.abs(u0) + k0
-        bound = e0 + ti.static(self._cap_tolerance()) * scale
-        e1 = self._energy_at(1.0, dt)
+        bound = e0 + ti.static(self.tolerance) * scale
+        e1 = self._energy_at(1.0, point, start_x, delta, dt)
         if e1 > bound:
             # bisect [low, high] with E(low) <= bound < E(high); E(0) = U(x0) <= E0
-            low = ti.cast(0.0, self.delta.dtype)
-            high = ti.cast(1.0, self.delta.dtype)
+            low = ti.cast(0.0, delta.dtype)
+            high = ti.cast(1.0, delta.dtype)
             for _ in range(CAP_BISECTIONS):
                 alpha = 0.5 * (low + high)
-                if self._energy_at(alpha, dt) <= bound:
+                if self._energy_at(alpha, point, start_x, delta, dt) <= bound:
                     low = alpha
                 else:
                     high = alpha
             self.capped[None] += 1
             for i in range(self.system.particle_count):
-                self.delta[i] = low * self.delta[i]
+                delta[i] = low * delta[i]

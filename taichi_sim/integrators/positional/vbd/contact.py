@@ -7,12 +7,12 @@ import math
 import numpy as np
 import taichi as ti
 
-from ... import runtime
-from ...collide.closest_points import closest_barycentric, segment_parameters
-from ...collide.hash_grid import PrimitiveHash, cell_order
-from ...collide.mesh_check import check_contact_mesh
-from ...errors import ConfigError
-from .vbd_faces import ObjectFaces
+from .... import runtime
+from ....collide.closest_points import closest_barycentric, segment_parameters
+from ....collide.hash_grid import PrimitiveHash, cell_order
+from ....collide.mesh_check import check_contact_mesh
+from ....errors import ConfigError
+from .faces import ObjectFaces
 
 CONTACTS_PER_VERTEX = 64  # contact pairs a vertex keeps between refreshes; more are counted, not kept
 PAIRS_PER_VERTEX = 16  # room in the pair list per vertex
@@ -50,7 +50,7 @@ class SolveContact(ObjectFaces):
             ``Obstacle`` shape functions: spheres, capsules, boxes; its mesh).
         delta: the integrator's (n,) displacement field x - x0 (m) (read for the slip).
         objects: put the scene's objects in the solve.
-        object_faces: with ``objects``, the cloth's triangles against them too (vbd_faces).
+        object_faces: with ``objects``, the cloth's triangles against them too (faces.py).
         self_contact: put the cloth against itself in the solve (needs a mesh).
         radius: contact radius r (m).
     """
@@ -73,7 +73,7 @@ class SolveContact(ObjectFaces):
         self.refreshes = 0  # detections run since construction
         # the step the penalty's stiffness is scaled by (s): the whole substep's, also in its pieces
         self.penalty_dt = ti.field(runtime.real(), shape=())
-        self._init_object_faces(scene, object_faces)  # the cloth's triangles against the objects (vbd_faces)
+        self._init_object_faces(scene, object_faces)  # the cloth's triangles against the objects (faces.py)
         if not self.self_contact:
             return
         mesh = scene.mesh
@@ -114,7 +114,7 @@ class SolveContact(ObjectFaces):
         self.nearest = ti.field(real, shape=n)  # distance to the nearest pair partner, capped at reach (m)
         self.shift = ti.Vector.field(3, real, shape=())  # the translation the bounds are measured from (m)
         # how far the bounds cut the start guess: vertices by |move| / bound, OVERSHOOT_BINS_PER_OCTAVE
-        # bins an octave above 1 (VBD._begin fills it; vbd_pieces reads it)
+        # bins an octave above 1 (VBD._begin fills it; pieces.py reads it)
         self.overshoot = ti.field(ti.i32, shape=OVERSHOOT_BINS)
         self.free_count = int(free.sum())
         self.pair_capacity = PAIRS_PER_VERTEX * n

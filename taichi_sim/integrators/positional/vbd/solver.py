@@ -6,20 +6,21 @@ import math
 import numpy as np
 import taichi as ti
 
-from ... import runtime
-from ...errors import ConfigError
-from ...state import finite
-from ...systems.base import System
-from ..base import Integrator, Status, StepReport
-from ..equation import FIXED_WORK, Equation
-from ..implicit.common import positive_int
-from .colouring import colour_vertices
-from .vbd_contact import SolveContact, check_contact_options
-from .vbd_energy import EnergyCap
-from .vbd_pieces import FAILURES, ContactPieces
-from .vbd_pins import DrivenPins
-from .vbd_scene import SceneAttachment
-from .vbd_springs import VBDSprings, fraction_option, positive_option
+from .... import runtime
+from ....errors import ConfigError
+from ....state import finite
+from ....systems.base import System
+from ...base import Integrator, Status, StepReport
+from ...equation import FIXED_WORK, Equation
+from ...implicit.common import positive_int
+from ..colouring import colour_vertices
+from .contact import check_contact_options
+from .contact_model import solve_forces
+from .energy import EnergyCap, closed_scene
+from .kernels import bind_kernels
+from .pieces import FAILURES, PieceSchedule
+from .scene import ContactSetup, contact_setup
+from .springs import SpringTerms, fraction_option, positive_option
 
 # Below this many particles plus springs (times spare threads) the colour loops run on one
 # thread and a whole substep is one kernel launch: a colour of a 64 x 64 cloth is ~450
@@ -35,7 +36,7 @@ SERIAL_CONTACT_PARTICLES = 6_000
 
 
 @ti.data_oriented
-class VBD(VBDSprings, EnergyCap, SceneAttachment, ContactPieces, Integrator):
+class VBD(Integrator):
     """Vertex block descent (Chen, Liu, Yang & Yuksel 2024, "Vertex Block Descent").
 
     A step of h seconds (``substeps`` pieces of dt = h / substeps) minimises backward Euler's
@@ -76,12 +77,12 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, ContactPieces, Integrator):
         substeps: substeps per step (>= 1, default 1).
         warm_start: start from the adaptive initialisation (default) or from x0 + dt v0.
         chebyshev_rho: 0 (off, default) or Chebyshev's spectral radius estimate in (0, 1).
-        augmented: springs in the augmented form of :meth:`_augmented_tension` (after Giles,
+        augmented: springs in the augmented form of :meth:`~.springs.SpringTerms.augmented_tension` (after Giles,
             Diaz & Yuksel 2025, "Augmented Vertex Block Descent"); off by default.
         penalty: the augmented form's penalty rho at the start of each substep (N/m, > 0).
         penalty_growth: its ramp: rho grows by this times |C| after each sweep (N/m^2, >= 0).
         contact: the scene's objects (plane, spheres, capsules, boxes) in the solve as contact
-            energies (:class:`~.vbd_contact.SolveContact`), once :meth:`attach_scene` has
+            energies (:class:`~.contact.SolveContact`), once :meth:`attach_scene` has
             been given the scene (the Stepper does); default True.
         self_contact: the cloth against itself in the solve. None (default): when the scene
             has a post-step self-collision stage (``self_collision=1``), which the solve then
@@ -96,21 +97,21 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, ContactPieces, Integrator):
             nearest object or contact partner, in (0, 0.5).
         friction_epsilon: the slip speed (m/s) below which friction is smoothed (IPC's eps_v).
         contact_refresh: sweeps between self-contact detections; 0 (default): once per piece of
-            a substep (:mod:`.vbd_pieces`).
+            a substep (:mod:`.pieces`).
         contact_pieces: with self-contact, the most pieces (default 16) a substep may be cut
             into so that its start guess stays within the contact bounds for all but 0.5 % of
-            the vertices (each piece a detection and its sweeps; :mod:`.vbd_pieces`; a scene's
+            the vertices (each piece a detection and its sweeps; :mod:`.pieces`; a scene's
             scripted pins may need more, up to 256); 1: one piece, the guess cut to the bounds,
             which holds back a collapsing cloth (docs/lab/vbd.md, "The fold's pace").
         object_faces: the cloth's triangles against the objects in the solve too
-            (:mod:`.vbd_faces`; default True), where the scene's ``object_faces`` is on: a box's
+            (:mod:`.faces`; default True), where the scene's ``object_faces`` is on: a box's
             edge or a thin object cannot come between the vertices into a face. Off, the
             objects meet vertices only, which costs less where the cloth lies across a box's
             edges (docs/vbd.md).
         energy_cap: on a closed scene (no wind, turbulence, moving object, kinematic pin or
             emitter) without contact in the solve, shorten a substep that would end with more
             energy (J) than it started with toward its start until it does not
-            (:mod:`.vbd_energy`); default True.
+            (:mod:`.energy`); default True.
     """
 
     name = "vbd"
@@ -126,7 +127,7 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, ContactPieces, Integrator):
     work_option, work_cap = "substeps", 64
     tracks_solved_start = True
     # No step-size limit: each sweep lowers the incremental potential at any step. An unconverged
-    # step may still gain energy, which the energy cap takes back on closed scenes (vbd_energy).
+    # step may still gain energy, which the energy cap takes back on closed scenes (energy.py).
     stability_constant = math.inf
     advice_note = ("no step-size limit; on stiff springs (k >= 1e6) its per-vertex sweeps leave the cloth "
                    "lagging behind the exact step, and an unconverged step is damped by the energy cap "
@@ -165,15 +166,17 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, ContactPieces, Integrator):
         self.contact_pieces = positive_int("contact_pieces", contact_pieces)
         self.self_contact = None if self_contact is None else bool(self_contact)
         self.energy_cap = bool(energy_cap)
-        self.cap_active = False  # set by attach_scene on a closed scene (read by the kernels)
-        self.capped = ti.field(ti.i32, shape=())  # substeps the cap shortened
         self.contact_options = dict(objects=bool(contact), object_faces=bool(object_faces), radius=contact_radius,
                                     stiffness=float(contact_stiffness), bound_fraction=float(bound_fraction),
                                     friction_epsilon=float(friction_epsilon), refresh=int(contact_refresh))
-        self.contact: SolveContact | None = None  # set by attach_scene when the scene has contact
-        self.has_contact = self.has_self_contact = False  # read by the kernels (ti.static)
-        self.pins: DrivenPins | None = None  # the scene's scripted pins, when the solve moves them
-        self.drives_pins = False  # read by the kernels (ti.static)
+        # The parts the solve is made of, each given what it reads (see their modules):
+        # the scene's contact (attach_scene), the energy cap, the pieces of a substep with
+        # contact and, below, the springs' terms.
+        self.setup = ContactSetup()  # what the attached scene put in the solve: nothing yet
+        self._attached = None  # the scene attached (attach_scene)
+        self.cap = EnergyCap(system)
+        self.cap_active = False  # set by attach_scene on a closed scene (read by the kernels)
+        self.schedule = PieceSchedule(self.contact_pieces)
         real, n = runtime.real(), system.particle_count
         self.springs = system.term("springs")
         self.has_springs = self.springs is not None
@@ -190,11 +193,8 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, ContactPieces, Integrator):
             self.earlier = ti.Vector.field(3, real, shape=n)  # delta two sweeps back
             self.last = ti.Vector.field(3, real, shape=n)  # delta one sweep back
         self.has_multipliers = self.augmented and self.has_springs
-        if self.has_multipliers:
-            # Augmented Lagrangian of each spring (see _springs_at): its penalty rho (N/m) and
-            # multiplier lambda (N), the tension carried from sweep to sweep and step to step.
-            self.spring_penalty = ti.field(real, shape=self.springs.spring_count)
-            self.multiplier = ti.field(real, shape=self.springs.spring_count)
+        self.spring_terms = SpringTerms(self.springs, augmented=self.augmented, penalty=self.penalty,
+                                        penalty_growth=self.penalty_growth) if self.has_springs else None
         ends = self.springs.ends_np if self.has_springs else np.zeros((0, 2), np.int32)
         order, self.starts = colour_vertices(n, ends)
         self.order = ti.field(ti.i32, shape=max(1, n))
@@ -212,7 +212,62 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, ContactPieces, Integrator):
         self._resume_time: float | None = None  # when the last step ended (warm start continues it)
         self._last_dt = 0.0
         self.sweeps = 0  # sweeps run since construction (all substeps)
-        self.pieces = 0  # pieces of substeps run with contact in the solve (_contact_substep)
+
+    # -- what the attached scene put in the solve (ContactSetup), read by the Stepper, the run,
+    # the convergence monitor and the kernels (ti.static) ----------------------------------------
+
+    contact = property(lambda self: self.setup.contact,
+                       doc="The contact terms in the solve (SolveContact), None where the scene gives it none.")
+    has_contact = property(lambda self: self.setup.contact is not None)
+    has_self_contact = property(lambda self: self.setup.has_self_contact)
+    pins = property(lambda self: self.setup.pins, doc="The scripted pins the solve moves (pins.py), or None.")
+    drives_pins = property(lambda self: self.setup.pins is not None)
+    replaces_parts = property(lambda self: self.setup.replaces_parts)
+    pauses_object_faces = property(lambda self: self.setup.pauses_object_faces)
+    work_weight = property(lambda self: self.setup.work_weight)
+    capped = property(lambda self: self.cap.capped, doc="Substeps the energy cap shortened (0-d i32 field).")
+    pieces = property(lambda self: self.schedule.pieces, doc="Pieces of substeps run with contact (pieces.py).")
+
+    def attach_scene(self, scene) -> None:
+        """Put the scene's objects (and, with ``self_contact``, its mesh) in the solve
+        (:func:`~.scene.contact_setup`), and the energy cap where the scene is closed and the
+        solve has no contact. Raises ConfigError for a contact radius the mesh cannot take or a
+        start that intersects; the method is then left unattached (a later attach tries
+        again), never half-bound."""
+        if getattr(self, "_attached", None) is scene:
+            return  # already bound to it (a launcher switching methods back)
+        self._attached = None
+        setup = contact_setup(scene, self.contact_options, self.self_contact, self.delta)  # may raise
+        self.setup = setup
+        # Not with contact in the solve: its penalty energy is not in E, and a vertex pushed
+        # out of a contact would read as a gain (the folds measured never rose, docs/vbd.md).
+        self.cap_active = self.energy_cap and setup.contact is None and closed_scene(scene)
+        self._kernels = {}  # the kernels compile the contact terms and the cap in
+        self._attached = scene
+
+    def run_warning(self) -> str:
+        """Contact pairs found but not kept (a vertex's list of CONTACTS_PER_VERTEX, or the
+        pair list, full): their repulsion was left out of the solve; substeps the energy cap
+        shortened: they stopped short of the solved step."""
+        capped = int(self.cap.capped[None])
+        lines = []
+        if capped:
+            lines.append(f"vbd: {capped} substep(s) would have ended with more energy than they started with and "
+                         "were shortened toward their start (energy_cap); many mean the sweeps stop short: raise "
+                         "--iterations or --substeps, or lower --dt")
+        dropped = getattr(self.contact, "dropped_total", 0)  # (self-contact keeps lists; objects do not)
+        if dropped:
+            lines.append(f"vbd: {dropped} contact pair(s) found but dropped from the solve (a vertex keeps "
+                         f"{self.contact.per_vertex} between detections): the cloth may intersect itself "
+                         "(taichi-sim check FILE.npz tells)")
+        return "; ".join(lines)
+
+    def solve_forces(self, state, t: float, h: float):
+        """The in-solve contact's forces at ``state`` (the result of a piece of ``h`` s ending at
+        ``t`` s), for the convergence monitor (:mod:`.contact_model`); None without contact."""
+        if not self.has_contact:
+            return None
+        return solve_forces(self.contact, self.system, state, self.delta.to_numpy().astype(float), h, t)
 
     @property
     def serial(self) -> bool:
@@ -240,8 +295,8 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, ContactPieces, Integrator):
         self._resume_time = None
         if self.contact is not None:
             self.contact.forget()  # found at positions a reset or a switch has left
-        if self.has_multipliers:
-            self.multiplier.fill(0)
+        if self.spring_terms is not None:
+            self.spring_terms.reset()
 
     def step(self, state, t: float, h: float) -> StepReport:
         dt = h / self.substeps
@@ -249,16 +304,21 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, ContactPieces, Integrator):
         use_acceleration = int(self.warm_start and continued)
         kernels = self._bound(state)
         bad = 0
-        pieces_before = self.pieces
+        pieces_before = self.schedule.pieces
         for k in range(self.substeps):
-            if self.solved_start is not None and k == self.substeps - 1 and self.contact is None:
-                self.solved_start.copy_from(state)  # what the convergence monitor measures (pieces: vbd_pieces)
-                self.solved_h = dt
+            last = k == self.substeps - 1
+            if self.solved_start is not None and last and self.contact is None:
+                self._record_start(state, dt)
             t_end = t + (k + 1) * dt  # backward Euler evaluates the forces at the substep's end
             previous_dt = self._last_dt  # the last substep's (or piece's) length: its v0 is start_v
             if self.contact is not None:
-                bad = self._contact_substep(kernels, state, dt, t_end, use_acceleration, previous_dt,
-                                            last=k == self.substeps - 1)
+                # in pieces where the bounds or the scripted pins need them (pieces.py)
+                bad = self.schedule.substep(
+                    kernels, self._sweeps, state, self.point.x, self.contact, self.pins, dt=dt, t_end=t_end,
+                    use_acceleration=use_acceleration, previous_dt=previous_dt, iterations=self.iterations,
+                    warm_start=self.warm_start,
+                    record=self._record_start if self.solved_start is not None and last else None)
+                self._last_dt = self.schedule.last_length
                 if bad < 0:
                     self._resume_time = None
                     return StepReport(accepted=False, h=0.0, next_h=h, f_evals=k * self.iterations,
@@ -267,22 +327,25 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, ContactPieces, Integrator):
                 bad = kernels["substep"](dt, t_end, use_acceleration, previous_dt, self.iterations)
             else:
                 kernels["begin"](dt, use_acceleration, previous_dt, t_end, 0)
-                omega = 1.0
-                for sweep in range(self.iterations):
-                    omega = self._omega(sweep, omega)
-                    self._sweep(kernels, dt, t_end, omega, sweep)
+                self._sweeps(kernels, dt, t_end, 0, self.iterations)
                 bad = kernels["end"](dt)
             use_acceleration = int(self.warm_start)
             if self.contact is None:
-                self._last_dt = dt  # (with contact the pieces keep their own)
+                self._last_dt = dt
             if bad:
                 self._resume_time = None
                 return StepReport(accepted=False, h=0.0, next_h=h, f_evals=(k + 1) * self.iterations,
                                   status=Status.DIVERGED, message=f"vbd: {bad} particles non-finite")
-        work = (self.pieces - pieces_before if self.contact is not None else self.substeps) * self.iterations
+        work = (self.schedule.pieces - pieces_before if self.contact is not None else self.substeps) * self.iterations
         self.sweeps += work
         self._resume_time = t + h
         return StepReport(accepted=True, h=h, next_h=h, f_evals=work, linear_iterations=work)
+
+    def _record_start(self, state, h: float) -> None:
+        """Keep the start of the step's last piece (a substep, or a piece of one) and its
+        length, which the convergence monitor measures."""
+        self.solved_start.copy_from(state)
+        self.solved_h = h
 
     def _omega(self, sweep: int, omega: float) -> float:
         """Chebyshev weight of sweep ``sweep`` (0-based) given the last one's (1 when off)."""
@@ -291,94 +354,26 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, ContactPieces, Integrator):
         rho2 = self.chebyshev_rho ** 2
         return 2.0 / (2.0 - rho2) if sweep == 1 else 4.0 / (4.0 - rho2 * omega)
 
-    # -- kernels --------------------------------------------------------------------------------
-    # Closures over the state they step (a method kernel with a template argument costs about
-    # twice the Python per launch: see ParticleSystem._launcher), made once per state.
+    # -- kernels (kernels.py: closures made once per state) -------------------------------------
 
     def _bound(self, y) -> dict:
         kernels = self._kernels.get(id(y))
         if kernels is None:
-            kernels = self._kernels[id(y)] = self._bind(y)
+            kernels = self._kernels[id(y)] = bind_kernels(self, y)
         return kernels
 
-    def _bind(self, y) -> dict:
-        vbd = self
-
-        @ti.kernel
-        def substep(dt: float, t: float, use_acceleration: ti.i32, previous_dt: float, iterations: ti.i32) -> ti.i32:
-            vbd._begin(y, dt, use_acceleration, previous_dt, t, 0)
-            ti.loop_config(serialize=True)
-            for _ in range(1):  # one serial task: every sweep, colour after colour
-                omega = 1.0
-                rho2 = vbd.chebyshev_rho ** 2
-                for sweep in range(iterations):
-                    for c in range(vbd.colour_count):
-                        for q in range(vbd.colour_start[c], vbd.colour_start[c + 1]):
-                            vbd._solve_vertex(vbd.order[q], dt, t)
-                    if ti.static(vbd.has_multipliers):
-                        for s in range(vbd.springs.spring_count):
-                            vbd._update_multiplier(s)
-                    if ti.static(vbd.chebyshev):
-                        if sweep == 1:
-                            omega = 2.0 / (2.0 - rho2)
-                        elif sweep > 1:
-                            omega = 4.0 / (4.0 - rho2 * omega)
-                        for i in range(vbd.system.particle_count):
-                            vbd._accelerate(i, dt, omega, sweep, t)
-            return vbd._finish(y, dt)
-
-        @ti.kernel
-        def begin(dt: float, use_acceleration: ti.i32, previous_dt: float, t: float, again: ti.i32):
-            vbd._begin(y, dt, use_acceleration, previous_dt, t, again)
-
-        @ti.kernel
-        def sweeps(dt: float, t: float, first: ti.i32, count: ti.i32):
-            ti.loop_config(serialize=True)
-            for _ in range(1):  # one serial task: the sweeps first .. first + count - 1
-                omega = 1.0
-                rho2 = vbd.chebyshev_rho ** 2
-                for sweep in range(first + count):
-                    if ti.static(vbd.chebyshev):
-                        if sweep == 1:
-                            omega = 2.0 / (2.0 - rho2)
-                        elif sweep > 1:
-                            omega = 4.0 / (4.0 - rho2 * omega)
-                    if sweep >= first:
-                        vbd._query_faces(t)
-                        for c in range(vbd.colour_count):
-                            for q in range(vbd.colour_start[c], vbd.colour_start[c + 1]):
-                                vbd._solve_vertex(vbd.order[q], dt, t)
-                        vbd._after_colours(dt, t, omega, sweep)
-
-        # The parallel sweep (_sweep): all colours in one launch (unrolled: the vertex solve
-        # compiled once per colour), or, where the solve meets objects and their geometry makes
-        # it large, the query, one launch per colour and the tail (docs/vbd.md).
-        @ti.kernel
-        def sweep_unrolled(dt: float, t: float, omega: float, index: ti.i32):
-            for c in ti.static(range(vbd.colour_count)):
-                for q in range(vbd.starts[c], vbd.starts[c + 1]):
-                    vbd._solve_vertex(vbd.order[q], dt, t)
-            vbd._after_colours(dt, t, omega, index)
-
-        @ti.kernel
-        def query(t: float):
-            vbd._query_faces(t)
-
-        @ti.kernel
-        def colour(dt: float, t: float, c: ti.i32):
-            for q in range(vbd.colour_start[c], vbd.colour_start[c + 1]):
-                vbd._solve_vertex(vbd.order[q], dt, t)
-
-        @ti.kernel
-        def after_colours(dt: float, t: float, omega: float, index: ti.i32):
-            vbd._after_colours(dt, t, omega, index)
-
-        @ti.kernel
-        def end(dt: float) -> ti.i32:
-            return vbd._finish(y, dt)
-
-        return {"substep": substep, "begin": begin, "sweeps": sweeps, "sweep_unrolled": sweep_unrolled,
-                "query": query, "colour": colour, "after_colours": after_colours, "end": end}
+    def _sweeps(self, kernels: dict, dt: float, t: float, first: int, count: int) -> None:
+        """Sweeps ``first`` .. ``first + count - 1`` of a begun substep or piece of dt seconds
+        ending at t: one serial kernel, or parallel sweeps (the Chebyshev weights taken from
+        sweep 0 on, as the serial kernel does)."""
+        if self.serial:
+            kernels["sweeps"](dt, t, first, count)
+            return
+        omega = 1.0
+        for sweep in range(first + count):
+            omega = self._omega(sweep, omega)
+            if sweep >= first:
+                self._sweep(kernels, dt, t, omega, sweep)
 
     def _sweep(self, kernels: dict, dt: float, t: float, omega: float, index: int) -> None:
         """One parallel sweep (sweep ``index``, Chebyshev weight ``omega``): the objects' contacts
@@ -397,7 +392,7 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, ContactPieces, Integrator):
     def _begin(self, y, dt, use_acceleration, previous_dt, t, again):
         """Keep (x0, v0) and put the iterate at the start guess (see the class docstring).
         ``again`` != 0: the same start begun again with another dt (a shortened piece,
-        vbd_pieces): start_v already holds y.v, so the acceleration is the one kept the first
+        pieces.py): start_v already holds y.v, so the acceleration is the one kept the first
         time, and the first time's start choice is not counted twice."""
         direction = ti.Vector.zero(y.x.dtype, 3)
         g = ti.cast(0.0, y.x.dtype)
@@ -419,13 +414,13 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, ContactPieces, Integrator):
                 else:
                     delta = dt * y.v[i]
             if ti.static(self.drives_pins):
-                if self.pins.driven[i]:  # a scripted pin: where the script puts it (vbd_pins)
+                if self.pins.driven[i]:  # a scripted pin: where the script puts it (pins.py)
                     delta = self.pins.target[i] - y.x[i]
             self.start_x[i] = y.x[i]
             self.start_v[i] = y.v[i]
             self.delta[i] = delta
         if ti.static(self.has_contact):
-            # the triangles near the objects along the guess (vbd_faces), for its bounds
+            # the triangles near the objects along the guess (faces.py), for its bounds
             self.contact.measure_face_reach(self.delta)
             self.contact.query_faces(self.start_x, t)
             # The guess kept within the bounds, measured from the mean guess (a falling cloth
@@ -441,7 +436,7 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, ContactPieces, Integrator):
                 if stopped > 0:
                     self.contact.shift[None] = ti.Vector.zero(y.x.dtype, 3)
             if ti.static(self.has_self_contact):
-                for b in self.contact.overshoot:  # how far the bounds cut the guess (vbd_pieces)
+                for b in self.contact.overshoot:  # how far the bounds cut the guess (pieces.py)
                     self.contact.overshoot[b] = 0
             for i in range(self.system.particle_count):
                 if self.system.free[i]:
@@ -480,28 +475,26 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, ContactPieces, Integrator):
                 self.earlier[i] = delta
                 self.last[i] = delta
         if ti.static(self.has_multipliers):
-            for s in range(self.springs.spring_count):
-                self.spring_penalty[s] = ti.min(self.penalty, self.springs.stiffness[s])
+            self.spring_terms.begin_penalties()
 
     @ti.func
     def _after_colours(self, dt, t, omega, index):
         """A sweep's end: the springs' multipliers, Chebyshev's over-relaxation."""
         if ti.static(self.has_multipliers):
-            for s in range(self.springs.spring_count):
-                self._update_multiplier(s)
+            self.spring_terms.update_multipliers(self.point.x)
         if ti.static(self.chebyshev):
             for i in range(self.system.particle_count):
                 self._accelerate(i, dt, omega, index, t)
 
     @ti.func
     def _query_faces(self, t):
-        """The objects' contacts with the triangles at the iterate, for the next sweep (vbd_faces)."""
+        """The objects' contacts with the triangles at the iterate, for the next sweep (faces.py)."""
         if ti.static(self.has_contact):
             self.contact.query_faces(self.point.x, t)
 
     @ti.func
     def _scripted(self, i):
-        """Whether particle i is a scripted pin this solve moves (vbd_pins)."""
+        """Whether particle i is a scripted pin this solve moves (pins.py)."""
         out = False
         if ti.static(self.drives_pins):
             out = self.pins.driven[i] != 0
@@ -529,7 +522,7 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, ContactPieces, Integrator):
             r = inertia * (delta - dt * self.start_v[i])
             H = inertia * ti.Matrix.identity(self.delta.dtype, 3)
             if ti.static(self.has_springs):
-                f, block = self._springs_at(i, dt)
+                f, block = self.spring_terms.at(i, self.point.x, self.point.v, dt)
                 r -= f
                 H += block
             if ti.static(self.has_contact):
@@ -569,10 +562,10 @@ class VBD(VBDSprings, EnergyCap, SceneAttachment, ContactPieces, Integrator):
 
     @ti.func
     def _finish(self, y, dt):
-        """The energy cap where it is on (:mod:`.vbd_energy`), then the iterate into ``y``;
+        """The energy cap where it is on (:mod:`.energy`), then the iterate into ``y``;
         returns the particles left non-finite."""
         if ti.static(self.cap_active):
-            self._cap_energy(y, dt)
+            self.cap.apply(y, self.point, self.start_x, self.delta, dt, self.serial)
         return self._end(y, dt)
 
     @ti.func

@@ -3,7 +3,7 @@
 A vertex term keeps each vertex off an object, but a box's edge or corner, or a sphere or
 capsule thinner than the cloth's spacing, can pass through a triangle whose corners all stay
 out. With the objects' face pass after the step waiting (it would move vertices past the
-self-contact bounds, :attr:`~.vbd_scene.SceneAttachment.pauses_object_faces`), box edges
+self-contact bounds, :attr:`~.scene.ContactSetup.pauses_object_faces`), box edges
 poked 8-14 mm into a fold's faces. Here each intact triangle is an object's contact partner
 too, inside the solve, as a vertex is.
 
@@ -53,7 +53,7 @@ What is left out, because the corners' own terms and bounds already do its work:
 import numpy as np
 import taichi as ti
 
-from ... import runtime
+from .... import runtime
 
 # A nearest point with a corner's weight above this is at that corner: the vertex's own term.
 AT_CORNER = 1.0 - 1e-6
@@ -82,7 +82,7 @@ FAR, PLANE, ENERGY = 0, 1, 2
 
 @ti.data_oriented
 class ObjectFaces:
-    """Mixin of :class:`~.vbd_contact.SolveContact` (reads its ``obstacles``, ``radius``,
+    """Mixin of :class:`~.contact.SolveContact` (reads its ``obstacles``, ``radius``,
     ``fraction``, ``delta``, ``stiffness``, ``penalty_dt`` and ``_push``): the query, triangle
     terms and bounds of the module's docstring, for the obstacles whose collider tests faces
     (the scene's ``object_faces`` setting, on by default for a cloth), unless vbd's

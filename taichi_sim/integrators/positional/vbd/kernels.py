@@ -1,0 +1,85 @@
+"""vbd's kernels over one state, closures made once per state (a method kernel with a template
+argument costs about twice the Python per launch: see ParticleSystem._launcher). Each calls the
+kernel functions of :class:`~.solver.VBD`, which read its parts (springs, contact, cap) at
+compile time."""
+import taichi as ti
+
+
+def bind_kernels(vbd, y) -> dict:
+    """The kernels of ``vbd`` (a :class:`~.solver.VBD`) over the state ``y``: a whole serial
+    substep, and the parts the Python loops drive (begin, sweeps, a colour, end)."""
+
+    @ti.kernel
+    def substep(dt: float, t: float, use_acceleration: ti.i32, previous_dt: float, iterations: ti.i32) -> ti.i32:
+        vbd._begin(y, dt, use_acceleration, previous_dt, t, 0)
+        ti.loop_config(serialize=True)
+        for _ in range(1):  # one serial task: every sweep, colour after colour
+            omega = 1.0
+            rho2 = vbd.chebyshev_rho ** 2
+            for sweep in range(iterations):
+                for c in range(vbd.colour_count):
+                    for q in range(vbd.colour_start[c], vbd.colour_start[c + 1]):
+                        vbd._solve_vertex(vbd.order[q], dt, t)
+                if ti.static(vbd.has_multipliers):
+                    vbd.spring_terms.update_multipliers(vbd.point.x)
+                if ti.static(vbd.chebyshev):
+                    if sweep == 1:
+                        omega = 2.0 / (2.0 - rho2)
+                    elif sweep > 1:
+                        omega = 4.0 / (4.0 - rho2 * omega)
+                    for i in range(vbd.system.particle_count):
+                        vbd._accelerate(i, dt, omega, sweep, t)
+        return vbd._finish(y, dt)
+
+    @ti.kernel
+    def begin(dt: float, use_acceleration: ti.i32, previous_dt: float, t: float, again: ti.i32):
+        vbd._begin(y, dt, use_acceleration, previous_dt, t, again)
+
+    @ti.kernel
+    def sweeps(dt: float, t: float, first: ti.i32, count: ti.i32):
+        ti.loop_config(serialize=True)
+        for _ in range(1):  # one serial task: the sweeps first .. first + count - 1
+            omega = 1.0
+            rho2 = vbd.chebyshev_rho ** 2
+            for sweep in range(first + count):
+                if ti.static(vbd.chebyshev):
+                    if sweep == 1:
+                        omega = 2.0 / (2.0 - rho2)
+                    elif sweep > 1:
+                        omega = 4.0 / (4.0 - rho2 * omega)
+                if sweep >= first:
+                    vbd._query_faces(t)
+                    for c in range(vbd.colour_count):
+                        for q in range(vbd.colour_start[c], vbd.colour_start[c + 1]):
+                            vbd._solve_vertex(vbd.order[q], dt, t)
+                    vbd._after_colours(dt, t, omega, sweep)
+
+    # The parallel sweep (_sweep): all colours in one launch (unrolled: the vertex solve
+    # compiled once per colour), or, where the solve meets objects and their geometry makes
+    # it large, the query, one launch per colour and the tail (docs/vbd.md).
+    @ti.kernel
+    def sweep_unrolled(dt: float, t: float, omega: float, index: ti.i32):
+        for c in ti.static(range(vbd.colour_count)):
+            for q in range(vbd.starts[c], vbd.starts[c + 1]):
+                vbd._solve_vertex(vbd.order[q], dt, t)
+        vbd._after_colours(dt, t, omega, index)
+
+    @ti.kernel
+    def query(t: float):
+        vbd._query_faces(t)
+
+    @ti.kernel
+    def colour(dt: float, t: float, c: ti.i32):
+        for q in range(vbd.colour_start[c], vbd.colour_start[c + 1]):
+            vbd._solve_vertex(vbd.order[q], dt, t)
+
+    @ti.kernel
+    def after_colours(dt: float, t: float, omega: float, index: ti.i32):
+        vbd._after_colours(dt, t, omega, index)
+
+    @ti.kernel
+    def end(dt: float) -> ti.i32:
+        return vbd._finish(y, dt)
+
+    return {"substep": substep, "begin": begin, "sweeps": sweeps, "sweep_unrolled": sweep_unrolled,
+            "query": query, "colour": colour, "after_colours": after_colours, "end": end}
