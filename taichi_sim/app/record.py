@@ -144,8 +144,8 @@ def drawn_box(session: Session) -> tuple[np.ndarray, np.ndarray] | None:
 def clip_box(session: Session, clip: Clip) -> tuple[np.ndarray, np.ndarray]:
     """Simulate ``clip`` ahead as :func:`record` will, then reset the session to t = 0: the
     box (lo, hi), each (3,) m, the drawn points fill over every frame. (The still is framed on
-    the recorded run itself: a run with contact need not repeat to the bit, and a cloth flung
-    off a spinning sphere ends elsewhere the second time.)"""
+    the recorded run itself: a run after a reset need not repeat the first to the bit, and
+    cloth-spin's cloth left the sphere elsewhere the second time.)"""
     boxes = []
     for k in range(clip.frame_count):
         if k:

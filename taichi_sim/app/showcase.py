@@ -71,8 +71,8 @@ SHOWCASE: tuple[Showcase, ...] = (
              _clip("cloth-spin", params={"nx": 24, "ny": 24}, fit=True)),
     Showcase("cloth-tear", "a sphere drops through a cloth held at two sides and tears it",
              _clip("cloth-tear", fit=True)),
-    Showcase("cloth-fold", "a cloth dropped edge-first piles up in folds without passing through "
-             "itself (self-collision)",
+    Showcase("cloth-fold", "a cloth dropped edge-first falls over and folds onto itself without "
+             "passing through itself (self-collision)",
              _clip("cloth-fold", params={"nx": 24, "ny": 24}, fit=True)),
     Showcase("cloth-twist", "a cloth held at two sides that turn in opposite directions wrings "
              "into folds against itself (self-collision)",
