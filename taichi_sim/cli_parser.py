@@ -269,8 +269,8 @@ def build_parser() -> argparse.ArgumentParser:
                      help="with --showcase: re-record only these entries (e.g. cloth-fold), updating "
                           "their items in DIR/gallery.json")
     rec.add_argument("--fit", action="store_true",
-                     help="frame what the run draws: the video on the box its points fill over the clip, "
-                          "a still on their box at its time (simulates the clip once more; one integrator)")
+                     help="frame what the run draws: the camera fixed on the box its points fill over the "
+                          "clip, not on the scene's start (simulates the clip once more; one integrator)")
     rec.add_argument("--quiet", action="store_true", help="no summary line or progress bar")
 
     bench = sub.add_parser("bench", help="measure accuracy, stability and speed (CSV, JSON and PNG into --out)")

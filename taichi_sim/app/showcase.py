@@ -146,7 +146,7 @@ def _write_manifest(folder: Path, items: dict[str, dict]) -> None:
 
 
 #: The clip settings an item records as the table gives them.
-_CLIP_KEYS = ("scene", "params", "seconds", "fps", "speed", "supersample", "fit")
+_CLIP_KEYS = ("scene", "params", "seed", "seconds", "fps", "speed", "supersample", "fit")
 
 
 def expected_settings(entry: Showcase) -> dict:
