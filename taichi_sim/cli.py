@@ -321,10 +321,12 @@ def cmd_demo(args) -> int:
 def cmd_record(args) -> int:
     from . import runtime
     from .app.record import Clip, check_clip, record
-    from .app.showcase import record_showcase
+    from .app.showcase import record_showcase, select
     from .render import RenderUnavailable, parse_size
     from .render.video import check_output
 
+    if args.only is not None and args.showcase is None:
+        raise ConfigError("--only picks showcase entries: give it with --showcase")
     if args.showcase is not None:
         extra = [flag for flag, given in (("SCENE", args.scene), ("--integrator", args.integrator),
                                           ("--side-by-side", args.side_by_side), ("--dt", args.dt),
@@ -332,12 +334,14 @@ def cmd_record(args) -> int:
                                           ("--fps", args.fps), ("--size", args.size),
                                           ("--speed", args.speed), ("--curves", args.curves),
                                           ("--energy", args.energy is not None),
-                                          ("--strain", args.strain), ("--contacts", args.contacts)) if given]
+                                          ("--strain", args.strain), ("--contacts", args.contacts),
+                                          ("--fit", args.fit)) if given]
         if extra:
             raise ConfigError(f"--showcase records its own scenes and settings; drop {', '.join(extra)}")
+        entries = select(args.only)
         try:
             runtime.init(arch=args.arch, precision=args.precision)
-            record_showcase(args.showcase, progress=None if not args.quiet else False,
+            record_showcase(args.showcase, progress=None if not args.quiet else False, entries=entries,
                             on_clip=None if args.quiet else _print_clip)
         except RenderUnavailable as exc:
             print(f"taichi-sim: error: {exc}", file=sys.stderr)
@@ -349,7 +353,7 @@ def cmd_record(args) -> int:
     clip = Clip(scene=spec["scene"], integrators=spec["integrators"], params=spec["params"],
                 dt=spec["dt"], integrator_options=spec["options"], seconds=args.seconds or 5.0, fps=args.fps or 30.0,
                 size=parse_size(args.size or "1280x720"), speed=args.speed or 1.0, seed=args.seed,
-                curves=spec["curves"], strain=args.strain, contacts=args.contacts,
+                curves=spec["curves"], strain=args.strain, contacts=args.contacts, fit=args.fit,
                 energy=bool(args.side_by_side) if args.energy is None else args.energy)
     check_clip(clip)
     check_output(args.out, clip.size, clip.fps)

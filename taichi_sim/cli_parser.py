@@ -265,6 +265,12 @@ def build_parser() -> argparse.ArgumentParser:
     dest.add_argument("--showcase", metavar="DIR", nargs="?", const="media",
                       help="record the full showcase, the README's gallery (a GIF and a PNG per "
                            "entry, 5 to 15 minutes), into DIR (default media/)")
+    rec.add_argument("--only", metavar="NAME[,NAME...]",
+                     help="with --showcase: re-record only these entries (e.g. cloth-fold), updating "
+                          "their items in DIR/gallery.json")
+    rec.add_argument("--fit", action="store_true",
+                     help="frame what the run draws: the camera fixed on the box its points fill over the "
+                          "clip, not on the scene's start (simulates the clip once more; one integrator)")
     rec.add_argument("--quiet", action="store_true", help="no summary line or progress bar")
 
     bench = sub.add_parser("bench", help="measure accuracy, stability and speed (CSV, JSON and PNG into --out)")

@@ -16,7 +16,7 @@ import taichi_sim as ts
 from taichi_sim.app.record import Clip, frame_labels, record
 from taichi_sim.app.runner import Runner
 from taichi_sim.app.session import Session
-from taichi_sim.app.showcase import SHOWCASE, record_showcase, shortened
+from taichi_sim.app.showcase import MANIFEST, SHOWCASE, read_manifest, record_showcase, shortened, stale_items
 from taichi_sim.cli import main
 from taichi_sim.integrators import Status
 from taichi_sim.render import DrawOptions, Renderer, RenderUnavailable, open_window, vulkan
@@ -406,7 +406,14 @@ def test_showcase_table_and_a_short_recording(own_windows, tmp_path):
     entry = shortened(next(e for e in SHOWCASE if len(e.clip.integrators) > 1), 0.5)
     (result,) = record_showcase(tmp_path / "media", progress=False, entries=(entry,))
     assert result.path.stat().st_size < 2_000_000 and result.still.stat().st_size < 2_000_000
-    assert sorted(p.name for p in (tmp_path / "media").iterdir()) == [f"{entry.name}.gif", f"{entry.name}.png"]
+    assert sorted(p.name for p in (tmp_path / "media").iterdir()) == sorted([f"{entry.name}.gif",
+                                                                             f"{entry.name}.png", MANIFEST])
+    # the manifest says what was recorded, in the terms the gallery's test compares: a chosen
+    # entry's settings, and a preset's own (its step resolved by the session), added beside it
+    preset_entry = shortened(next(e for e in SHOWCASE if e.name == "pendulum"), 0.25)
+    record_showcase(tmp_path / "media", progress=False, entries=(preset_entry,))
+    items = read_manifest(tmp_path / "media")
+    assert stale_items(items, entries=(entry, preset_entry)) == [] and items[entry.name]["frames"] == result.frames
 
 
 # -- the command line (bad input fails before any work; no Vulkan is one clear line) ---------------

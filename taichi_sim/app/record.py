@@ -1,6 +1,7 @@
 """Offscreen recording: step a Session, render each frame without a window, write a video."""
 from __future__ import annotations
 
+import json
 import math
 import time
 from dataclasses import dataclass, field
@@ -12,6 +13,7 @@ from tqdm import tqdm
 
 from ..errors import ConfigError
 from ..render.chart import Rect
+from ..render.drawer import DRAWABLE_LIMIT
 from ..render.overlay import WARNING, Label, burn
 from ..render.renderer import Renderer
 from ..render.video import MAX_SIDE, VideoWriter, check_output, save_png
@@ -46,6 +48,10 @@ class Clip:
         energy: plot each run's energy under its panel (scenes with an energy).
         strain: colour the cloth by spring strain, with a colour bar (scenes with a cloth).
         contacts: draw the contacts each run's solve holds (``vbd``; the launcher's ``x``).
+        fit: frame what the run draws rather than the scene's start-up box: the video's camera
+            is fixed on the box its points fill over the whole clip, the still's on their box at
+            the still's time (so a cloth that folds onto the ground fills the still). The clip is
+            simulated once more, ahead, to find the boxes. One integrator only.
     """
 
     scene: str
@@ -64,6 +70,7 @@ class Clip:
     energy: bool = False
     strain: bool = False
     contacts: bool = False
+    fit: bool = False
 
     @property
     def frame_count(self) -> int:
@@ -75,7 +82,8 @@ class Recording:
     """What :func:`record` did: the output ``path``, ``frames`` written, ``wall`` seconds spent,
     the ``still`` PNG (or None), one line per run that stopped early (``failures``), and whether
     the recording itself stopped early because every run had (``stopped``: it then ends a
-    second after the last one stopped, on its message)."""
+    second after the last one stopped, on its message). ``provenance``: what it was recorded
+    from (:func:`provenance`; with the still's time and step when there is a still)."""
 
     path: Path
     frames: int
@@ -83,6 +91,33 @@ class Recording:
     still: Path | None
     failures: tuple[str, ...]
     stopped: bool = False
+    provenance: dict = field(default_factory=dict)
+
+
+#: The PNG text chunk (tEXt) a still carries its :func:`provenance` in, as JSON.
+PNG_TEXT_KEY = "taichi-sim"
+
+
+def provenance(clip: Clip, session: Session) -> dict:
+    """What a recording of ``clip`` shows, as plain JSON values: the scene, the integrators, the
+    step ``dt`` (s) and each method's options as the session runs them (the scene's own
+    defaults included), the scene's default ``tolerance`` (m, or None), the parameters given
+    (``params``; the rest are the preset's defaults), the seed, and the time ``t`` (s, the
+    furthest run's) and ``steps`` (panel 0's) reached so far."""
+    runners = session.runners
+    scene = runners[0].scene
+    names = [r.name for r in runners]
+    return {
+        "scene": session.scene_name,
+        "integrators": names,
+        "dt": float(session.dt),
+        "integrator_options": {n: {**scene.options_for(n), **clip.integrator_options.get(n, {})} for n in names},
+        "tolerance": scene.default_tolerance,
+        "params": {k: v.item() if hasattr(v, "item") else v for k, v in clip.params.items()},
+        "seed": int(clip.seed),
+        "t": float(max(r.t for r in runners)),
+        "steps": int(runners[0].steps),
+    }
 
 
 def check_clip(clip: Clip) -> None:
@@ -93,6 +128,36 @@ def check_clip(clip: Clip) -> None:
         raise ConfigError(f"--speed must be a finite number > 0, got {clip.speed}")
     if clip.supersample < 1 or max(clip.size) * clip.supersample > MAX_SIDE:
         raise ConfigError(f"supersample {clip.supersample} x size {clip.size} exceeds {MAX_SIDE} pixels")
+    if clip.fit and len(clip.integrators) > 1:
+        raise ConfigError("fit frames one run: side by side the panels share the start-up frame")
+
+
+def drawn_box(session: Session) -> tuple[np.ndarray, np.ndarray] | None:
+    """The box (lo, hi), each (3,) m, around every drawable point of panel 0's last good
+    positions, or None when none is drawable."""
+    pts = np.asarray(session.runners[0].last_good, np.float64).reshape(-1, 3)
+    with np.errstate(invalid="ignore"):
+        pts = pts[np.all(np.abs(pts) <= DRAWABLE_LIMIT, axis=1)]
+    return (pts.min(axis=0), pts.max(axis=0)) if len(pts) else None
+
+
+def clip_box(session: Session, clip: Clip) -> tuple[np.ndarray, np.ndarray]:
+    """Simulate ``clip`` ahead as :func:`record` will, then reset the session to t = 0: the
+    box (lo, hi), each (3,) m, the drawn points fill over every frame. (The still is framed on
+    the recorded run itself: a run after a reset need not repeat the first to the bit, and
+    cloth-spin's cloth left the sphere elsewhere the second time.)"""
+    boxes = []
+    for k in range(clip.frame_count):
+        if k:
+            session.advance(clip.speed / clip.fps)
+        boxes.append(drawn_box(session))
+        if session.frozen:  # record stops a second later; what it draws no longer moves
+            break
+    session.reset()
+    found = [b for b in boxes if b is not None]
+    if not found:
+        raise ConfigError(f"fit: scene {clip.scene!r} draws no finite point to frame")
+    return np.min([b[0] for b in found], axis=0), np.max([b[1] for b in found], axis=0)
 
 
 def frame_labels(session: Session, renderer: Renderer, size: tuple[int, int]) -> list[Label]:
@@ -162,6 +227,8 @@ def record(clip: Clip, out: str | Path, *, still: str | Path | None = None, stil
     try:
         renderer = Renderer(window, session.visuals(), render_size,
                             bottom=CHART_AREA.y1 + 0.02 if charts else 0.0)
+        if clip.fit:
+            renderer.camera.frame(*clip_box(session, clip))
         with VideoWriter(out, clip.size, clip.fps, colors=clip.colors) as writer, \
                 tqdm(total=clip.frame_count, unit="frame", leave=False, disable=None if progress is None
                      else not progress, desc=Path(out).name) as bar:
@@ -173,19 +240,32 @@ def record(clip: Clip, out: str | Path, *, still: str | Path | None = None, stil
                     held += 1
                     if held > clip.fps:
                         break
-                renderer.follow([r.last_good for r in session.runners])
-                view.update(session.runners, panel_centres(renderer), energy=session.options.energy,
-                            strain_scale=strain_scale)
-                contacts.update(session.runners, renderer, on=clip.contacts)
-                renderer.render([r.display for r in session.runners], session.options, overlay=view.draw,
-                                extras=contacts.draw)
-                image = renderer.read_image()
+                if not clip.fit:
+                    renderer.follow([r.last_good for r in session.runners])
+
+                def draw() -> np.ndarray:
+                    view.update(session.runners, panel_centres(renderer), energy=session.options.energy,
+                                strain_scale=strain_scale)
+                    contacts.update(session.runners, renderer, on=clip.contacts)
+                    renderer.render([r.display for r in session.runners], session.options, overlay=view.draw,
+                                    extras=contacts.draw)
+                    return renderer.read_image()
+
+                image = draw()
                 frame = image if ss == 1 else np.asarray(
                     Image.fromarray(image).resize(clip.size, Image.Resampling.BOX))
                 writer.append(burn(frame, frame_labels(session, renderer, clip.size) + view.labels(clip.size)))
                 if still is not None and k == still_index:
+                    shown = provenance(clip, session)
+                    still_box = drawn_box(session) if clip.fit else None
+                    if still_box is not None:  # the still framed on itself, then back
+                        pose = renderer.camera.target.copy(), renderer.camera.distance
+                        renderer.camera.frame(*still_box)
+                        image = draw()
+                        renderer.camera.target, renderer.camera.distance = pose
                     still_path = save_png(burn(image, frame_labels(session, renderer, render_size)
-                                               + view.labels(render_size)), still)
+                                               + view.labels(render_size)), still,
+                                          text={PNG_TEXT_KEY: json.dumps(shown, sort_keys=True)})
                 bar.update()
                 frames = k + 1
         path = writer.path
@@ -198,4 +278,6 @@ def record(clip: Clip, out: str | Path, *, still: str | Path | None = None, stil
         take_back_imgui_ini()
     failures = tuple(f"{r.name}: {r.message}" for r in session.runners if r.frozen)
     return Recording(path=path, frames=frames, wall=time.perf_counter() - start,
-                     still=still_path, failures=failures, stopped=session.frozen)
+                     still=still_path, failures=failures, stopped=session.frozen,
+                     provenance=shown if still_path is not None else {**provenance(clip, session), "t": None,
+                                                                       "steps": None})

@@ -11,7 +11,7 @@ import os
 from pathlib import Path
 
 import numpy as np
-from PIL import Image
+from PIL import Image, PngImagePlugin
 
 from ..atomic import PendingFile, check_can_create
 from ..errors import ConfigError
@@ -160,11 +160,18 @@ class VideoWriter:
         self._pending.discard()
 
 
-def save_png(image: np.ndarray, path: str | os.PathLike) -> Path:
-    """Write one (H, W, 3) uint8 image to ``path`` atomically (temporary file, then rename)."""
+def save_png(image: np.ndarray, path: str | os.PathLike, *, text: dict[str, str] | None = None) -> Path:
+    """Write one (H, W, 3) uint8 image to ``path`` atomically (temporary file, then rename),
+    with ``text`` (key -> value) as PNG text chunks (tEXt; Pillow reads them back in
+    ``Image.open(path).text``)."""
     pending = PendingFile(path, suffix=".tmp.png")
+    info = None
+    if text:
+        info = PngImagePlugin.PngInfo()
+        for key, value in text.items():
+            info.add_text(key, value)
     try:
-        Image.fromarray(np.ascontiguousarray(image, np.uint8)).save(pending.tmp, optimize=True)
+        Image.fromarray(np.ascontiguousarray(image, np.uint8)).save(pending.tmp, optimize=True, pnginfo=info)
     except BaseException:
         pending.discard()
         raise
