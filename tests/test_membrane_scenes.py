@@ -225,3 +225,4 @@ def test_the_reference_model_recomputes_a_membrane_cloths_energy(f64, rng, mater
     elastic = scene.system.energy(scene.state) - particle_energy(bare, x, v)
     assert elastic > 1.0  # the membrane and the bending store energy here
     assert particle_energy(scene.arrays, x, v) == pytest.approx(scene.system.energy(scene.state), rel=1e-12)
+
