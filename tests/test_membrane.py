@@ -439,12 +439,12 @@ def test_a_cantilever_bent_cylindrically_deflects_as_euler_bernoulli(cells):
 def test_a_free_cantilever_strip_is_softer_than_euler_bernoulli_by_its_diagonal_folds(f64, tmp_path):
     """A 0.2 x 0.05 m strip (D = 0.1 N m, 0.2 kg/m^2, E t = 1e4 N/m) clamped by two rows of
     vertices at one short edge, to rest under its own weight (implicit Euler, 10 s steps): its
-    tip falls w/L = 2.6 %, 32 % below Euler-Bernoulli's q L^4 / (8 D b) at this 0.01 m spacing
-    (26 % at 0.005 m, about 20 % as the spacing goes to zero; held to a cylindrical bend the
-    same stencils give the beam within 1 %: above). Not within the 5 % a
-    plate would give: part of a bend about the grid's axis is taken by the edges along the
-    cells' diagonals, and a free strip relieves them by folding its cells along those
-    diagonals, which the constant-strain membrane allows without stretching (a stiffer
+    tip falls w/L = 2.6 %, 20 % further than Euler-Bernoulli's q L^4 / (8 D b) (L from the
+    clamped rows' midpoint), at this 0.01 m spacing as at 0.00125 m (held to a cylindrical
+    bend the same stencils give the beam within 1 %: above). Not within the 5 % a plate would
+    give: part of a bend about the grid's axis is taken by the edges along the cells'
+    diagonals, and a free strip relieves them by folding its cells along those diagonals,
+    which the constant-strain membrane allows without stretching (a stiffer
     membrane, up to E t = 1e9 N/m, changes it by a point). docs/materials.md."""
     import taichi_sim as ts
     from taichi_sim.scene.garment import write_obj
@@ -466,4 +466,4 @@ def test_a_free_cantilever_strip_is_softer_than_euler_bernoulli_by_its_diagonal_
     tip = 0.5 - xs[np.isclose(x[:, 0], x[:, 0].max()), 1].mean()
     beam = density * 9.81 * (length + h / 2) ** 4 / (8 * stiffness)
     assert tip / length < 0.05
-    assert 1.15 < tip / beam < 1.4
+    assert 1.15 < tip / beam < 1.25
