@@ -1,12 +1,18 @@
 """The cloth as a material, measured (docs/materials.md): a 1 m^2 sheet hangs from one edge and
 comes to rest under its own weight, as a membrane and as the spring net, at several resolutions;
 prints how far its lowest point hangs below the pinned edge and how long each run took. With
+``--study sheet``: the same sheet as a ``mesh`` cloth, its triangles along its sides (the grid's)
+and turned 45 degrees to them (:func:`~taichi_sim.scene.mesh_cloth.square_sheet`), both meshes
+with the same spring rules (a stretch spring per edge, a flex spring across each interior edge)
+or the same membrane: the stretch of each, their difference (the anisotropy) and the median
+implicit Euler step. With
 ``--study cylinder``: the energy stored by rolling the 1 m^2 grid onto a cylinder (radius
 0.25 m) about a grid axis, by the membrane's bending (D = 1 N m) and by the spring net's
 default springs, against the plate's (D/2) kappa^2 A (numpy, no simulation).
 
     .venv/bin/python benchmarks/bench_membrane.py [--sizes 16 32 64] [--materials stvk neohookean springs]
     .venv/bin/python benchmarks/bench_membrane.py --study cylinder
+    .venv/bin/python benchmarks/bench_membrane.py --study sheet --sizes 16 32 64 128
     .venv/bin/python benchmarks/bench_membrane.py --study steps --sizes 32
 
 ``--study steps``: the ``cloth-membrane`` preset per material and method, its first step
@@ -14,13 +20,17 @@ default springs, against the plate's (D/2) kappa^2 A (numpy, no simulation).
 or 200 (explicit, at the scene's explicit step) steps.
 """
 import argparse
+import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
 
 import taichi_sim as ts
 from taichi_sim.forces.membrane import bending_stencils
 from taichi_sim.scene import cloth as topo
+from taichi_sim.scene.garment import write_obj
+from taichi_sim.scene.mesh_cloth import square_sheet
 
 SHEET = {"pin": "edge", "density": 1.0, "area_drag": 2.0, "stretch_modulus": 100.0, "poisson_ratio": 0.3,
          "bending_stiffness": 1e-4, "membrane_damping": 0.02}
@@ -37,6 +47,31 @@ def hang(material: str, n: int) -> tuple[float, float, float]:
         raise SystemExit(f"{material} {n}: {result.status.value}")
     x, v = scene.state.to_numpy()
     return 1.0 - float(x[:, 1].min()), float(np.abs(v).max()), wall
+
+
+def hang_sheet(material: str, n: int, turned: bool, folder: Path) -> tuple[float, float, float, int]:
+    """The sheet of :func:`hang` as a ``mesh`` cloth of n x n vertices' spacing, aligned or
+    ``turned``, to rest (implicit Euler, 0.05 s for 4 s): (sag (m), largest speed left (m/s),
+    median step (s), vertices). The springs: 500 N/m along every edge, 20 N/m across each
+    interior edge (the mesh scene's defaults); the drag per vertex is the grid's 2 N s/m per
+    m^2 shared out."""
+    mesh = square_sheet(n, turned=turned)
+    path = folder / f"sheet_{n}_{int(turned)}.obj"
+    write_obj(mesh, path)
+    params = {key: SHEET[key] for key in ("density", "stretch_modulus", "poisson_ratio", "bending_stiffness",
+                                           "membrane_damping")}
+    scene = ts.build_scene("mesh", {"file": str(path), "pin": "top:1e-3", "material": material,
+                                    "drag": SHEET["area_drag"] / mesh.vertex_count, **params})
+    stepper = ts.Stepper(scene, ts.create_integrator("implicit_euler", scene.system), 0.05)
+    walls = []
+    for _ in range(80):
+        start = time.perf_counter()
+        stepper.step()
+        walls.append(time.perf_counter() - start)
+        if stepper.failure is not None:
+            raise SystemExit(f"{material} {n} turned={turned}: {stepper.failure.message}")
+    x, v = scene.state.to_numpy()
+    return 1.0 - float(x[:, 1].min()), float(np.abs(v).max()), float(np.median(walls[1:])), mesh.vertex_count
 
 
 def cylinder(n: int, radius: float = 0.25, stiffness: float = 1.0) -> tuple[float, float]:
@@ -76,7 +111,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sizes", type=int, nargs="+", default=[16, 32, 64])
     parser.add_argument("--materials", nargs="+", default=["stvk", "neohookean", "springs"])
-    parser.add_argument("--study", choices=("hang", "cylinder", "steps"), default="hang")
+    parser.add_argument("--study", choices=("hang", "sheet", "cylinder", "steps"), default="hang")
     args = parser.parse_args()
     if args.study == "cylinder":
         print("| n x n | bending / plate's (D/2) kappa^2 A | spring net's energy (J) |")
@@ -86,6 +121,19 @@ def main() -> None:
             print(f"| {n} | {ratio:.4f} | {springs:.3g} |")
         return
     ts.init(arch="cpu", precision="f64")
+    if args.study == "sheet":
+        print("| material | n x n | vertices (aligned, turned) | stretch aligned (mm) | stretch turned (mm) | "
+              "turned / aligned - 1 | largest speed left (m/s) | median step aligned, turned (ms) |")
+        print("|---|---|---|---|---|---|---|---|")
+        with tempfile.TemporaryDirectory() as folder:
+            for material in args.materials:
+                for n in args.sizes:
+                    a = hang_sheet(material, n, False, Path(folder))
+                    t = hang_sheet(material, n, True, Path(folder))
+                    print(f"| {material} | {n} | {a[3]}, {t[3]} | {1000 * (a[0] - 1):.2f} | {1000 * (t[0] - 1):.2f} | "
+                          f"{(t[0] - 1) / (a[0] - 1) - 1:+.2%} | {max(a[1], t[1]):.3f} | "
+                          f"{1000 * a[2]:.1f}, {1000 * t[2]:.1f} |", flush=True)
+        return
     if args.study == "steps":
         print("| material | n x n | method | step (s) | first step (s) | median step (ms) |")
         print("|---|---|---|---|---|---|")

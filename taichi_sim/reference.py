@@ -120,7 +120,8 @@ def constraint_violation(data: Mapping[str, np.ndarray], x: np.ndarray) -> float
 
 
 def particle_energy(data: Mapping[str, np.ndarray], x: np.ndarray, v: np.ndarray) -> float:
-    """Kinetic + gravitational + spring energy (J) of positions x and velocities v, (n, 3).
+    """Kinetic + gravitational + spring + membrane energy (J) of positions x and velocities v,
+    (n, 3) (:func:`membrane_energy`).
 
     Pinned particles, which never move, are left out of the gravitational term (a constant).
     Broken springs (``alive`` false, when present) store no energy.
@@ -134,7 +135,39 @@ def particle_energy(data: Mapping[str, np.ndarray], x: np.ndarray, v: np.ndarray
         stretch = np.linalg.norm(x[ends[:, 0]] - x[ends[:, 1]], axis=1) - data["rest_length"]
         intact = np.asarray(data["alive"], bool) if "alive" in data else True
         energy += 0.5 * np.sum((data["stiffness"] * stretch**2)[intact])
-    return float(energy)
+    return float(energy + membrane_energy(data, x))
+
+
+def membrane_energy(data: Mapping[str, np.ndarray], x: np.ndarray) -> float:
+    """Elastic energy (J) of a membrane cloth's triangles and bending at positions x (n, 3); 0
+    without them (docs/materials.md).
+
+    ``data``: membrane_triangles (T, 3), membrane_rest_area (T,) (m^2), membrane_rest_inverse
+    (T, 2, 2) (Dm^-1, 1/m), membrane_model ("stvk" or "neohookean"), membrane_moduli (mu,
+    lambda (N/m), damping (s)); bending_stencils (B, 4), bending_weights (B, 4) (1/m),
+    bending_stiffness () (N m). Per triangle F = [x1 - x0, x2 - x0] Dm^-1 (3x2) and A psi(F):
+    StVK psi = mu |E|^2 + lambda/2 (tr E)^2 with E = (F^T F - I) / 2; the stable Neo-Hookean
+    psi = mu/2 (|F|^2 - 2) - mu (J - 1) + (lambda + mu)/2 (J - 1)^2 with J = |f0 x f1|. Bending
+    stores D/2 |sum_k w_k x_k|^2 per interior edge.
+    """
+    energy = 0.0
+    if "membrane_triangles" in data:
+        tri = np.asarray(data["membrane_triangles"], int)
+        edges = np.stack([x[tri[:, 1]] - x[tri[:, 0]], x[tri[:, 2]] - x[tri[:, 0]]], axis=2)  # (T, 3, 2)
+        f = edges @ np.asarray(data["membrane_rest_inverse"], float)
+        mu, lam = (float(v) for v in np.asarray(data["membrane_moduli"], float)[:2])
+        if str(data["membrane_model"]) == "stvk":
+            green = 0.5 * (np.einsum("tki,tkj->tij", f, f) - np.eye(2))
+            psi = mu * np.sum(green**2, axis=(1, 2)) + 0.5 * lam * np.trace(green, axis1=1, axis2=2) ** 2
+        else:
+            jac = np.linalg.norm(np.cross(f[:, :, 0], f[:, :, 1]), axis=1)
+            psi = 0.5 * mu * (np.sum(f**2, axis=(1, 2)) - 2.0) - mu * (jac - 1.0) + 0.5 * (lam + mu) * (jac - 1.0) ** 2
+        energy += float(np.sum(np.asarray(data["membrane_rest_area"], float) * psi))
+    if "bending_stencils" in data:
+        curvature = np.einsum("bk,bkj->bj", np.asarray(data["bending_weights"], float),
+                              x[np.asarray(data["bending_stencils"], int)])
+        energy += 0.5 * float(data["bending_stiffness"]) * float(np.sum(curvature**2))
+    return energy
 
 
 def solve_reference(data: Mapping[str, np.ndarray], t_end: float, *, rtol: float = 1e-12,

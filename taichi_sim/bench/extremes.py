@@ -2,7 +2,10 @@
 each run either bounded-and-``ok`` or reported, never a silent blow-up.
 
 The matrix: integrators x spring stiffness (cloth: shear k/2, flex k/5) x step size x scenes (the
-``spring``, a 10-particle ``pendulum``, a small ``cloth``), each run ``steps`` accepted steps
+``spring``, a 10-particle ``pendulum``, a small ``cloth``, and the small cloth as a membrane,
+``membrane-stvk`` and ``membrane-neohookean`` with Poisson's ratio 0.49, whose "stiffness" is the
+stretch modulus E t: 1 N/m is a 1 um sheet of E = 1 MPa, 1e8 N/m one of 1e11 Pa at 1 mm, both
+with bending across the interior edges; docs/materials.md), each run ``steps`` accepted steps
 from the scene's start (an adaptive method starts at the step size given). Every run is judged
 twice: by its status, and by an *audit* that shares no code with the blow-up guard
 (:mod:`taichi_sim.guard`): the numpy force model of :mod:`taichi_sim.reference` recomputes the
@@ -18,7 +21,8 @@ and the spring strains against bounds ten times looser than the guard's:
 * a non-finite value, or a recorded final energy that the reference model does not confirm.
 
 Outcomes: ``ok`` (status ok and the audit passes), ``reported`` (status not ok, with a message,
-and a finite returned state), ``silent`` (status ok but the audit fails: a blow-up that said
+and a finite returned state), ``refused`` (the method does not take the scene's material and
+said so before running: xpbd, projective dynamics and vbd on a membrane), ``silent`` (status ok but the audit fails: a blow-up that said
 ``ok``), ``error`` (an exception, or a worker process that died), ``timeout`` (the bench's case
 ran past its time limit and was stopped: one row for the case's scene and integrator). The CI
 suite (tests/test_extremes.py) runs a small matrix and requires no ``silent`` and no ``error``;
@@ -28,7 +32,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -42,11 +46,16 @@ SCENES = {
     "spring": ("spring", {}),
     "pendulum": ("pendulum", {"particle_count": 10}),
     "cloth": ("cloth", {"nx": 6, "ny": 6, **fixed_particle_cloth(6, 6)}),
+    "membrane-stvk": ("cloth", {"nx": 6, "ny": 6, **fixed_particle_cloth(6, 6), "material": "stvk"}),
+    "membrane-neohookean": ("cloth", {"nx": 6, "ny": 6, **fixed_particle_cloth(6, 6), "material": "neohookean",
+                                      "poisson_ratio": 0.49}),
 }
 QUICK_SCENES = {
     "spring": ("spring", {}),
     "pendulum": ("pendulum", {"particle_count": 4}),
     "cloth": ("cloth", {"nx": 3, "ny": 3, **fixed_particle_cloth(3, 3)}),
+    "membrane-neohookean": ("cloth", {"nx": 3, "ny": 3, **fixed_particle_cloth(3, 3), "material": "neohookean",
+                                      "poisson_ratio": 0.49}),
 }
 STIFFNESSES = (1.0, 1e4, 1e8)
 STEP_SIZES = (1e-6, 1 / 60, 1.0)
@@ -55,7 +64,7 @@ STEPS = 30
 
 @dataclass(frozen=True)
 class Verdict:
-    """One run: ``outcome`` (ok, reported, silent, error) and why."""
+    """One run: ``outcome`` (ok, reported, refused, silent, error) and why."""
 
     outcome: str
     reason: str = ""
@@ -140,7 +149,12 @@ def judge(status, message: str, problem: str, x: np.ndarray, v: np.ndarray) -> V
 
 
 def set_stiffness(scene, k: float) -> None:
-    """Every spring to its kind's share of k (N/m), in place (nothing recompiles)."""
+    """Every spring to its kind's share of k (N/m), or a membrane's stretch modulus E t to k
+    (N/m), in place (nothing recompiles)."""
+    membrane = scene.system.term("membrane")
+    if membrane is not None:
+        membrane.set_material(replace(membrane.material, stretch_modulus=float(k)))
+        return
     springs = scene.springs
     springs.set_parameters(stiffness=k * kind_stiffness(springs.kind_np, KIND_RATIOS))
 
@@ -150,7 +164,9 @@ def run_extremes(scenes: dict, integrators: list[str], stiffnesses, step_sizes, 
     """Run the matrix (Taichi must be initialised); one row per run (module docstring). One
     scene and one integrator per (scene, method): stiffness changes in place, nothing recompiles.
     ``guard``: the blow-up guard's limits (default: the run's)."""
+    from ..errors import ConfigError
     from ..integrators import create_integrator, integrator_class
+    from ..integrators.base import elastic_models
     from ..run import run
     from ..scene import build_scene
 
@@ -160,6 +176,12 @@ def run_extremes(scenes: dict, integrators: list[str], stiffnesses, step_sizes, 
         for name in integrators:
             cls = integrator_class(name)
             made = None
+            refusal = ""
+            if elastic_models(scene.system) and not cls.takes_elastic_models:
+                try:  # it must refuse, in one line, before any run
+                    made = create_integrator(name, scene.system)
+                except ConfigError as exc:
+                    refusal = str(exc)
             for k in stiffnesses:
                 set_stiffness(scene, k)
                 arrays0 = scene.arrays
@@ -167,6 +189,12 @@ def run_extremes(scenes: dict, integrators: list[str], stiffnesses, step_sizes, 
                     row = {"scene": label, "integrator": name, "stiffness": k, "dt": dt}
                     start = time.perf_counter()
                     if cls.requires_second_order and not scene.system.second_order:
+                        if progress is not None:
+                            progress.update(1)
+                        continue
+                    if refusal:
+                        row.update(status="refused", outcome="refused", reason=refusal, seconds=0.0)
+                        rows.append(row)
                         if progress is not None:
                             progress.update(1)
                         continue
@@ -194,7 +222,7 @@ def run_extremes(scenes: dict, integrators: list[str], stiffnesses, step_sizes, 
     return rows
 
 
-STUDY_VERSION = 1  # bump when a row's meaning changes: an older table is then refused
+STUDY_VERSION = 2  # bump when a row's meaning changes: an older table is then refused
 
 
 def study():
@@ -230,7 +258,7 @@ def outcome_table(rows: list[dict]) -> dict[str, dict[str, int]]:
     """integrator -> outcome -> count."""
     table: dict[str, dict[str, int]] = {}
     for row in rows:
-        counts = table.setdefault(row["integrator"], {"ok": 0, "reported": 0, "silent": 0, "error": 0,
-                                                      "timeout": 0})
+        counts = table.setdefault(row["integrator"], {"ok": 0, "reported": 0, "refused": 0, "silent": 0,
+                                                      "error": 0, "timeout": 0})
         counts[row["outcome"]] += 1
     return table

@@ -7,7 +7,7 @@ COLORS = {"euler": "#d62728", "trapezoid": "#ff7f0e", "midpoint": "#bcbd22", "rk
           "symplectic_euler": "#2ca02c", "rk45": "#9467bd", "rkf45": "#8c564b",
           "implicit_euler": "#e377c2", "implicit_euler_linearised": "#f7b6d2",
           "implicit_midpoint": "#17becf", "projective_dynamics": "#7f7f7f", "xpbd": "#000000"}
-OUTCOME_COLORS = {"ok": "#2ca02c", "reported": "#ffbf00", "silent": "#d62728", "error": "#000000",
+OUTCOME_COLORS = {"ok": "#2ca02c", "reported": "#ffbf00", "refused": "#1f77b4", "silent": "#d62728", "error": "#000000",
                   "timeout": "#7f7f7f"}
 DPI = 72
 

@@ -88,9 +88,9 @@ def plan_extremes(args):
 
 def print_extremes(rows: list[dict], table: dict) -> None:
     print("Runs at the extremes: ok (bounded, status ok), reported (status not ok, with a message), "
-          "silent (status ok, but the audit finds a blow-up), error (a crash), timeout (a stopped case):")
-    print(common.format_table(["integrator", "ok", "reported", "silent", "error", "timeout"],
-                              [[name, c["ok"], c["reported"], c["silent"], c["error"], c["timeout"]]
+          "refused (the method does not take the material, said before running), silent (status ok, but the audit finds a blow-up), error (a crash), timeout (a stopped case):")
+    print(common.format_table(["integrator", "ok", "reported", "refused", "silent", "error", "timeout"],
+                              [[name, c["ok"], c["reported"], c["refused"], c["silent"], c["error"], c["timeout"]]
                                for name, c in table.items()]))
     for row in rows:
         if row["outcome"] in ("silent", "error", "timeout"):

@@ -84,6 +84,51 @@ def grid_triangles(nx: int, ny: int) -> np.ndarray:
     return np.concatenate([first, second])
 
 
+def turned_grid(m: int) -> tuple[np.ndarray, np.ndarray]:
+    """The unit square meshed by the grid's triangles turned 45 degrees to its sides.
+
+    The vertices are the lattice points (i, j) / (2m), 0 <= i, j <= 2m, with i + j even: the
+    grid of :func:`grid_triangles` turned 45 degrees, its spacing 1 / (m sqrt 2), clipped to the
+    square. Each diamond (the cell around a point with i + j odd) is split along its diagonal
+    parallel to the square's first axis into two right isosceles triangles, the grid's shape;
+    a diamond cut by the square's side keeps its inner half, one such triangle. So every edge
+    of the grid's triangles runs at 45 degrees to the sides (the diagonals, along the sides),
+    and the sides hold m + 1 vertices each, corners included. For an n x n grid's spacing
+    take m = round((n - 1) / sqrt 2).
+
+    Args:
+        m: segments along each side, >= 1.
+
+    Returns:
+        uv: (k, 2) float64 vertex coordinates in [0, 1]^2, k = ((2m + 1)^2 + 1) / 2.
+        triangles: (4 m^2, 3) int64 vertex ids, counter-clockwise in (u, v).
+    """
+    if m < 1:
+        raise ValueError(f"turned_grid: m must be >= 1, got {m}")
+    side = 2 * m + 1
+    i, j = np.meshgrid(np.arange(side), np.arange(side), indexing="ij")
+    even = (i + j) % 2 == 0
+    ids = np.full((side, side), -1, np.int64)
+    ids[even] = np.arange(int(even.sum()))
+    uv = np.stack([i[even], j[even]], axis=1) / (2.0 * m)
+    ci, cj = i[~even], j[~even]  # diamond centres
+    triangles = []
+    for below in (True, False):  # the half under the diagonal (j - 1), then the half over it (j + 1)
+        tip = cj - 1 if below else cj + 1
+        inside = (tip >= 0) & (tip < side) & (ci > 0) & (ci < side - 1)
+        clip = np.clip(ci, 1, side - 2)
+        left, right, apex = ids[clip - 1, cj], ids[clip + 1, cj], ids[ci, np.clip(tip, 0, side - 1)]
+        order = [left, apex, right] if below else [left, right, apex]
+        triangles.append(np.stack(order, axis=1)[inside])
+    # diamonds on the sides u = 0 and u = 1 have no diagonal along u: their inner half is one
+    # triangle (the centre's neighbours along v and the one inward)
+    for edge, inward in ((0, 1), (side - 1, side - 2)):
+        on = (ci == edge)
+        low, high, apex = ids[edge, cj[on] - 1], ids[edge, cj[on] + 1], ids[inward, cj[on]]
+        triangles.append(np.stack([low, apex, high] if edge == 0 else [low, high, apex], axis=1))
+    return uv, np.concatenate(triangles).astype(np.int64)
+
+
 def grid_particle_area(p: dict[str, Any]) -> float:
     """Each particle's share (m^2) of the grid cloth of parameters ``p``: size^2 / (nx ny)."""
     return p["size"] ** 2 / (p["nx"] * p["ny"])

@@ -75,6 +75,23 @@ def mesh_springs(triangles, *, bending: bool = True) -> tuple[np.ndarray, np.nda
     return ends, kind
 
 
+def square_sheet(n: int, *, turned: bool = False, size: float = 1.0, height: float = 1.0) -> ClothMesh:
+    """A square sheet of side ``size`` (m) hanging in the x-y plane from its top edge at
+    ``height`` (m), as the vertical grid cloth does: the n x n grid's triangles
+    (:func:`~taichi_sim.scene.cloth.grid_triangles`), or (``turned``) the same triangles turned
+    45 degrees to the sides at about the same spacing
+    (:func:`~taichi_sim.scene.cloth.turned_grid` with m = round((n - 1) / sqrt 2)). Write it
+    with :func:`~taichi_sim.scene.garment.write_obj` for the ``mesh`` scene; ``pin=top:1e-3``
+    then holds its top edge."""
+    if turned:
+        uv, triangles = topo.turned_grid(max(1, round((n - 1) / np.sqrt(2.0))))
+    else:
+        uv = topo.grid_positions(n, n, 1.0, 1.0, origin=(0, 0, 0), u_axis=(1, 0, 0), v_axis=(0, 1, 0))[:, :2]
+        triangles = topo.grid_triangles(n, n)
+    x = np.stack([size * (uv[:, 0] - 0.5), height - size * (1.0 - uv[:, 1]), np.zeros(len(uv))], axis=1)
+    return ClothMesh(x, triangles, {}, f"{'turned ' if turned else ''}square sheet {n}")
+
+
 def select_pins(spec: str, mesh: ClothMesh) -> np.ndarray:
     """(n,) bool: the vertices the ``pin`` spec holds (see :data:`PIN_HELP`). ConfigError for a
     spec that does not parse, or that selects no vertex or every vertex."""

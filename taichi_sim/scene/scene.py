@@ -174,6 +174,9 @@ class Scene:
         may change during a run (springs, live springs, constraints, each part's keys: collider
         centres, emitter ages, ...)."""
         out = dict(self.static_arrays)
+        membrane = self.system.term("membrane") if hasattr(self.system, "term") else None
+        if membrane is not None:  # its moduli may be set in place (Membrane.set_material)
+            out.update(membrane.arrays())
         if self.springs is not None:
             out.update(self.springs.arrays())
         if self.constraints is not None:

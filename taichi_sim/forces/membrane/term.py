@@ -94,9 +94,23 @@ class Membrane(MembraneJacobians, ForceTerm):
         return not self.damped
 
     def arrays(self) -> dict:
-        """The membrane's data for the run's npz."""
+        """The membrane's data for the run's npz: its triangles (T, 3), their rest areas (T,)
+        (m^2) and rest frames Dm^-1 (T, 2, 2) (1/m), the model's name and (mu, lambda (N/m),
+        the damping time (s)); enough to recompute its energy
+        (:func:`taichi_sim.reference.membrane_energy`)."""
         return {"membrane_triangles": self.triangles_np.astype(np.int64), "membrane_rest_area": self.area_np,
+                "membrane_rest_inverse": self.inverse_np, "membrane_model": np.array(self.model),
                 "membrane_moduli": np.array([self.material.mu, self.material.lam, self.material.damping])}
+
+    def set_material(self, material: MembraneMaterial) -> None:
+        """Take ``material``'s moduli and damping time in place (fields: nothing recompiles).
+        ValueError for another model, or for switching damping on or off (both are compiled
+        into the kernels)."""
+        if material.model != self.model or (material.damping > 0) != self.damped:
+            raise ValueError(f"set_material: a {self.model} membrane {'with' if self.damped else 'without'} damping "
+                             f"cannot take {material}")
+        self.material = material
+        self.moduli[None] = [material.mu, material.lam, material.damping]
 
     def anchored_fields(self) -> tuple:
         return (self.offsets, self.incident, self.slot, self.triangle_force)
