@@ -293,16 +293,18 @@ def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: 
                      error_estimate=np.asarray(monitor.distances, float),
                      worst_error_estimate=monitor.worst_distance, tolerance=monitor.tolerance,
                      residual_note=monitor.reason, worst_residual=monitor.worst, max_residual=monitor.bound,
-                     warnings=tuple(stepper.warnings) + _integrator_warnings(stepper.integrator),
+                     warnings=tuple(stepper.warnings) + integrator_warnings(stepper.integrator, monitor),
                      warm_time=math.nan if warm is None or stepper.steps < 2 else end - warm,
                      estimate_time=monitor.seconds,
                      estimate_warm_time=0.0 if warm is None else monitor.seconds - estimated)
 
 
-def _integrator_warnings(integrator) -> tuple[str, ...]:
+def integrator_warnings(integrator, monitor) -> tuple[str, ...]:
     """The integrator's :meth:`~taichi_sim.integrators.Integrator.run_warning`, if it says
-    anything (an object stepping like an integrator without deriving from one has none)."""
-    said = getattr(integrator, "run_warning", lambda: "")()
+    anything (an object stepping like an integrator without deriving from one has none); told
+    whether the error estimate judged the run's steps."""
+    warn = getattr(integrator, "run_warning", None)
+    said = warn(accuracy_judged=monitor.active and bool(monitor.distances)) if warn is not None else ""
     return (said,) if said else ()
 
 

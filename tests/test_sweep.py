@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from taichi_sim.bench.extremes import STUDY_VERSION as EXTREMES_VERSION
 from taichi_sim.bench.precision import compare
 from taichi_sim.bench.sweep.table import MACHINE_COLUMNS
 from taichi_sim.cli import main
@@ -117,7 +118,7 @@ def test_bad_input_exits_2_and_overwrites_nothing(tmp_path, capsys):
     for name, text, said in [
         ("extremes.csv", "integrator,outcome\nrk4,ok\n", "not written by the sweep engine"),
         ("extremes.csv", header + "extremes,99,spring-rk4-0,spring,rk4,ok\n", "version 99"),
-        ("extremes.csv", header + "extremes,1,spring-rk4-0,spring,rk4,ok\n", "does not plan"),
+        ("extremes.csv", header + f"extremes,{EXTREMES_VERSION},spring-rk4-0,spring,rk4,ok\n", "does not plan"),
         ("precision.csv", header + "extremes,1,spring-rk4-0,spring,rk4,ok\n", "'extremes' table"),
     ]:
         (tmp_path / name).write_text(text)

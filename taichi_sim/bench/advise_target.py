@@ -190,6 +190,7 @@ def run_to(scene, integrator, h: float, t_end: float, give_up: float = math.inf)
     """Step ``integrator`` at ``h`` from the scene as built (torn springs mended) to ``t_end``
     through a :class:`~taichi_sim.stepper.Stepper` (the run's guard and order of events),
     giving up once the steps after the first have taken ``give_up`` s."""
+    from ..run import integrator_warnings
     from ..stepper import Stepper
 
     scene.restore()
@@ -216,7 +217,7 @@ def run_to(scene, integrator, h: float, t_end: float, give_up: float = math.inf)
     taken = stepper.steps - steps0
     per_step = (time.perf_counter() - first) / taken if taken else math.nan
     x, _ = scene.state.to_numpy()
-    warnings = tuple(stepper.warnings) + tuple(w for w in [getattr(integrator, "run_warning", lambda: "")()] if w)
+    warnings = tuple(stepper.warnings) + integrator_warnings(integrator, stepper.monitor)
     return Pilot(np.asarray(x, float), per_step=per_step, warnings=warnings)
 
 

@@ -204,10 +204,12 @@ class Integrator(ABC):
         """Forget anything carried between steps (call after the system itself changed: a
         spring torn, a parameter moved). Stateless methods do nothing."""
 
-    def run_warning(self) -> str:
+    def run_warning(self, accuracy_judged: bool = False) -> str:
         """What may be wrong with the steps taken since the method was bound that no step's
         status says ('' when nothing; e.g. ``vbd``'s contact pairs dropped for lack of room):
-        a run ends with it among its warnings."""
+        a run ends with it among its warnings. ``accuracy_judged``: the run's error estimate
+        judged its steps, so a warning about how close they came to their solution alone is
+        left to it."""
         return ""
 
     @abstractmethod
