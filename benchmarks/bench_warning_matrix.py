@@ -8,7 +8,8 @@ A false alarm: the run warned, and no sampled step was truly farther than the to
 The estimate is held to a factor of 3 of the truth, so the table also counts the clear cases:
 a clear miss is truly farther than three times the tolerance, unwarned; a clear false alarm
 warned with every sampled step truly within a third of it. A run whose steps' truth could not
-be computed (the reference Newton did not converge) is "unknown".
+be computed (the reference Newton did not converge) is "unknown"; one that stopped with a
+status (diverged) said so and is right.
 
     .venv/bin/python benchmarks/bench_warning_matrix.py [--sizes 16 32] [--steps 30]
 """
@@ -79,7 +80,9 @@ def main():
             warned = bool(stepper.warnings)
             worst_true = max(truth.truths, default=float("nan"))
             off = worst_true > tol
-            if not truth.truths:
+            if status != "ok":
+                verdict = "right"  # stopped with its status (diverged): not a silent answer
+            elif not truth.truths:
                 verdict = "unknown"
             elif off and not warned and status == "ok":
                 verdict = "clear miss" if worst_true > 3 * tol else "miss"
