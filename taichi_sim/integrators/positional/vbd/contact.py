@@ -178,6 +178,32 @@ class SolveContact(ObjectFaces):
                     self._near(ti.Vector([v, tri[0], tri[1], tri[2]]), 0, d)
         for e1 in range(self.edge_count):
             self._edge_query(e1, x)
+        # The loops above fill the lists in whatever order their threads ran; each vertex's list
+        # is put in the pairs' own order, so that its terms are summed in the same order in every
+        # run (identical runs give identical results).
+        for i in range(n):
+            self._sort_pairs(i)
+
+    @ti.func
+    def _sort_pairs(self, i):
+        """Insertion sort of vertex i's kept pairs by (kind, the four vertex ids)."""
+        count = ti.min(self.vertex_pair_count[i], self.per_vertex)
+        for a in range(1, count):
+            slot = self.vertex_pairs[i, a]
+            b = a
+            while b > 0 and self._pair_before(slot, self.vertex_pairs[i, b - 1]):
+                self.vertex_pairs[i, b] = self.vertex_pairs[i, b - 1]
+                b -= 1
+            self.vertex_pairs[i, b] = slot
+
+    @ti.func
+    def _pair_before(self, p, q) -> bool:
+        """Whether pair slot p comes before pair slot q in (kind, ids) order."""
+        before, decided = self.pair_kind[p] < self.pair_kind[q], self.pair_kind[p] != self.pair_kind[q]
+        for k in ti.static(range(4)):
+            if not decided and self.pair_ids[p][k] != self.pair_ids[q][k]:
+                before, decided = self.pair_ids[p][k] < self.pair_ids[q][k], True
+        return before
 
     @ti.func
     def _edge_query(self, e1, x):
@@ -401,6 +427,7 @@ class SolveContact(ObjectFaces):
         if ti.static(self.self_contact):
             if ti.static(self.all_free):
                 total = ti.Vector.zero(delta.dtype, 3)
+                ti.loop_config(serialize=True)  # a sum in one order: identical runs agree to the bit
                 for i in range(self.system.particle_count):
                     total += delta[i]
                 self.shift[None] = total / self.system.particle_count

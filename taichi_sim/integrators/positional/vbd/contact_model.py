@@ -65,6 +65,10 @@ def solve_forces(contact, system, state, delta: np.ndarray, dt: float, t: float)
         w = np.zeros((count, 4), np.float64)
         gap = np.zeros((count, 3), np.float64)
         _pairs(contact, state.x, count, ids, w, gap)
+        # in the pairs' own order, not the detection's threads' (np.add.at sums in array order)
+        kinds = contact.pair_kind.to_numpy()[:count]
+        order = np.lexsort((ids[:, 3], ids[:, 2], ids[:, 1], ids[:, 0], kinds))
+        ids, w, gap = ids[order], w[order], gap[order]
         _add_pairs(force, rows, cols, vals, ids.astype(np.int64), w, gap, delta, contact, dt)
     stiffness = (sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
                                shape=(3 * n, 3 * n)) if vals else sp.csr_matrix((3 * n, 3 * n)))
