@@ -9,7 +9,7 @@ import numpy as np
 import scipy.sparse as sp
 import taichi as ti
 
-from ..integrators.equation import SolveForces
+from ..integrators.equation import SolveForces, element_stiffness
 
 MODELLED_TERMS = ("membrane", "bending")
 
@@ -37,7 +37,7 @@ def term_forces(system, terms, y, tau: float, t: float) -> SolveForces:
     their stiffness -(df/dx + df/dv / tau) (N/m), for a stage of ``tau`` s ending at ``t`` s."""
     n = system.particle_count
     force = np.zeros((n, 3))
-    rows, cols, vals = [], [], []
+    stiffness = sp.csr_matrix((3 * n, 3 * n))
     for term in terms:
         f = np.zeros((n, 3), np.float64)
         _forces(term, y, system.mass, t, f)
@@ -45,21 +45,13 @@ def term_forces(system, terms, y, tau: float, t: float) -> SolveForces:
         if term.name == "membrane":
             _membrane_blocks(term, y, 1.0 / tau, 1.0)
             blocks = -term.triangle_block.to_numpy().astype(np.float64)  # (T, 3, 3, 3, 3)
-            corners = term.triangles_np.astype(np.int64)
+            corners = term.triangles_np
         else:
             w = term.weights_np.astype(np.float64)
             blocks = (term.stiffness_value * w[:, :, None, None, None] * w[:, None, :, None, None]
                       * np.eye(3)[None, None, None])
-            corners = term.vertices_np.astype(np.int64)
-        k = corners.shape[1]
-        r3 = (3 * corners[:, :, None, None, None] + np.arange(3)[None, None, None, :, None])
-        c3 = (3 * corners[:, None, :, None, None] + np.arange(3)[None, None, None, None, :])
-        shape = (len(corners), k, k, 3, 3)
-        rows.append(np.broadcast_to(r3, shape).ravel())
-        cols.append(np.broadcast_to(c3, shape).ravel())
-        vals.append(blocks.ravel())
-    stiffness = (sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                               shape=(3 * n, 3 * n)) if vals else sp.csr_matrix((3 * n, 3 * n)))
+            corners = term.vertices_np
+        stiffness = stiffness + element_stiffness(corners, blocks, n)
     return SolveForces(force, stiffness)
 
 

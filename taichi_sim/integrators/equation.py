@@ -51,3 +51,20 @@ class SolveForces:
     def at(self, x, x1):
         """The linearised forces at positions ``x`` ((n, 3), m)."""
         return self.force - (self.stiffness @ (x - x1).ravel()).reshape(-1, 3)
+
+
+def element_stiffness(corners, blocks, n: int):
+    """Per-element 3x3 blocks summed into a (3 n, 3 n) scipy.sparse matrix, particle by
+    particle (x, y, z): element e couples the particles ``corners[e]`` ((E, k) ids) by
+    ``blocks[e]`` ((E, k, k, 3, 3), block (a, b) between its corners a and b)."""
+    import numpy as np
+    import scipy.sparse as sp
+
+    corners = np.asarray(corners, np.int64)
+    shape = corners.shape + corners.shape[1:] + (3, 3)
+    rows = 3 * corners[:, :, None, None, None] + np.arange(3)[None, None, None, :, None]
+    cols = 3 * corners[:, None, :, None, None] + np.arange(3)[None, None, None, None, :]
+    return sp.csr_matrix((np.broadcast_to(blocks, shape).ravel(),
+                          (np.broadcast_to(rows, shape).ravel(), np.broadcast_to(cols, shape).ravel())),
+                         shape=(3 * n, 3 * n))
+

@@ -12,7 +12,7 @@ import numpy as np
 import scipy.sparse as sp
 import taichi as ti
 
-from ...equation import SolveForces
+from ...equation import SolveForces, element_stiffness
 
 
 @ti.kernel
@@ -48,17 +48,13 @@ def solve_forces(contact, system, state, delta: np.ndarray, dt: float, t: float)
     piece's start (m), which friction's slip is measured from."""
     n = system.particle_count
     force = np.zeros((n, 3))
-    rows, cols, vals = [], [], []
+    stiffness = sp.csr_matrix((3 * n, 3 * n))
     if contact.has_objects:
         f = np.zeros((n, 3), np.float64)
         H = np.zeros((n, 3, 3), np.float64)
         _object_terms(contact, state.x, system.mass, system.free, dt, t, f, H)
         force += f
-        r3 = 3 * np.arange(n)[:, None, None] + np.arange(3)[None, :, None]
-        c3 = 3 * np.arange(n)[:, None, None] + np.arange(3)[None, None, :]
-        rows.append(np.broadcast_to(r3, H.shape).ravel())
-        cols.append(np.broadcast_to(c3, H.shape).ravel())
-        vals.append(H.ravel())
+        stiffness = stiffness + element_stiffness(np.arange(n)[:, None], H[:, None, None], n)
     count = contact.pair_total()
     if count:
         ids = np.zeros((count, 4), np.int32)
@@ -68,21 +64,23 @@ def solve_forces(contact, system, state, delta: np.ndarray, dt: float, t: float)
         # in the pairs' own order, not the detection's threads' (np.add.at sums in array order)
         kinds = contact.pair_kind.to_numpy()[:count]
         order = np.lexsort((ids[:, 3], ids[:, 2], ids[:, 1], ids[:, 0], kinds))
-        ids, w, gap = ids[order], w[order], gap[order]
-        _add_pairs(force, rows, cols, vals, ids.astype(np.int64), w, gap, delta, contact, dt)
-    stiffness = (sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                               shape=(3 * n, 3 * n)) if vals else sp.csr_matrix((3 * n, 3 * n)))
+        pair_force, pair_stiffness = _pairs_terms(ids[order].astype(np.int64), w[order], gap[order], delta,
+                                                  contact, dt, n)
+        force += pair_force
+        stiffness = stiffness + pair_stiffness
     return SolveForces(force, stiffness)
 
 
-def _add_pairs(force, rows, cols, vals, ids, w, gap, delta, contact, dt) -> None:
-    """The self-contact pairs' penalty 1/2 k (r - d)^2 and friction, as the solve's ``_push``
-    takes them for each vertex, with the couplings between a pair's vertices."""
+def _pairs_terms(ids, w, gap, delta, contact, dt, n):
+    """(forces (n, 3), stiffness): the self-contact pairs' penalty 1/2 k (r - d)^2 and friction,
+    as the solve's ``_push`` takes them for each vertex, with the couplings between a pair's
+    vertices."""
+    force = np.zeros((n, 3))
     d = np.linalg.norm(gap, axis=1)
     keep = (d < contact.radius) & (d > 0)
     ids, w, gap, d = ids[keep], w[keep], gap[keep], d[keep]
     if not len(d):
-        return
+        return force, sp.csr_matrix((3 * n, 3 * n))
     penalty_dt = float(contact.penalty_dt[None])
     k = contact.stiffness * contact.mean_mass / penalty_dt**2
     normal = gap / d[:, None]
@@ -102,10 +100,5 @@ def _add_pairs(force, rows, cols, vals, ids, w, gap, delta, contact, dt) -> None
         pair_block = pair_block + scale[:, None, None] * (np.eye(3) - nn)
     for j in range(4):
         np.add.at(force, ids[:, j], w[:, j, None] * pair_force)
-        for m in range(4):
-            block = (w[:, j] * w[:, m])[:, None, None] * pair_block
-            r3 = (3 * ids[:, j])[:, None, None] + np.arange(3)[None, :, None]
-            c3 = (3 * ids[:, m])[:, None, None] + np.arange(3)[None, None, :]
-            rows.append(np.broadcast_to(r3, block.shape).ravel())
-            cols.append(np.broadcast_to(c3, block.shape).ravel())
-            vals.append(block.ravel())
+    blocks = (w[:, :, None] * w[:, None, :])[:, :, :, None, None] * pair_block[:, None, None]
+    return force, element_stiffness(ids, blocks, n)
