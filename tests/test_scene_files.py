@@ -12,7 +12,7 @@ from pxr import Usd
 
 from taichi_sim.app.session import Session
 from taichi_sim.cli import _session_args, main
-from taichi_sim.cli_parser import build_parser
+from taichi_sim.cli.parser import build_parser
 from taichi_sim.errors import ConfigError
 from taichi_sim.export import FORMATS
 from taichi_sim.scene import SCENES, Param, scene_preset

@@ -46,8 +46,16 @@ from ...systems.base import System
 from ..base import Integrator, Status, StepReport, elastic_models
 from .common import (
     LINEAR_SOLVERS,
+    CgMaxIterations,
+    CgTolerance,
+    LinearSolver,
     LinearSolverStats,
+    MaxSubdivisions,
+    NewtonIterations,
+    NewtonTolerance,
+    Preconditioner,
     StepWork,
+    WarmStart,
     default_cg_tolerance,
     default_newton_tolerance,
     forcing_tolerance,
@@ -161,10 +169,11 @@ class ImplicitStageMethod(Integrator):
     an iterated method steps, so that a run loop can show what a long step is doing (the
     command line's progress bar shows it as its postfix); None: nothing is reported."""
 
-    def __init__(self, system: System, *, linear_solver: str = "cg", newton_iterations: int | None = None,
-                 newton_tolerance: float | None = None, cg_tolerance: float | None = None,
-                 cg_max_iterations: int = 1000, preconditioner: str | None = None,
-                 warm_start: bool = True, max_subdivisions: int | None = None):
+    def __init__(self, system: System, *, linear_solver: LinearSolver = "cg",
+                 newton_iterations: NewtonIterations = None, newton_tolerance: NewtonTolerance = None,
+                 cg_tolerance: CgTolerance = None, cg_max_iterations: CgMaxIterations = 1000,
+                 preconditioner: Preconditioner = None, warm_start: WarmStart = True,
+                 max_subdivisions: MaxSubdivisions = None):
         super().__init__(system)
         # A membrane's Hessian, its projection and its stress make the solver's kernels large,
         # and Taichi's control-flow-graph pass grows faster than a kernel: it was most of their
