@@ -79,13 +79,14 @@ tab20b's darker tones)."""
 
 
 def colour_of(name: str) -> str:
-    """The plot colour of integrator ``name``: its class's ``plot_colour``, else one of
-    :data:`PALETTE` picked by the name (the same every run); a name that is no integrator (a
-    peer, a label) gets a palette colour too."""
+    """The plot colour of integrator ``name``: the ``plot_colour`` its class declares itself
+    (a subclass does not inherit its parent's line colour), else one of :data:`PALETTE` picked
+    by the name (the same every run); a name that is no integrator (a peer, a label) gets a
+    palette colour too."""
     import zlib
 
     try:
-        declared = integrator_class(name).plot_colour
+        declared = vars(integrator_class(name)).get("plot_colour", "")
     except ConfigError:
         declared = ""
     return declared or PALETTE[zlib.crc32(name.encode()) % len(PALETTE)]

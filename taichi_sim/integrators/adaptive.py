@@ -376,6 +376,7 @@ class DormandPrince45(EmbeddedRK):
     """Dormand-Prince 5(4): 7 stages, FSAL (6 evaluations of f per step after the first)."""
 
     name = "rk45"
+    plot_colour = "#9467bd"  # in the benchmarks' plots
     tableau = DORMAND_PRINCE
     description = "adaptive Dormand-Prince 5(4), FSAL"
 
@@ -384,5 +385,6 @@ class Fehlberg45(EmbeddedRK):
     """Runge-Kutta-Fehlberg 4(5): 6 stages, propagates the fourth-order solution."""
 
     name = "rkf45"
+    plot_colour = "#8c564b"  # in the benchmarks' plots
     tableau = FEHLBERG
     description = "adaptive Runge-Kutta-Fehlberg 4(5)"

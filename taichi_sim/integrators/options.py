@@ -89,15 +89,16 @@ class OptionSpec:
     def unit(self) -> str:
         return self.declared.unit if self.declared is not None else ""
 
-    def default_label(self) -> str:
-        """The default as help and ``list`` print it ("20", "0.001 m", "automatic")."""
+    def default_label(self, unit: bool = True) -> str:
+        """The default as help and ``list`` print it ("20", "0.001 m", "automatic"); ``unit``:
+        with its unit."""
         if self.declared is not None and self.declared.default_text:
             return self.declared.default_text
         if self.default is None:
             return "automatic"
         text = str(self.default).lower() if isinstance(self.default, bool) else f"{self.default:g}" \
             if isinstance(self.default, float) else str(self.default)
-        return f"{text} {self.unit}" if self.unit and not isinstance(self.default, (bool, str)) else text
+        return f"{text} {self.unit}" if unit and self.unit and not isinstance(self.default, (bool, str)) else text
 
     def requirement(self) -> str:
         """What a value must be, for messages: "an integer >= 1", "a number in (0, 1)"."""
@@ -259,7 +260,7 @@ def flag_help(entries: list[tuple[type, OptionSpec]]) -> str:
     texts: dict[tuple, dict[str, list[str]]] = {}
     for cls, spec in entries:
         defaults = texts.setdefault((spec.help or "an option", spec.unit), {})
-        defaults.setdefault(spec.default_label(), []).append(cls.name)
+        defaults.setdefault(spec.default_label(unit=False), []).append(cls.name)
     parts = []
     for (text, unit), defaults in texts.items():
         said = "; ".join(f"{', '.join(names)}: default {default}" for default, names in defaults.items())

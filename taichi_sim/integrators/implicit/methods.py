@@ -34,6 +34,7 @@ class ImplicitEuler(ImplicitStageMethod):
     """
 
     name = "implicit_euler"
+    plot_colour = "#e377c2"  # in the benchmarks' plots
     order = 1
     description = "backward Euler, exact: Newton on the incremental potential with a line search"
     stage_fraction = 1.0
@@ -61,6 +62,7 @@ class ImplicitEulerLinearised(ImplicitStageMethod):
     """
 
     name = "implicit_euler_linearised"
+    plot_colour = "#f7b6d2"  # in the benchmarks' plots
     order = 1
     description = "one linearised backward Euler step (Baraff-Witkin); can gain energy on stiff springs"
     stage_fraction = 1.0
@@ -93,6 +95,7 @@ class ImplicitMidpoint(ImplicitStageMethod):
     """
 
     name = "implicit_midpoint"
+    plot_colour = "#17becf"  # in the benchmarks' plots
     order = 2
     description = "implicit midpoint rule (Newton iterations; conserves quadratic invariants)"
     stage_fraction = 0.5

@@ -75,6 +75,7 @@ class ProjectiveDynamics(Integrator):
     """
 
     name = "projective_dynamics"
+    plot_colour = "#7f7f7f"  # in the benchmarks' plots
     takes_elastic_models = False  # its solve holds springs only (Integrator.takes_elastic_models)
     order = 1
     requires_second_order = True

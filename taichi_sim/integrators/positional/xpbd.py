@@ -67,6 +67,7 @@ class XPBD(Integrator):
     """
 
     name = "xpbd"
+    plot_colour = "#000000"  # in the benchmarks' plots
     takes_elastic_models = False  # its solve holds springs only (Integrator.takes_elastic_models)
     order = 1
     requires_second_order = True

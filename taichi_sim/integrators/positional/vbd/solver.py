@@ -117,6 +117,7 @@ class VBD(Integrator):
     """
 
     name = "vbd"
+    plot_colour = "#393b79"  # in the benchmarks' plots
     takes_elastic_models = False  # its solve holds springs only (Integrator.takes_elastic_models)
     order = 1
     requires_second_order = True
