@@ -210,11 +210,12 @@ def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: 
         stepper.add_observer(history)
     start = time.perf_counter()
     bar = ProgressBar(expected, t_end, progress)
-    stepper.add_observer(bar)
+    if not bar.hidden:
+        stepper.add_observer(bar)
     clock = WarmClock(stepper.monitor)
     stepper.add_observer(clock)
     if hasattr(integrator, "progress"):  # an iterated implicit method: Newton's work within long steps
-        integrator.progress = bar.bar.set_postfix_str if not bar.bar.disable else None
+        integrator.progress = bar.bar.set_postfix_str if not bar.hidden else None
     try:
         # the last step is checked too: the method's own result is measured before the
         # post-step events move it, so the end's check must happen inside the step

@@ -109,7 +109,8 @@ class FrameHistory:
 
 class ProgressBar:
     """A tqdm bar on stderr over the steps, or over simulated time (s) for a run to an end time
-    with no step count; ``shown``: None only when stderr is a terminal."""
+    with no step count; ``shown``: None only when stderr is a terminal. A hidden bar
+    (``hidden``) needs no observing."""
 
     def __init__(self, steps: int | None, t_end: float | None, shown: bool | None):
         from tqdm import tqdm
@@ -122,6 +123,7 @@ class ProgressBar:
         else:
             self.bar = tqdm(total=steps, unit="step", disable=disable, leave=False, mininterval=0.5)
         self.update = self.bar.update  # bound once: read at every step
+        self.hidden = bool(self.bar.disable)
 
     def after_step(self, stepper, report) -> None:
         self.update(report.h if self.by_time else 1)
@@ -132,7 +134,7 @@ class ProgressBar:
 
 class WarmClock:
     """When the first accepted step ended, and the error estimate's seconds until then: the
-    rate after it leaves the first step's compiling out."""
+    rate after it leaves the first step's compiling out. It watches that one step only."""
 
     def __init__(self, monitor):
         self.monitor = monitor
@@ -140,5 +142,5 @@ class WarmClock:
         self.estimated = 0.0
 
     def after_step(self, stepper, report) -> None:
-        if self.warm is None:
-            self.warm, self.estimated = time.perf_counter(), self.monitor.seconds
+        self.warm, self.estimated = time.perf_counter(), self.monitor.seconds
+        stepper.remove_observer(self)

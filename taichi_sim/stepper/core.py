@@ -73,7 +73,7 @@ class Stepper:
         # bound once: each attribute lookup is paid at every step
         self._events, self._spend = scene.after_step, self.guard.spend
         self.driver = None
-        self._before, self._after, self._on_check = [], [], []
+        self._before, self._after, self._on_check = (), (), ()  # tuples: a hook may remove itself
         self._monitors: dict[int, tuple] = {}  # id(integrator) -> (integrator, its monitor)
         for observer in observers:
             self.add_observer(observer)
@@ -84,12 +84,20 @@ class Stepper:
 
     # -- configuration ------------------------------------------------------------------------
 
+    _HOOKS = (("before_step", "_before"), ("after_step", "_after"), ("after_check", "_on_check"))
+
     def add_observer(self, observer) -> None:
         """Call ``observer``'s hooks (see the class docstring) from now on."""
-        for hook, calls in (("before_step", self._before), ("after_step", self._after),
-                            ("after_check", self._on_check)):
+        for hook, calls in self._HOOKS:
             if hasattr(observer, hook):
-                calls.append(getattr(observer, hook))
+                setattr(self, calls, (*getattr(self, calls), getattr(observer, hook)))
+
+    def remove_observer(self, observer) -> None:
+        """Stop calling ``observer``'s hooks (also from inside one of them: the hooks of the
+        step under way are still called)."""
+        for hook, calls in self._HOOKS:
+            if hasattr(observer, hook):
+                setattr(self, calls, tuple(h for h in getattr(self, calls) if h != getattr(observer, hook)))
 
     def set_integrator(self, integrator: Integrator) -> None:
         """Step with ``integrator`` (bound to the scene's system) from the current state on."""
