@@ -54,11 +54,18 @@ def cmd_list(args) -> int:
 
 
 def _print_integrator(name: str, cls) -> None:
-    print(f"  {name:<18} order {cls.order}  {cls.description}")
-    if cls.options():
-        shown = ", ".join(f"{k}={'(automatic)' if v is None else v}" for k, v in cls.options().items())
-        print(f"  {'':<18} options: {shown}")
+    """The method's line, then one line per option: its default, what it sets and its flag
+    (all from the class's declarations, :func:`~taichi_sim.integrators.option_specs`)."""
+    from ..integrators import option_specs
 
+    print(f"  {name:<18} order {cls.order}  {cls.description}")
+    for spec in option_specs(cls).values():
+        explained = spec.declared is not None and spec.declared.default_text
+        value = "auto" if spec.default is None else spec.default_label(unit=False) if not explained else \
+            f"{spec.default:g}" if isinstance(spec.default, float) else str(spec.default)
+        said = (spec.help + (f", in {spec.unit}" if spec.unit else "") + (f" ({spec.flag})" if spec.flag else "")
+                + (f"; default {spec.declared.default_text}" if explained else ""))
+        print(f"  {'':<18}   {f'{spec.name}={value}':<26} {said}".rstrip())
 
 
 def cmd_bench(args) -> int:
