@@ -39,9 +39,11 @@ Checklist for a method of your own (what this file does, and what the tools read
 3. Declare its capabilities: ``requires_second_order`` (it reads velocities),
    ``takes_constraints`` (True only if it evaluates forces through ``eval_f`` alone),
    ``adaptive`` (then also ``initial_step``), ``implicit``.
-4. Options are keyword-only arguments of ``__init__`` with defaults; they reach it from
-   ``--option NAME=VALUE`` (typed by the default). Check them and raise
-   ``taichi_sim.errors.ConfigError`` naming the option for a bad value.
+4. Options are keyword-only arguments of ``__init__`` with defaults, each declared once there:
+   ``damping: Annotated[float, Option("extra damping", unit="1/s", flag=True, at_least=0)] = 0.0``
+   (``taichi_sim.integrators.Option``) gives it help, a ``simulate --damping`` flag and its
+   checks; it also reaches ``__init__`` from ``--option NAME=VALUE`` (docs/plugins.md). This
+   method has none.
 5. Allocate all scratch in ``__init__`` (``system.make_state()``); ``step`` allocates nothing.
 6. ``step(state, t, h)`` advances the caller's ``state`` in place and returns a
    :class:`~taichi_sim.integrators.StepReport` (accepted, h, next_h, f_evals, status). A step

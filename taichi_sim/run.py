@@ -6,12 +6,11 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-from tqdm import tqdm
 
-from . import interrupt
 from .errors import ConfigError
 from .guard import GuardLimits
 from .integrators import Integrator, Status
+from .run_observers import SAMPLES, EnergyTrace, FrameHistory, ProgressBar, WarmClock, default_energy_every
 from .scene.scene import Scene
 from .stepper import Stepper, bind_integrator, check_dt
 
@@ -115,14 +114,6 @@ def planned_steps(dt: float, t_end: float) -> int:
     return max(1, math.ceil(t_end / dt - 1e-9))
 
 
-SAMPLES = 2000  # energy samples of a long run
-
-
-def default_energy_every(step_count: int) -> int:
-    """The fewest steps between default energy samples: at most about 2000 samples a run."""
-    return 1 if step_count <= SAMPLES else math.ceil(step_count / SAMPLES)
-
-
 def check_run_args(dt: float | None, steps: int | None, t_end: float | None, *,
                    adaptive: bool = False) -> None:
     """Raise ConfigError for a step size, step count or end time that cannot be run (``dt`` is
@@ -179,8 +170,9 @@ def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: 
             (:class:`~taichi_sim.stepper.Stepper`).
         raise_work: False keeps the method's work as set (a benchmark of its settings).
 
-    The steps are a :class:`~taichi_sim.stepper.Stepper`'s; this function adds the energy
-    trace, the saved frames and the progress bar. With ``t_end`` the last step is shortened to
+    The steps are a :class:`~taichi_sim.stepper.Stepper`'s, taken by its one loop
+    (:meth:`~taichi_sim.stepper.Stepper.run_until`); this function adds the energy trace, the
+    saved frames and the progress bar as its observers (:mod:`taichi_sim.run_observers`). With ``t_end`` the last step is shortened to
     land exactly on it. The run stops at the first step whose status is not OK, or when the
     blow-up guard finds the state past a bound (status DIVERGED; the guard checks every
     ``guard.check_work`` f-evaluations and at the end). A DIVERGED run leaves in the scene the
@@ -195,100 +187,64 @@ def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: 
     if save_every is not None and (isinstance(save_every, bool) or not isinstance(save_every, int)
                                    or save_every < 0):
         raise ConfigError(f"save_every must be an integer >= 0, got {save_every!r}")
-    history = _History(scene) if save_every else None
     stepper = Stepper(scene, integrator, dt, limits=guard, curves=curves, max_residual=max_residual,
                       tolerance=tolerance, raise_work=raise_work)
     if stepper.refusal:
         raise ConfigError(stepper.refusal)
-    watch = stepper.guard
     expected = steps if adaptive else (steps if steps is not None else planned_steps(dt, t_end))
     every = (default_energy_every(expected or 1000) if energy_every is None else int(energy_every))
-    has_energy = every > 0 and watch.energy0 is not None
-    # An adaptive run to t_end has no step count to spread samples over: every t_end / 2000 s.
-    sample_interval = t_end / SAMPLES if energy_every is None and expected is None else None
-    next_sample = sample_interval
-    last_sample = 0
-
-    energy, energy_t = [], []
-    violation = [] if scene.constraints is not None else None
-
-    def sample(t: float) -> None:
-        energy.append(watch.health.energy)
-        energy_t.append(t)
-        if violation is not None:
-            violation.append(scene.constraint_violation())
-
-    if has_energy:
-        sample(0.0)
-    if history is not None:
-        history.keep(0.0)
-    start = time.perf_counter()
-    by_time = t_end is not None and expected is None
-    if by_time:
-        bar = tqdm(total=t_end, unit="s", disable=None if progress is None else not progress,
-                   leave=False, mininterval=0.5, bar_format="{l_bar}{bar}| {n:.3g}/{total:.3g} s")
-    else:
-        bar = tqdm(total=expected, unit="step", disable=None if progress is None else not progress,
-                   leave=False, mininterval=0.5)
-    if hasattr(integrator, "progress"):  # an iterated implicit method: Newton's work within long steps
-        integrator.progress = bar.set_postfix_str if not bar.disable else None
     # An energy sample costs about what a check does, so every sample is a check; with
     # energy_every given, the steps it names are checked whether the guard is due or not.
-    forced = has_energy and energy_every is not None
-    step, step_toward, update = stepper.step, stepper.step_toward, bar.update
-    interrupted = interrupt.check  # a Ctrl-C that Taichi swallowed while compiling the first step
-    by_steps = steps is not None
-    warm = None  # when the first accepted step ended: the rate after it leaves compiling out
-    with bar:
-        while stepper.failure is None and (stepper.steps < steps if by_steps else stepper.t < t_end):
-            interrupted()
-            check = forced and (stepper.steps + 1) % every == 0
-            # the last step is checked too: the method's own result is measured before the
-            # post-step events move it, so the end's check must happen inside the step
-            check = check or (stepper.steps + 1 >= steps if by_steps
-                              else stepper.t + (stepper.h or 0.0) >= t_end * (1 - 1e-12))
-            report = step(None, check) if by_steps else step_toward(t_end, check)
-            if not report.accepted or stepper.failure is not None:
-                continue
-            if has_energy and stepper.checked:
-                done, t = stepper.steps, stepper.t
-                if forced:
-                    keep = done % every == 0
-                elif sample_interval is None:
-                    keep = done - last_sample >= every
-                else:
-                    keep = t >= next_sample * (1 - 1e-12)
-                    if keep:
-                        next_sample = (math.floor(t / sample_interval + 1e-9) + 1) * sample_interval
-                if keep:
-                    sample(t)
-                    last_sample = done
-            if history is not None and stepper.steps % save_every == 0:
-                history.keep(stepper.t)
-            update(report.h if by_time else 1)
-            if warm is None:
-                warm, estimated = time.perf_counter(), stepper.monitor.seconds
+    forced = every > 0 and stepper.guard.energy0 is not None and energy_every is not None
+    # The run's own work at each step, in this order: observers of the stepper's one loop.
+    trace = None
+    if every > 0 and stepper.guard.energy0 is not None:
+        # an adaptive run to t_end has no step count to spread samples over: every t_end / 2000 s
+        trace = EnergyTrace(stepper, every, forced,
+                            t_end / SAMPLES if energy_every is None and expected is None else None)
+        trace.sample(0.0)
+        stepper.add_observer(trace)
+    history = FrameHistory(scene, save_every) if save_every else None
+    if history is not None:
+        history.keep(0.0)
+        stepper.add_observer(history)
+    start = time.perf_counter()
+    bar = ProgressBar(expected, t_end, progress)
+    if not bar.hidden:
+        stepper.add_observer(bar)
+    clock = WarmClock(stepper.monitor)
+    stepper.add_observer(clock)
+    if hasattr(integrator, "progress"):  # an iterated implicit method: Newton's work within long steps
+        integrator.progress = bar.bar.set_postfix_str if not bar.hidden else None
+    try:
+        # the last step is checked too: the method's own result is measured before the
+        # post-step events move it, so the end's check must happen inside the step
+        stepper.run_until(steps=steps, t_end=None if steps is not None else t_end,
+                          check_every=every if forced else 0, check_last=True)
         # The last state is always checked and sampled.
         if stepper.failure is None and not stepper.checked:
             stepper.check()
-        if stepper.failure is None and has_energy and energy_t[-1] != stepper.t:
-            sample(stepper.t)
+        if stepper.failure is None and trace is not None and trace.times[-1] != stepper.t:
+            trace.sample(stepper.t)
+    finally:
+        bar.close()
     end = time.perf_counter()
     wall = end - start
     t, failure, monitor = stepper.t, stepper.failure, stepper.monitor
-    energy_t = np.asarray(energy_t, float)
-    kept = energy_t <= t  # a diverged run's trace ends at the state it returns
+    energy, energy_t, violation = trace.arrays(t) if trace is not None else (np.zeros(0), np.zeros(0), None)
+    if violation is None and scene.constraints is not None:
+        violation = np.zeros(0)
     x_history, t_history, object_history = history.arrays(t) if history is not None else (None, None, {})
+    warm = clock.warm
     return RunResult(status=stepper.status, steps=stepper.steps, t=t, f_evals=stepper.f_evals,
                      rejected_steps=stepper.rejected, linear_iterations=stepper.linear_iterations,
                      linear_residual=stepper.linear_residual,
-                     energy=np.asarray(energy, float)[kept], energy_t=energy_t[kept],
+                     energy=energy, energy_t=energy_t,
                      message="" if failure is None else failure.message, wall_time=wall,
                      failed_step=0 if failure is None else failure.step,
                      failed_t=math.nan if failure is None else failure.t,
-                     guard_checks=watch.checks, x_history=x_history, t_history=t_history,
-                     object_history=object_history,
-                     constraint_violation=None if violation is None else np.asarray(violation, float)[kept],
+                     guard_checks=stepper.guard.checks, x_history=x_history, t_history=t_history,
+                     object_history=object_history, constraint_violation=violation,
                      solver_residual=np.asarray(monitor.values, float), residual_t=np.asarray(monitor.times, float),
                      error_estimate=np.asarray(monitor.distances, float),
                      worst_error_estimate=monitor.worst_distance, tolerance=monitor.tolerance,
@@ -296,7 +252,7 @@ def run(scene: Scene, integrator: Integrator | str, *, dt: float | None, steps: 
                      warnings=tuple(stepper.warnings) + integrator_warnings(stepper.integrator, monitor),
                      warm_time=math.nan if warm is None or stepper.steps < 2 else end - warm,
                      estimate_time=monitor.seconds,
-                     estimate_warm_time=0.0 if warm is None else monitor.seconds - estimated)
+                     estimate_warm_time=0.0 if warm is None else monitor.seconds - clock.estimated)
 
 
 def integrator_warnings(integrator, monitor) -> tuple[str, ...]:
@@ -306,37 +262,3 @@ def integrator_warnings(integrator, monitor) -> tuple[str, ...]:
     warn = getattr(integrator, "run_warning", None)
     said = warn(accuracy_judged=monitor.active and bool(monitor.distances)) if warn is not None else ""
     return (said,) if said else ()
-
-
-class _History:
-    """Frames of a run's positions, copied from the device as they are kept, with where the
-    scene's objects (spheres, capsules, boxes, a collider mesh: the parts with ``centers_at``)
-    were then."""
-
-    def __init__(self, scene: Scene):
-        self.scene = scene
-        self.frames: list[np.ndarray] = []
-        self.times: list[float] = []
-        self.centers: list[dict[str, np.ndarray]] = []
-
-    def keep(self, t: float) -> None:
-        if self.times and self.times[-1] == t:
-            return  # the end of a run that ends on a saving step
-        self.frames.append(np.asarray(self.scene.state.x.to_numpy(), np.float64))
-        self.times.append(t)
-        self.centers.append(self.scene.object_centers(t))
-
-    def arrays(self, t_final: float) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
-        """The frames up to ``t_final`` (a diverged run ends at the state it returns), with
-        that state last; their times; ``{key}_history`` (S, K, 3) of each object centre key."""
-        times = np.asarray(self.times, float)
-        kept = times <= t_final
-        frames = [f for f, k in zip(self.frames, kept) if k]
-        centers = [c for c, k in zip(self.centers, kept) if k]
-        times = times[kept]
-        if not len(times) or times[-1] != t_final:
-            frames.append(np.asarray(self.scene.state.x.to_numpy(), np.float64))
-            centers.append(self.scene.object_centers(t_final))
-            times = np.append(times, t_final)
-        objects = {f"{key}_history": np.stack([c[key] for c in centers]) for key in (centers[0] if centers else {})}
-        return np.stack(frames), times, objects

@@ -285,7 +285,7 @@ def apply_scene_file(args, command: str) -> SceneFile | None:
         elif same_method:
             cli_options = {name for name, _ in args.integrator_options}
             args.integrator_options = [(k, _option_text(v)) for k, v in found.options.items()
-                                       if k not in cli_options and getattr(args, k, None) is None
+                                       if k not in cli_options and k not in getattr(args, "flag_options", {})
                                        ] + args.integrator_options
         if command == "simulate":
             if args.steps is None and args.t_end is None:

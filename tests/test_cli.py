@@ -111,7 +111,7 @@ def test_set_values_reach_the_scene_and_t_end_lands(tmp_path):
     (["spring", "--steps", "3", "--max-energy-growth", "0"], "--max-energy-growth"),
     (["spring", "--steps", "3", "--max-energy-growth", "nan"], "--max-energy-growth"),
     (["spring", "--steps", "3", "--integrator", "implicit_euler", "--newton-tolerance", "2"],
-     "newton_tolerance"),
+     "--newton-tolerance: must be a finite number in (0, 1), got 2"),
     (["spring", "--steps", "3", "--integrator", "implicit_euler", "--newton-tolerance", "0"],
      "--newton-tolerance"),
     (["spring", "--steps", "3", "--integrator", "implicit_euler", "--newton-iterations", "0"],

@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 
 from taichi_sim.cli import main
-from taichi_sim.cli_parser import build_parser
+from taichi_sim.cli.parser import build_parser
 from taichi_sim.errors import ConfigError
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -10,9 +10,9 @@ PACKAGE = Path(__file__).resolve().parent.parent / "taichi_sim"
 
 #: The layers, top to bottom (docs/design.md): a module may import its own layer and those below.
 LAYERS = (
-    ("entry points", {"cli", "cli_parser", "cli_export", "scene_file", "__main__", "app", "bench"}),
-    ("running a scene", {"run", "stepper", "guard", "convergence", "io", "frame_check", "theory", "reference",
-                         "export"}),
+    ("entry points", {"cli", "scene_file", "__main__", "app", "bench"}),
+    ("running a scene", {"run", "run_observers", "stepper", "guard", "convergence", "io", "frame_check", "theory",
+                         "reference", "export"}),
     ("parameters over time, drawing", {"curves", "render"}),
     ("stepping a state", {"integrators"}),
     ("what is simulated", {"scene", "forces", "systems", "state", "mesh", "memory"}),

@@ -1,6 +1,7 @@
 """Integrators carry their own facts, and can come from outside: the registry's methods declare
 every fact the tools read, a plug-in (module:Class, file.py:Class, an entry point) runs through
 the command line and the benches, and a bad one is refused with one line."""
+import inspect
 import math
 import sys
 import textwrap
@@ -12,7 +13,7 @@ import pytest
 import taichi_sim as ts
 from taichi_sim.cli import main
 from taichi_sim.errors import ConfigError
-from taichi_sim.integrators import INTEGRATORS, ExplicitRK, integrator_class, missing_facts
+from taichi_sim.integrators import INTEGRATORS, ExplicitRK, integrator_class, missing_facts, option_specs
 from taichi_sim.memory import Size, estimate_bytes
 
 EXAMPLE = Path(__file__).resolve().parent.parent / "examples" / "plugin_velocity_verlet.py"
@@ -24,7 +25,9 @@ def test_every_registered_method_declares_its_facts(name):
     cls = INTEGRATORS[name]
     assert missing_facts(cls) == []
     assert cls.scratch_bytes(100, 300, 8) > 0
-    assert set(cls.options()) <= set(ts.integrators.base.inspect.signature(cls.__init__).parameters)
+    assert set(cls.options()) <= set(inspect.signature(cls.__init__).parameters)
+    # every built-in option is declared: its help, for --help and `list`
+    assert [name for name, spec in option_specs(cls).items() if not spec.help] == []
 
 
 @pytest.mark.parametrize("name", [n for n, c in INTEGRATORS.items() if issubclass(c, ExplicitRK)])

@@ -11,8 +11,9 @@ import pytest
 from pxr import Usd
 
 from taichi_sim.app.session import Session
-from taichi_sim.cli import _session_args, main
-from taichi_sim.cli_parser import build_parser
+from taichi_sim.cli import main
+from taichi_sim.cli.parser import build_parser
+from taichi_sim.cli.views import _session_args
 from taichi_sim.errors import ConfigError
 from taichi_sim.export import FORMATS
 from taichi_sim.scene import SCENES, Param, scene_preset
@@ -223,7 +224,7 @@ def test_the_command_line_overrides_the_file(tmp_path):
     assert dict(args.assignments) == {"nx": "4", "stiffness": "50"}  # per parameter
     assert (args.dt, args.steps, args.t_end, args.seed, args.precision, args.out) == \
         (0.001, None, 0.01, 1, "f64", "b.npz")  # --t-end replaces the file's steps
-    assert args.substeps == 4 and dict(args.integrator_options) == {"iterations": "1"}  # per option
+    assert args.flag_options == {"substeps": 4} and dict(args.integrator_options) == {"iterations": "1"}  # per option
     args = parsed(tmp_path, FULL, "--integrator", "symplectic_euler")
     assert args.integrator == "symplectic_euler" and args.integrator_options == []  # xpbd's options stay behind
 

@@ -118,6 +118,31 @@ def test_advance_lands_on_the_end_or_takes_whole_steps(f64):
     assert stepper.guard.work == 1 and stepper.failure is None
 
 
+def test_the_one_loop_stops_where_told_and_its_observers_may_end_it(f64):
+    scene = ts.build_scene("pendulum")
+    stepper = Stepper(scene, "symplectic_euler", 0.003)
+    seen, once = [], []
+
+    class StopAtSeven:
+        def after_step(self, stepper, report):
+            seen.append(stepper.steps)
+            if stepper.steps == 7:
+                stepper.stop()
+
+    class Once:  # watches one step, then leaves (as the run's warm clock does)
+        def after_step(self, stepper, report):
+            once.append(stepper.steps)
+            stepper.remove_observer(self)
+
+    stepper.add_observer(Once())
+    stepper.add_observer(StopAtSeven())
+    assert stepper.run_until(steps=50) == 7 and stepper.steps == 7
+    assert seen == list(range(1, 8)) and once == [1]
+    assert stepper.run_until(max_calls=4) == 4 and stepper.steps == 11  # a stop holds for one call only
+    assert stepper.run_until(t_end=0.05, check_last=True) == 6
+    assert stepper.t == 0.05 and stepper.checked  # landed exactly, the last step checked inside it
+
+
 def test_a_curve_force_change_resets_the_integrator_and_rebases_the_guard(f64):
     from taichi_sim.curves import Spline
 

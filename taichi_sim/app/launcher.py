@@ -70,6 +70,15 @@ def _main_thread() -> bool:
     return threading.current_thread() is threading.main_thread()
 
 
+FIRST = ("cloth", "symplectic_euler")  # what the bare `taichi-sim` opens: the cheapest lively start
+
+
+def first_session():
+    """The session the bare ``taichi-sim`` opens the launcher on (:data:`FIRST`)."""
+    scene, method = FIRST
+    return Session(scene, [method], interactive=True)
+
+
 class Launcher:
     """Runs ``session`` in a window of ``size`` = (width, height) pixels.
 

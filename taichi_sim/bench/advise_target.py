@@ -198,27 +198,38 @@ def run_to(scene, integrator, h: float, t_end: float, give_up: float = math.inf)
     stepper = Stepper(scene, integrator, h, raise_work=False)  # the candidate at its settings
     if stepper.refusal:
         return Pilot(message=stepper.refusal)
-    first = None
-    while stepper.failure is None and stepper.t < t_end:
-        last = stepper.t + stepper.h >= t_end * (1 - 1e-12)
-        report = stepper.step_toward(t_end, last)  # the end is checked, as run() checks it
-        if not report.accepted:
-            continue
-        now = time.perf_counter()
-        if first is None:
-            first, steps0 = now, stepper.steps
-        elif now - first > give_up:
-            return Pilot(message=f"gave up after {stepper.steps} steps", timed_out=True)
+    clock = _GiveUp(give_up)
+    stepper.add_observer(clock)
+    stepper.run_until(t_end=t_end, check_last=True)  # the end is checked, as run() checks it
+    if clock.gave_up:
+        return Pilot(message=f"gave up after {stepper.steps} steps", timed_out=True)
     if stepper.failure is None and not stepper.checked:
         stepper.check()
     if stepper.failure is not None:
         return Pilot(message=stepper.failure.message)
     _sync()
-    taken = stepper.steps - steps0
-    per_step = (time.perf_counter() - first) / taken if taken else math.nan
+    taken = stepper.steps - clock.steps0
+    per_step = (time.perf_counter() - clock.first) / taken if taken else math.nan
     x, _ = scene.state.to_numpy()
     warnings = tuple(stepper.warnings) + integrator_warnings(integrator, stepper.monitor)
     return Pilot(np.asarray(x, float), per_step=per_step, warnings=warnings)
+
+
+class _GiveUp:
+    """A pilot's clock, observing its stepper: when the first accepted step ended (its
+    compiling left out) and the steps until then; it stops the loop once the steps after the
+    first have taken ``give_up`` s."""
+
+    def __init__(self, give_up: float):
+        self.give_up, self.first, self.steps0, self.gave_up = give_up, None, 0, False
+
+    def after_step(self, stepper, report) -> None:
+        now = time.perf_counter()
+        if self.first is None:
+            self.first, self.steps0 = now, stepper.steps
+        elif now - self.first > self.give_up:
+            self.gave_up = True
+            stepper.stop()
 
 
 def _distance(x: np.ndarray, y: np.ndarray) -> float:
@@ -236,8 +247,7 @@ def probe_step(scene, integrator, h: float) -> float:
     stepper.step()
     _sync()
     start = time.perf_counter()
-    for _ in range(PROBE_STEPS):
-        stepper.step()
+    stepper.run_until(max_calls=PROBE_STEPS)
     _sync()
     return (time.perf_counter() - start) / PROBE_STEPS
 

@@ -3,10 +3,6 @@ from __future__ import annotations
 
 import math
 
-COLORS = {"euler": "#d62728", "trapezoid": "#ff7f0e", "midpoint": "#bcbd22", "rk4": "#1f77b4",
-          "symplectic_euler": "#2ca02c", "rk45": "#9467bd", "rkf45": "#8c564b",
-          "implicit_euler": "#e377c2", "implicit_euler_linearised": "#f7b6d2",
-          "implicit_midpoint": "#17becf", "projective_dynamics": "#7f7f7f", "xpbd": "#000000"}
 OUTCOME_COLORS = {"ok": "#2ca02c", "reported": "#ffbf00", "refused": "#1f77b4", "silent": "#d62728", "error": "#000000",
                   "timeout": "#7f7f7f"}
 DPI = 72
@@ -24,7 +20,11 @@ def _log_axes(ax, x=True, y=True):
 
 
 def _color(name):
-    return COLORS.get(name, "#7f7f7f")
+    """A method's colour: its class's ``plot_colour`` (a label "NAME(OPTION=VALUE)" takes its
+    method's), else one from a palette by its name."""
+    from ..integrators import colour_of
+
+    return colour_of(name.split("(", 1)[0])
 
 
 def _finite(v):

@@ -79,11 +79,12 @@ class Timed:
         self.samples: list[float] = []
 
     def _advance(self, steps: int) -> None:
-        stepper = self.stepper
-        for _ in range(steps):
-            report = stepper.step()
-            self.f_evals += report.f_evals
-            self.linear += report.linear_iterations
+        stepper, left = self.stepper, steps
+        while left > 0:
+            f_evals, linear = stepper.f_evals, stepper.linear_iterations
+            left -= stepper.run_until(max_calls=left)
+            self.f_evals += stepper.f_evals - f_evals
+            self.linear += stepper.linear_iterations - linear
             if stepper.failure is not None:
                 # noted in the record's status; the batch goes on from the start so that it
                 # still times as many steps as it says

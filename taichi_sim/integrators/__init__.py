@@ -8,6 +8,7 @@ from .adaptive import DormandPrince45, EmbeddedRK, Fehlberg45
 from .base import Integrator, Status, StepReport, missing_facts
 from .explicit_rk import RK4, Euler, ExplicitRK, Midpoint, Trapezoid
 from .implicit import ImplicitEuler, ImplicitEulerLinearised, ImplicitMidpoint, LinearSolverStats
+from .options import Option, OptionSpec, check_values, flag_help, flag_options, option_specs
 from .plugins import ENTRY_POINT_GROUP, installed_plugins, is_spec, load_entry_point, load_spec, loaded_plugin
 from .positional import XPBD, ProjectiveDynamics
 from .positional.vbd import VBD
@@ -40,50 +41,55 @@ def integrator_class(name: str) -> type[Integrator]:
 
 def check_options(name: str, options: dict) -> type[Integrator]:
     """The class of integrator ``name``, after checking it takes every keyword in ``options``
-    (ConfigError otherwise); nothing is allocated."""
+    and each value's type and bounds (:class:`~.options.Option`); ConfigError otherwise.
+    Nothing is allocated."""
     cls = integrator_class(name)
     accepted = cls.options()
     unknown = sorted(set(options) - set(accepted))
     if unknown:
         raise ConfigError(f"integrator {name!r} takes no option {unknown[0]!r}"
                           + (f" (it takes: {', '.join(sorted(accepted))})" if accepted else ""))
+    check_values(cls, options, name)
     return cls
 
 
 def parse_options(name: str, assignments: dict[str, str]) -> dict:
     """Command-line option strings (``--option NAME=VALUE``) of integrator ``name`` as Python
-    values, typed by the keyword's default (bool, int, float or str) or, for a default of
-    None, by its annotation; ConfigError naming the option for a value that does not parse or
+    values, typed by the option's annotation (else its default: bool, int, float or str);
+    ConfigError naming the option for a value that does not parse or is out of its bounds, or
     an option the method does not take."""
-    import inspect
-
-    cls = check_options(name, assignments)
-    parameters = inspect.signature(cls.__init__).parameters
+    cls = integrator_class(name)
+    specs = option_specs(cls)
+    unknown = sorted(set(assignments) - set(specs))
+    if unknown:
+        check_options(name, {key: None for key in unknown})
     values = {}
     for key, text in assignments.items():
-        default, annotation = parameters[key].default, str(parameters[key].annotation)
-        kinds = ([type(default)] if default is not None and type(default) in (bool, int, float, str) else
-                 [t for t, word in ((bool, "bool"), (int, "int"), (float, "float"), (str, "str"))
-                  if word in annotation] or [int, float, str])
-        values[key] = _parse_value(name, key, text, kinds)
+        try:
+            values[key] = specs[key].parse(text)
+        except ValueError as exc:
+            raise ConfigError(f"integrator {name!r} option {key}: {exc}") from None
     return values
 
 
-def _parse_value(name: str, key: str, text: str, kinds):
-    for kind in kinds:
-        if kind is bool:
-            if text.lower() in ("true", "1", "yes", "on", "false", "0", "no", "off"):
-                return text.lower() in ("true", "1", "yes", "on")
-            continue
-        try:
-            value = kind(text)
-        except ValueError:
-            continue
-        if kind is float and text.lower() in ("nan", "+nan", "-nan"):
-            continue
-        return value
-    wanted = " or ".join(k.__name__ for k in kinds)
-    raise ConfigError(f"integrator {name!r} option {key}: expects {wanted}, got {text!r}")
+PALETTE = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f",
+           "#bcbd22", "#17becf", "#393b79", "#637939", "#8c6d31", "#843c39", "#7b4173")
+"""Colours a method that declares none takes one of, by its name (matplotlib's tab10, then
+tab20b's darker tones)."""
+
+
+def colour_of(name: str) -> str:
+    """The plot colour of integrator ``name``: the ``plot_colour`` its class declares itself
+    (a subclass does not inherit its parent's line colour), else one of :data:`PALETTE` picked
+    by the name (the same every run); a name that is no integrator (a peer, a label) gets a
+    palette colour too."""
+    import zlib
+
+    try:
+        declared = vars(integrator_class(name)).get("plot_colour", "")
+    except ConfigError:
+        declared = ""
+    return declared or PALETTE[zlib.crc32(name.encode()) % len(PALETTE)]
 
 
 def method_label(name: str, options: dict) -> str:
@@ -106,7 +112,8 @@ def create_integrator(name: str, system, **options) -> Integrator:
     return integrator
 
 
-__all__ = ["INTEGRATORS", "ENTRY_POINT_GROUP", "Integrator", "Status", "StepReport", "ButcherTableau",
+__all__ = ["INTEGRATORS", "ENTRY_POINT_GROUP", "Integrator", "Option", "OptionSpec", "option_specs",
+           "flag_options", "flag_help", "colour_of", "PALETTE", "Status", "StepReport", "ButcherTableau",
            "ExplicitRK", "EmbeddedRK", "LinearSolverStats", "missing_facts", "installed_plugins",
            "integrator_class", "check_options", "parse_options", "create_integrator", "method_label",
            "Euler", "Trapezoid", "Midpoint", "RK4", "SymplecticEuler", "DormandPrince45", "Fehlberg45",

@@ -7,16 +7,17 @@ step.
 """
 
 import math
+from typing import Annotated
 
 import numpy as np
 import taichi as ti
 
 from .. import runtime
-from ..errors import ConfigError
 from ..state import State, finite
 from ..systems.base import System
 from .base import Integrator, Status, StepReport
 from .explicit_rk import state_parts, weighted_stages
+from .options import Option
 from .tableau import DORMAND_PRINCE, FEHLBERG, ButcherTableau
 
 STIFFNESS_FRACTION = 0.98  # h |lambda| above this fraction of the real stability boundary is stiff
@@ -88,20 +89,21 @@ class EmbeddedRK(Integrator):
         cls.f_evals_per_step = float(cls.tableau.stage_count - (1 if cls.tableau.fsal else 0))
         cls.stiffness_threshold = STIFFNESS_FRACTION * cls.tableau.real_stability_boundary()
 
-    def __init__(self, system: System, *, rtol: float = 1e-6, atol: float = 1e-9,
-                 safety: float = 0.9, min_step: float | None = None, max_step: float = math.inf):
+    def __init__(self, system: System, *,
+                 rtol: Annotated[float, Option("relative tolerance of a step's estimated error", flag=True,
+                                               at_least=0)] = 1e-6,
+                 # atol > 0: 0 would divide 0 by 0 for a component that is exactly zero (z in a plane)
+                 atol: Annotated[float, Option("absolute tolerance of a step's estimated error", flag=True,
+                                               above=0)] = 1e-9,
+                 safety: Annotated[float, Option("the step controller's safety factor", above=0,
+                                                 at_most=1)] = 0.9,
+                 min_step: Annotated[float | None, Option("smallest step before the run ends step_too_small",
+                                                          unit="s", above=0)] = None,
+                 max_step: Annotated[float, Option(
+                     "largest step", unit="s", flag=True, above=0, finite=False,
+                     default_text="unbounded, or 10x the scene's default dt when the scene has collisions, "
+                                  "tearing or emission")] = math.inf):
         super().__init__(system)
-        if not (math.isfinite(rtol) and rtol >= 0):
-            raise ConfigError(f"rtol must be a finite number >= 0, got {rtol}")
-        if not (math.isfinite(atol) and atol > 0):
-            # atol = 0 would divide 0 by 0 for a component that is exactly zero (z in a plane).
-            raise ConfigError(f"atol must be a finite number > 0, got {atol}")
-        if not (0 < safety <= 1):
-            raise ConfigError(f"safety must be in (0, 1], got {safety}")
-        if min_step is not None and not (math.isfinite(min_step) and min_step > 0):
-            raise ConfigError(f"min_step must be a finite number > 0, got {min_step}")
-        if not max_step > 0:
-            raise ConfigError(f"max_step must be > 0, got {max_step}")
         self.rtol, self.atol, self.safety = float(rtol), float(atol), float(safety)
         self.min_step = min_step
         self.max_step = float(max_step)
@@ -374,6 +376,7 @@ class DormandPrince45(EmbeddedRK):
     """Dormand-Prince 5(4): 7 stages, FSAL (6 evaluations of f per step after the first)."""
 
     name = "rk45"
+    plot_colour = "#9467bd"  # in the benchmarks' plots
     tableau = DORMAND_PRINCE
     description = "adaptive Dormand-Prince 5(4), FSAL"
 
@@ -382,5 +385,6 @@ class Fehlberg45(EmbeddedRK):
     """Runge-Kutta-Fehlberg 4(5): 6 stages, propagates the fourth-order solution."""
 
     name = "rkf45"
+    plot_colour = "#8c564b"  # in the benchmarks' plots
     tableau = FEHLBERG
     description = "adaptive Runge-Kutta-Fehlberg 4(5)"

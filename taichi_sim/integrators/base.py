@@ -1,7 +1,6 @@
 """The integrator contract: step a caller-owned state and report what happened."""
 from __future__ import annotations
 
-import inspect
 import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
@@ -10,6 +9,7 @@ from enum import Enum
 from ..errors import ConfigError
 from ..state import State
 from ..systems.base import System
+from .options import check_values, option_specs
 
 
 class Status(str, Enum):
@@ -62,9 +62,10 @@ class Integrator(ABC):
     """A time-stepping method bound to one system.
 
     Scratch (stage buffers) is allocated once in ``__init__``; ``step`` allocates nothing.
-    Options (tolerances, solver choices) are keyword-only constructor arguments; the command
-    line and :func:`~taichi_sim.integrators.check_options` read them from the signature
-    (:meth:`options`).
+    Options (tolerances, solver choices) are keyword-only constructor arguments, each with its
+    help, unit, flag and bounds on its annotation (:class:`~.options.Option`); the command line,
+    ``list`` and :func:`~taichi_sim.integrators.check_options` read them from the signature
+    (:func:`~.options.option_specs`).
 
     A method declares its facts as class attributes, and every tool reads them from the class
     (theory, memory, ``advise``, ``list``); :func:`missing_facts` names what is not declared,
@@ -132,6 +133,9 @@ class Integrator(ABC):
     work_weight: float = 1.0
     """What a unit of the method's reported work costs, relative to a sweep over springs (the
     convergence monitor's cost model: how often a run can pay for a sample)."""
+    plot_colour: str = ""
+    """The method's colour in the benchmarks' plots ("#1f77b4"); "" takes one from a palette by
+    its name (:func:`~taichi_sim.integrators.colour_of`)."""
     given_options: frozenset = frozenset()
     """The options the caller set (:func:`~taichi_sim.integrators.create_integrator`)."""
     replaces_parts: frozenset = frozenset()
@@ -148,6 +152,13 @@ class Integrator(ABC):
     the last piece of a step it solved (a substep, a halving) and sets ``solved_h`` (s)."""
     solved_start = None
     solved_h = float("nan")
+
+    def __new__(cls, system=None, *args, **options):
+        # Every constructor's options are checked against their declarations (type, bounds)
+        # before its __init__ runs, however it is called: one check for the API, the command
+        # line and scene files (a plug-in's __init__ needs no checks of its own).
+        check_values(cls, options, cls.name)
+        return super().__new__(cls)
 
     def __init__(self, system: System):
         if self.requires_second_order and not system.second_order:
@@ -191,9 +202,9 @@ class Integrator(ABC):
 
     @classmethod
     def options(cls) -> dict:
-        """The method's options: keyword-only arguments of ``__init__`` and their defaults."""
-        return {p.name: p.default for p in inspect.signature(cls.__init__).parameters.values()
-                if p.kind is inspect.Parameter.KEYWORD_ONLY}
+        """The method's options: keyword-only arguments of ``__init__`` and their defaults
+        (:func:`~.options.option_specs` has their types, help and bounds)."""
+        return {name: spec.default for name, spec in option_specs(cls).items()}
 
     def initial_step(self, state: State, t: float, t_end: float | None) -> float:
         """First step size (s) for an adaptive method when the user gives none; it costs

@@ -204,6 +204,7 @@ def weighted_stages(stages: ti.template(), weights: ti.template(), part: ti.temp
 
 class Euler(ExplicitRK):
     name = "euler"
+    plot_colour = "#d62728"  # in the benchmarks' plots
     tableau = EULER
     stability_constant = 0.0  # |1 + i theta| > 1 for every theta > 0
     description = "explicit (forward) Euler"
@@ -211,6 +212,7 @@ class Euler(ExplicitRK):
 
 class Midpoint(ExplicitRK):
     name = "midpoint"
+    plot_colour = "#bcbd22"  # in the benchmarks' plots
     tableau = MIDPOINT
     stability_constant = 0.0  # |R(i theta)|^2 = 1 + theta^4 / 4
     description = "explicit midpoint rule"
@@ -218,6 +220,7 @@ class Midpoint(ExplicitRK):
 
 class Trapezoid(ExplicitRK):
     name = "trapezoid"
+    plot_colour = "#ff7f0e"  # in the benchmarks' plots
     tableau = TRAPEZOID
     stability_constant = 0.0  # |R(i theta)|^2 = 1 + theta^4 / 4
     description = "explicit trapezoid rule (Heun): f0=f(X), f1=f(X+h f0), X+=h/2 (f0+f1)"
@@ -225,6 +228,7 @@ class Trapezoid(ExplicitRK):
 
 class RK4(ExplicitRK):
     name = "rk4"
+    plot_colour = "#1f77b4"  # in the benchmarks' plots
     tableau = RK4
     stability_constant = 2.0 * math.sqrt(2.0)
     description = "classical fourth-order Runge-Kutta"

@@ -22,6 +22,7 @@ class SymplecticEuler(Integrator):
     """
 
     name = "symplectic_euler"
+    plot_colour = "#2ca02c"  # in the benchmarks' plots
     order = 1
     requires_second_order = True
     takes_constraints = True

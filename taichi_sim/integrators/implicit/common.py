@@ -3,14 +3,34 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Annotated
 
 import numpy as np
 
 from ... import runtime
 from ...errors import ConfigError
 from ..base import Status, StepReport
+from ..options import Option
 
 LINEAR_SOLVERS = ("cg", "direct")
+
+# The implicit methods' options (types for their constructors' signatures: :mod:`..options`).
+LinearSolver = Annotated[str, Option("linear solver", flag=True, choices=LINEAR_SOLVERS)]
+NewtonIterations = Annotated[int | None, Option("most Newton iterations per step, before the step is split",
+                                                flag=True, at_least=1, default_text="50")]
+NewtonTolerance = Annotated[float | None, Option(
+    "relative nonlinear residual at which Newton stops", flag=True, above=0, below=1,
+    default_text="1e-3 for backward Euler on particles, else 1e-6 in f64 / 1e-5 in f32")]
+CgTolerance = Annotated[float | None, Option(
+    "relative residual at which CG stops", flag=True, above=0, below=1,
+    default_text="1e-3 for the one linearised step, adaptive (forcing terms) for backward Euler on "
+                 "particles, else 1e-8 in f64 / 1e-5 in f32")]
+CgMaxIterations = Annotated[int, Option("Krylov iterations allowed per linear solve", at_least=1)]
+Preconditioner = Annotated[str | None, Option("CG's preconditioner on particles: ssor or jacobi",
+                                              default_text="ssor on CPU, jacobi on GPU")]
+WarmStart = Annotated[bool, Option("start each step from the last steps' velocity changes, extrapolated")]
+MaxSubdivisions = Annotated[int | None, Option("halvings of a step Newton cannot solve (0: none)",
+                                               at_least=0, at_most=30, default_text="10")]
 PRECONDITIONERS = ("ssor", "jacobi")  # of CG on particle systems; see ConjugateGradients
 LINEARISED_CG_TOLERANCE = 1e-3  # default of the one-step Baraff-Witkin method (see below)
 FORCING_CEILING = 0.1  # loosest relative residual an iterated Newton step asks of its linear solve

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from ...systems.base import System
 from ..equation import EXACT, FIXED_WORK, Equation
+from .common import CgMaxIterations, CgTolerance, LinearSolver, Preconditioner, WarmStart
 from .newton import ImplicitStageMethod
 
 _NEWTON_ADVICE = "raise --newton-iterations or lower --newton-tolerance or --dt"
@@ -33,6 +34,7 @@ class ImplicitEuler(ImplicitStageMethod):
     """
 
     name = "implicit_euler"
+    plot_colour = "#e377c2"  # in the benchmarks' plots
     order = 1
     description = "backward Euler, exact: Newton on the incremental potential with a line search"
     stage_fraction = 1.0
@@ -60,6 +62,7 @@ class ImplicitEulerLinearised(ImplicitStageMethod):
     """
 
     name = "implicit_euler_linearised"
+    plot_colour = "#f7b6d2"  # in the benchmarks' plots
     order = 1
     description = "one linearised backward Euler step (Baraff-Witkin); can gain energy on stiff springs"
     stage_fraction = 1.0
@@ -69,9 +72,9 @@ class ImplicitEulerLinearised(ImplicitStageMethod):
     advice_note = ("no limit on linear springs only: one Newton step can gain energy on "
                    "stretched springs at large h^2 k / m (reported diverged)")
 
-    def __init__(self, system: System, *, linear_solver: str = "cg", cg_tolerance: float | None = None,
-                 cg_max_iterations: int = 1000, preconditioner: str | None = None,
-                 warm_start: bool = True):
+    def __init__(self, system: System, *, linear_solver: LinearSolver = "cg", cg_tolerance: CgTolerance = None,
+                 cg_max_iterations: CgMaxIterations = 1000, preconditioner: Preconditioner = None,
+                 warm_start: WarmStart = True):
         super().__init__(system, linear_solver=linear_solver, cg_tolerance=cg_tolerance,
                          cg_max_iterations=cg_max_iterations, preconditioner=preconditioner,
                          warm_start=warm_start)
@@ -92,6 +95,7 @@ class ImplicitMidpoint(ImplicitStageMethod):
     """
 
     name = "implicit_midpoint"
+    plot_colour = "#17becf"  # in the benchmarks' plots
     order = 2
     description = "implicit midpoint rule (Newton iterations; conserves quadratic invariants)"
     stage_fraction = 0.5

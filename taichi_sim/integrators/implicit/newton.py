@@ -37,21 +37,25 @@ from __future__ import annotations
 import math
 import time
 
-import numpy as np
-
 from ... import runtime
 from ...errors import ConfigError
 from ...state import State
 from ...systems.base import System
 from ..base import Integrator, Status, StepReport, elastic_models
 from .common import (
-    LINEAR_SOLVERS,
+    CgMaxIterations,
+    CgTolerance,
+    LinearSolver,
     LinearSolverStats,
+    MaxSubdivisions,
+    NewtonIterations,
+    NewtonTolerance,
+    Preconditioner,
     StepWork,
+    WarmStart,
     default_cg_tolerance,
     default_newton_tolerance,
     forcing_tolerance,
-    positive_int,
     tolerance,
 )
 from .conjugate_gradients import checked_preconditioner
@@ -161,10 +165,11 @@ class ImplicitStageMethod(Integrator):
     an iterated method steps, so that a run loop can show what a long step is doing (the
     command line's progress bar shows it as its postfix); None: nothing is reported."""
 
-    def __init__(self, system: System, *, linear_solver: str = "cg", newton_iterations: int | None = None,
-                 newton_tolerance: float | None = None, cg_tolerance: float | None = None,
-                 cg_max_iterations: int = 1000, preconditioner: str | None = None,
-                 warm_start: bool = True, max_subdivisions: int | None = None):
+    def __init__(self, system: System, *, linear_solver: LinearSolver = "cg",
+                 newton_iterations: NewtonIterations = None, newton_tolerance: NewtonTolerance = None,
+                 cg_tolerance: CgTolerance = None, cg_max_iterations: CgMaxIterations = 1000,
+                 preconditioner: Preconditioner = None, warm_start: WarmStart = True,
+                 max_subdivisions: MaxSubdivisions = None):
         super().__init__(system)
         # A membrane's Hessian, its projection and its stress make the solver's kernels large,
         # and Taichi's control-flow-graph pass grows faster than a kernel: it was most of their
@@ -172,11 +177,9 @@ class ImplicitStageMethod(Integrator):
         # 32 x 32 Neo-Hookean one 15.9 and 7.8 s, stepping 33.8 and 33.9 ms, alternated in one
         # process; docs/materials.md). Spring systems compile as before.
         self._compile_without_cfg = bool(elastic_models(system))
+        # the options' types and bounds were checked against their declarations (Integrator.__new__)
         if max_subdivisions is None:
             max_subdivisions = 0 if self.linearised else DEFAULT_SUBDIVISIONS
-        if isinstance(max_subdivisions, bool) or not isinstance(max_subdivisions, (int, np.integer)) \
-                or not 0 <= max_subdivisions <= 30:
-            raise ConfigError(f"max_subdivisions must be an integer in 0..30, got {max_subdivisions!r}")
         if self.linearised and max_subdivisions:
             raise ConfigError("max_subdivisions applies to the iterated methods only")
         self.max_subdivisions = int(max_subdivisions)
@@ -187,13 +190,10 @@ class ImplicitStageMethod(Integrator):
         """|g| / |s| at the end of the last Newton solve of an iterated method (see
         ``newton_tolerance``), converged or not; NaN before the first."""
         self._saved = system.make_state() if self.max_subdivisions else None  # the step's start
-        if linear_solver not in LINEAR_SOLVERS:
-            raise ConfigError(f"linear_solver must be one of {', '.join(LINEAR_SOLVERS)}, "
-                              f"got {linear_solver!r}")
         self.linear_solver = linear_solver
-        self.newton_iterations = positive_int("newton_iterations", self.default_newton_iterations
-                                              if newton_iterations is None else newton_iterations)
-        self.cg_max_iterations = positive_int("cg_max_iterations", cg_max_iterations)
+        self.newton_iterations = int(self.default_newton_iterations if newton_iterations is None
+                                     else newton_iterations)
+        self.cg_max_iterations = int(cg_max_iterations)
         # Inexact Newton (forcing terms) and the loose default tolerance are for the particle
         # stage of backward Euler, where the incremental potential and the energy test keep the
         # iterates honest; elsewhere every solve is tight.
@@ -205,8 +205,6 @@ class ImplicitStageMethod(Integrator):
         self.fixed_cg_tolerance = cg_tolerance is not None or not inexact
         self.cg_tolerance = tolerance("cg_tolerance", cg_tolerance,
                                       lambda: default_cg_tolerance(linearised_step))
-        if not isinstance(warm_start, (bool, np.bool_)):
-            raise ConfigError(f"warm_start must be True or False, got {warm_start!r}")
         self.warm_start = bool(warm_start)
         self._resume_time: float | None = None  # where the last accepted step ended
         if preconditioner is not None and (linear_solver != "cg" or not system.supports_jacobian):

@@ -2,6 +2,7 @@
 
 import math
 import time
+from typing import Annotated
 
 import numpy as np
 import taichi as ti
@@ -11,7 +12,7 @@ from ...errors import ConfigError
 from ...systems.base import System
 from ..base import Integrator, Status, StepReport
 from ..equation import FIXED_WORK, Equation
-from ..implicit.common import positive_int
+from ..options import Option
 from .external import ExplicitForces
 from .global_matrix import GlobalMatrix
 
@@ -74,6 +75,7 @@ class ProjectiveDynamics(Integrator):
     """
 
     name = "projective_dynamics"
+    plot_colour = "#7f7f7f"  # in the benchmarks' plots
     takes_elastic_models = False  # its solve holds springs only (Integrator.takes_elastic_models)
     order = 1
     requires_second_order = True
@@ -96,17 +98,18 @@ class ProjectiveDynamics(Integrator):
         return (18 * real_bytes * particles + (particles + 4 * springs) * (real_bytes + 8)
                 + 12 * (particles + 2 * springs) * (real_bytes + 4))
 
-    def __init__(self, system: System, *, iterations: int = 10, tolerance: float | None = None,
-                 chebyshev_rho: float = 0.0):
+    def __init__(self, system: System, *,
+                 iterations: Annotated[int, Option("local/global iterations per step", flag=True, at_least=1)] = 10,
+                 tolerance: Annotated[float | None, Option(
+                     "stop iterating once an iteration moves no particle by more than this fraction of the "
+                     "step's largest displacement", flag="--pd-tolerance", above=0, below=1,
+                     default_text="off: all iterations")] = None,
+                 chebyshev_rho: Annotated[float, Option(
+                     "Chebyshev acceleration: the spectral radius estimate (0: off)", flag=True, at_least=0,
+                     below=1)] = 0.0):
         super().__init__(system)
-        self.iterations = positive_int("iterations", iterations)
-        if tolerance is not None and (isinstance(tolerance, bool) or not isinstance(tolerance, (int, float))
-                                      or not 0 < tolerance < 1):
-            raise ConfigError(f"tolerance must be None or a number in (0, 1), got {tolerance!r}")
+        self.iterations = int(iterations)
         self.tolerance = None if tolerance is None else float(tolerance)
-        if isinstance(chebyshev_rho, bool) or not isinstance(chebyshev_rho, (int, float)) \
-                or not 0 <= chebyshev_rho < 1:
-            raise ConfigError(f"chebyshev_rho must be a number in [0, 1), got {chebyshev_rho!r}")
         self.chebyshev_rho = float(chebyshev_rho)
         coupled = system.term("springs") is not None or system.term("grab") is not None
         if coupled and runtime.backend() not in ("x64", "arm64"):

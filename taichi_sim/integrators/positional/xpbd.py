@@ -1,6 +1,7 @@
 """Extended position-based dynamics: springs as compliant distance constraints."""
 
 import math
+from typing import Annotated
 
 import numpy as np
 import taichi as ti
@@ -10,7 +11,7 @@ from ...loops import anchor
 from ...systems.base import System
 from ..base import Integrator, StepReport
 from ..equation import FIXED_WORK, Equation
-from ..implicit.common import positive_int
+from ..options import Option
 from .colouring import colour_springs
 from .external import ExplicitForces
 
@@ -66,6 +67,7 @@ class XPBD(Integrator):
     """
 
     name = "xpbd"
+    plot_colour = "#000000"  # in the benchmarks' plots
     takes_elastic_models = False  # its solve holds springs only (Integrator.takes_elastic_models)
     order = 1
     requires_second_order = True
@@ -86,10 +88,11 @@ class XPBD(Integrator):
         per spring)."""
         return 12 * real_bytes * particles + springs * (7 * real_bytes + 12 + 120)
 
-    def __init__(self, system: System, *, substeps: int = 20, iterations: int = 1):
+    def __init__(self, system: System, *,
+                 substeps: Annotated[int, Option("substeps per step", flag=True, at_least=1)] = 20,
+                 iterations: Annotated[int, Option("Gauss-Seidel sweeps per substep", flag=True, at_least=1)] = 1):
         super().__init__(system)
-        self.substeps = positive_int("substeps", substeps)
-        self.iterations = positive_int("iterations", iterations)
+        self.substeps, self.iterations = substeps, iterations
         real, n = runtime.real(), system.particle_count
         self.external = ExplicitForces(system)
         self.springs = system.term("springs")

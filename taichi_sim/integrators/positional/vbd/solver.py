@@ -2,6 +2,7 @@
 each."""
 
 import math
+from typing import Annotated
 
 import numpy as np
 import taichi as ti
@@ -13,6 +14,7 @@ from ....systems.base import System
 from ...base import Integrator, Status, StepReport
 from ...equation import FIXED_WORK, Equation
 from ...implicit.common import positive_int
+from ...options import Option
 from ..colouring import colour_vertices
 from .contact import check_contact_options
 from .contact_model import solve_forces
@@ -115,6 +117,7 @@ class VBD(Integrator):
     """
 
     name = "vbd"
+    plot_colour = "#393b79"  # in the benchmarks' plots
     takes_elastic_models = False  # its solve holds springs only (Integrator.takes_elastic_models)
     order = 1
     requires_second_order = True
@@ -140,12 +143,34 @@ class VBD(Integrator):
         per spring (the augmented option)."""
         return particles * (16 * real_bytes + 4) + springs * 2 * real_bytes
 
-    def __init__(self, system: System, *, iterations: int = 20, substeps: int = 1, warm_start: bool = True,
-                 chebyshev_rho: float = 0.0, augmented: bool = False, penalty: float = 1e3,
-                 penalty_growth: float = 1e5, contact: bool = True, self_contact: bool | None = None,
-                 contact_radius: float | None = None, contact_stiffness: float = 100.0,
-                 bound_fraction: float = 0.4, friction_epsilon: float = 0.01, contact_refresh: int = 0,
-                 contact_pieces: int = 16, object_faces: bool = True, energy_cap: bool = True):
+    def __init__(
+            self, system: System, *,
+            iterations: Annotated[int, Option("sweeps per substep", flag=True, at_least=1)] = 20,
+            substeps: Annotated[int, Option("substeps per step", flag=True, at_least=1)] = 1,
+            warm_start: Annotated[bool, Option("start from the adaptive initialisation (else x0 + dt v0)")] = True,
+            chebyshev_rho: Annotated[float, Option("Chebyshev acceleration: the spectral radius estimate (0: off)",
+                                                   flag=True, at_least=0, below=1)] = 0.0,
+            augmented: Annotated[bool, Option("springs as augmented Lagrangian constraints")] = False,
+            penalty: Annotated[float, Option("augmented springs' starting penalty", unit="N/m", above=0)] = 1e3,
+            penalty_growth: Annotated[float, Option("augmented springs' penalty growth per metre of |C| a sweep", unit="N/m^2",
+                                                    at_least=0)] = 1e5,
+            contact: Annotated[bool, Option("the scene's objects in the solve")] = True,
+            self_contact: Annotated[bool | None, Option("the cloth against itself in the solve",
+                                                        default_text="the scene's self_collision")] = None,
+            contact_radius: Annotated[float | None, Option("contact distance", unit="m", above=0,
+                                                           default_text="the scene's thickness, 0.005 m without one")] = None,
+            contact_stiffness: Annotated[float, Option("contact stiffness in units of the vertex's m / dt^2",
+                                                       above=0)] = 100.0,
+            bound_fraction: Annotated[float, Option("a vertex's move cap, as a fraction of its distance to the nearest contact",
+                                                    above=0, below=0.5)] = 0.4,
+            friction_epsilon: Annotated[float, Option("slip speed below which friction is smoothed", unit="m/s",
+                                                      above=0)] = 0.01,
+            contact_refresh: Annotated[int, Option("sweeps between contact detections (0: once per piece)",
+                                                   at_least=0)] = 0,
+            contact_pieces: Annotated[int, Option("most pieces a substep with self-contact is cut into",
+                                                  at_least=1)] = 16,
+            object_faces: Annotated[bool, Option("the cloth's triangles against the objects too")] = True,
+            energy_cap: Annotated[bool, Option("cap a closed scene's energy per substep")] = True):
         super().__init__(system)
         self.iterations = positive_int("iterations", iterations)
         self.substeps = positive_int("substeps", substeps)

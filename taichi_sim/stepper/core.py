@@ -1,132 +1,19 @@
-"""The one stepping core: a scene, an integrator, the blow-up guard and the curves, stepped in
-the house order.
-
-Every path that steps a scene goes through :class:`Stepper`: :func:`taichi_sim.run` (and
-through it ``simulate``, ``advise``, the benchmarks), the launcher's and the recorder's
-:class:`~taichi_sim.app.runner.Runner`, the throughput workers and the tests that step a scene
-by hand. One call of :meth:`Stepper.step` is one integrator call and everything after it:
-
-1. the curves set the parameters for the step's start (a force change resets the integrator
-   and re-bases the guard: energy put in from outside is not a blow-up);
-2. observers' ``before_step`` (nothing else runs between them and the integrator);
-3. ``integrator.step``;
-4. a failed step ends the run here (:meth:`_step_failed`);
-5. an accepted step: the time, the scene's post-step events (``scene.after_step``, less the
-   parts the integrator ``replaces_parts`` in its own solve; the integrator forgets what it
-   carries when they changed the system), the guard's work count
-   and, when due or asked for, its check (a failed check ends the run on the last good state);
-6. observers' ``after_step``.
-
-A run that fails is frozen: :attr:`Stepper.failure` says what, where and what to do, in one
-place (:class:`Failure`), and the scene holds the last state that passed the guard whenever
-the state may be garbage.
-"""
+"""The :class:`Stepper`: a scene, an integrator, the blow-up guard and the curves, stepped in
+the house order, and the one loop that advances time (:meth:`Stepper.run_until`)."""
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass
+from .. import interrupt, runtime
+from ..convergence import ConvergenceMonitor, format_metres
+from ..errors import ConfigError
+from ..guard import Guard, GuardLimits
+from ..integrators import Integrator, Status, StepReport, integrator_class
+from .binding import bind_integrator, check_dt
+from .failure import Failure, failure_advice
 
-from . import runtime
-from .convergence import ConvergenceMonitor, format_metres
-from .errors import ConfigError
-from .guard import Guard, GuardLimits
-from .integrators import Integrator, Status, StepReport, create_integrator, integrator_class
-from .theory import stable_step_advice
-
-ADVICE = "lower the step or pick a more stable integrator"
 #: Work that brings a step's estimated error down by less than this factor has stalled (the
 #: Stepper stops raising it, :meth:`Stepper._converged`).
 STALLED = 0.7
 OK = Status.OK  # a module global: read at every step
-
-
-def check_dt(dt, *, adaptive: bool = False) -> float | None:
-    """``dt`` as a float (s), or None for an adaptive method that picks its first step; raises
-    ConfigError naming ``dt`` for anything else."""
-    if dt is None:
-        if adaptive:
-            return None
-        raise ConfigError("dt is required for a fixed-step integrator")
-    if isinstance(dt, bool) or not isinstance(dt, (int, float)) or not (math.isfinite(dt) and dt > 0):
-        raise ConfigError(f"dt must be a finite number > 0, got {dt}")
-    return float(dt)
-
-
-def bind_integrator(scene, name: str, **options) -> Integrator:
-    """Integrator ``name`` bound to ``scene``'s system with ``options`` over the scene's own
-    for that method (:meth:`~taichi_sim.scene.scene.Scene.options_for`: ``cloth-stiff`` runs
-    XPBD with 50 substeps unless told otherwise); ConfigError for an unknown name or option.
-    Only ``options`` count as given (the scene's are defaults a tolerance may raise)."""
-    integrator = create_integrator(name, scene.system, **{**scene.options_for(name), **options})
-    integrator.given_options = frozenset(options)
-    return integrator
-
-
-def _iterative(integrator: str) -> bool:
-    """Whether the method sweeps a fixed number of ``iterations`` per step (xpbd, vbd, ...)."""
-    try:
-        return "iterations" in integrator_class(integrator).options()
-    except Exception:  # advice must never hide the failure it explains
-        return False
-
-
-def failure_advice(scene, integrator: str, status: Status) -> str:
-    """What to do about a run of ``integrator`` on ``scene`` that ended with ``status``."""
-    if status is Status.DIVERGED:
-        advice = stable_step_advice(scene, integrator)
-        if not advice and _iterative(integrator):
-            # no step limit to name: a fixed number of sweeps leaves a stiff or fine cloth's
-            # step unsolved (cloth-stiff at 96 x 96 with xpbd: diverged with 20, ran with 40)
-            return ("its fixed iterations leave the step unsolved (stiff springs, fine meshes): raise "
-                    "--iterations, or " + ADVICE)
-        return f"{advice}: {ADVICE}" if advice else ADVICE
-    if status is Status.STIFF:
-        return "the problem is stiff: use an implicit method (implicit_euler)"
-    if status is Status.STEP_TOO_SMALL:
-        return "loosen rtol/atol or use f64"
-    return ADVICE
-
-
-@dataclass(frozen=True)
-class Failure:
-    """Why and where a run stopped.
-
-    Attributes:
-        status: anything but OK.
-        step, t: the step that failed, or at which the guard caught the blow-up, and its time (s).
-        integrator: its registry name; h: the step size (s) of the failing call.
-        detail: what the method or the guard saw ("energy rose to ..."), or "".
-        good_step, good_t: the state left in the scene when it was put back to the last one
-            that passed the guard (a DIVERGED run); None when the state was left as it was.
-        advice: what to do about it (:func:`failure_advice`).
-    """
-
-    status: Status
-    step: int
-    t: float
-    integrator: str
-    h: float
-    detail: str
-    good_step: int | None
-    good_t: float | None
-    advice: str
-
-    @property
-    def summary(self) -> str:
-        """Short form for a HUD: "diverged at t = 0.24 s (energy rose to ...)"."""
-        detail = f" ({self.detail})" if self.detail else ""
-        return f"{self.status.value.replace('_', ' ')} at t = {self.t:.4g} s{detail}"
-
-    @property
-    def message(self) -> str:
-        """One line: what stopped the run, where, with what, the state returned and the advice."""
-        detail = f" ({self.detail})" if self.detail else ""
-        text = (f"{self.status.value} at step {self.step} (t = {self.t:.6g} s) with {self.integrator}, "
-                f"h = {self.h:.3g} s{detail}")
-        if self.good_step is not None:
-            text += (f"; the state returned is that of step {self.good_step} (t = {self.good_t:.6g} s), "
-                     f"the last that passed the blow-up check")
-        return f"{text}; {self.advice}"
 
 
 class Stepper:
@@ -180,12 +67,13 @@ class Stepper:
         self.max_residual = max_residual
         self.tolerance = tolerance
         self.raise_work = raise_work
+        self._stopping = False  # an observer asked run_until to end (stop)
         self._step_start = None  # the whole step's start, kept while the work may be raised
         self._attempt = None  # a step's result before it was solved again with more work
         # bound once: each attribute lookup is paid at every step
         self._events, self._spend = scene.after_step, self.guard.spend
         self.driver = None
-        self._before, self._after, self._on_check = [], [], []
+        self._before, self._after, self._on_check = (), (), ()  # tuples: a hook may remove itself
         self._monitors: dict[int, tuple] = {}  # id(integrator) -> (integrator, its monitor)
         for observer in observers:
             self.add_observer(observer)
@@ -196,12 +84,20 @@ class Stepper:
 
     # -- configuration ------------------------------------------------------------------------
 
+    _HOOKS = (("before_step", "_before"), ("after_step", "_after"), ("after_check", "_on_check"))
+
     def add_observer(self, observer) -> None:
         """Call ``observer``'s hooks (see the class docstring) from now on."""
-        for hook, calls in (("before_step", self._before), ("after_step", self._after),
-                            ("after_check", self._on_check)):
+        for hook, calls in self._HOOKS:
             if hasattr(observer, hook):
-                calls.append(getattr(observer, hook))
+                setattr(self, calls, (*getattr(self, calls), getattr(observer, hook)))
+
+    def remove_observer(self, observer) -> None:
+        """Stop calling ``observer``'s hooks (also from inside one of them: the hooks of the
+        step under way are still called)."""
+        for hook, calls in self._HOOKS:
+            if hasattr(observer, hook):
+                setattr(self, calls, tuple(h for h in getattr(self, calls) if h != getattr(observer, hook)))
 
     def set_integrator(self, integrator: Integrator) -> None:
         """Step with ``integrator`` (bound to the scene's system) from the current state on."""
@@ -251,7 +147,7 @@ class Stepper:
     def set_curves(self, curves: dict | None) -> None:
         """Drive parameters along ``curves`` (name -> Spline; None or empty: stop) from the
         current time on (ConfigError for a parameter the scene cannot change while it runs)."""
-        from .curves import CurveDriver
+        from ..curves import CurveDriver
 
         if self.driver is not None:
             self.driver.detach()
@@ -358,24 +254,58 @@ class Stepper:
             return self.step(t_end - self.t, check, t_end)
         return self.step(h, check)
 
-    def advance_to(self, t_end: float, *, whole_steps: bool = False, max_calls: int | None = None) -> int:
-        """Step until :attr:`t` reaches ``t_end`` (s), the run fails or ``max_calls`` integrator
-        calls were made; returns the calls made. The last step is shortened to land on ``t_end``;
-        with ``whole_steps`` a fixed-step method takes only whole steps of ``dt`` (the rest is
-        left for a later call). Checks the state at the end when work was done since the last
-        check."""
+    def run_until(self, *, steps: int | None = None, t_end: float | None = None, check_every: int = 0,
+                  check_last: bool = False, whole_steps: bool = False, max_calls: int | None = None) -> int:
+        """The stepping loop, the only one: step until :attr:`steps` reaches ``steps``, or
+        :attr:`t` reaches ``t_end`` (s), or ``max_calls`` integrator calls were made (the
+        only bound when neither is given), or the run fails, or an observer calls
+        :meth:`stop`; returns the calls made. What a caller does at each step is an observer's
+        ``after_step`` (:func:`taichi_sim.run` keeps its energy trace, frames and progress bar
+        that way); what it does at the end, after this returns.
+
+        Up to ``t_end`` the last step is shortened to land on it; with ``whole_steps`` a
+        fixed-step method takes only whole steps of ``dt`` (the rest is left for a later call).
+        ``check_every``: the guard also checks the state after every ``check_every``-th
+        accepted step (0: only when due). ``check_last``: the step that reaches ``steps`` or
+        ``t_end`` is checked inside it (the method's own result is measured before the
+        post-step events move it). A Ctrl-C that Taichi swallowed while compiling is raised
+        between steps (:func:`taichi_sim.interrupt.check`)."""
+        if steps is not None and t_end is not None:
+            raise ConfigError("give at most one of steps and t_end")
+        if steps is None and t_end is None and max_calls is None:
+            raise ConfigError("give steps, t_end or max_calls")
+        whole = whole_steps and not self.adaptive and t_end is not None
+        step, step_toward, interrupted = self.step, self.step_toward, interrupt.check
         calls = 0
-        while self.failure is None and (max_calls is None or calls < max_calls):
-            left = t_end - self.t
-            if whole_steps and not self.adaptive:
-                if left < self.dt * (1.0 - 1e-9):
+        self._stopping = False
+        while self.failure is None and not self._stopping and (max_calls is None or calls < max_calls):
+            if steps is not None:
+                if self.steps >= steps:
                     break
-                self.step(self.dt)
+            elif whole:
+                if t_end - self.t < self.dt * (1.0 - 1e-9):
+                    break
+            elif t_end is not None and not self.t < t_end:
+                break
+            interrupted()
+            check = check_every > 0 and (self.steps + 1) % check_every == 0
+            if t_end is None or whole:
+                step(self.dt if whole else None,
+                     check or (check_last and steps is not None and self.steps + 1 >= steps))
             else:
-                if left <= 1e-12 * max(1.0, abs(self.t)):
-                    break
-                self.step_toward(t_end)
+                step_toward(t_end, check or (check_last and self.t + (self.h or 0.0) >= t_end * (1 - 1e-12)))
             calls += 1
+        return calls
+
+    def stop(self) -> None:
+        """End :meth:`run_until` after the step under way (an observer's way out: a time
+        budget spent)."""
+        self._stopping = True
+
+    def advance_to(self, t_end: float, *, whole_steps: bool = False, max_calls: int | None = None) -> int:
+        """:meth:`run_until` ``t_end`` (s); then the state is checked when work was done since
+        the last check. Returns the calls made."""
+        calls = self.run_until(t_end=t_end, whole_steps=whole_steps, max_calls=max_calls)
         if self.failure is None and self.guard.work:
             self.check()
         return calls

@@ -2,14 +2,14 @@
 (:mod:`taichi_sim.export`)."""
 from __future__ import annotations
 
-from .errors import ConfigError
+from ..errors import ConfigError
 
 
 def export_request(args):
     """The export format of ``simulate --export``, its path checked before any work (or None)."""
     if args.export is None and args.export_format is None:
         return None
-    from .export import FORMATS, check_export_path, export_format
+    from ..export import FORMATS, check_export_path, export_format
 
     if args.export is not None and args.export_format is None and any(
             str(args.export).endswith(suffix) for suffix in FORMATS["usd"].suffixes):
@@ -27,7 +27,7 @@ def export_request(args):
 
 def export_frames(fmt, arrays, args) -> str:
     """Write the run's frames as ``fmt`` to ``args.export``; the summary line."""
-    from .export import export, frames_of
+    from ..export import export, frames_of
 
     frames = frames_of(arrays, "the run")
     path = export(frames, fmt, args.export, progress=None if not args.quiet else False)
@@ -36,7 +36,7 @@ def export_frames(fmt, arrays, args) -> str:
 
 def cmd_export(args) -> int:
     """A saved run's frames as OBJ or PLY files in a folder, or one USD file."""
-    from .export import check_export_path, export, export_format, load_frames
+    from ..export import check_export_path, export, export_format, load_frames
 
     fmt = export_format(args.format)
     check_export_path(args.out, fmt)

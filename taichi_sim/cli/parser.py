@@ -1,10 +1,12 @@
-"""The ``taichi-sim`` command line's parser: every command, its options and their checks."""
+"""The ``taichi-sim`` command line's parser: every command, its options and their checks (the
+integrators' own options come from their declarations: :mod:`.integrator_flags`)."""
 from __future__ import annotations
 
 import argparse
 import math
 
-from .errors import ConfigError
+from ..errors import ConfigError
+from .integrator_flags import add_integrator_flags, integrator_classes, tolerance_help
 
 EXIT_USAGE = 2
 
@@ -48,7 +50,7 @@ class _Parser(argparse.ArgumentParser):
 
     def _suggestion(self, unknown: list[str]) -> str:
         """"; did you mean --X?" for a single unknown option close to one of this parser's."""
-        from .errors import close_names
+        from ..errors import close_names
 
         if len(unknown) != 1 or not unknown[0].startswith("--"):
             return ""
@@ -75,7 +77,7 @@ def _version() -> str:
         import tomllib
         from pathlib import Path
 
-        pyproject = Path(__file__).resolve().parent.parent / "pyproject.toml"
+        pyproject = Path(__file__).resolve().parents[2] / "pyproject.toml"
         return tomllib.loads(pyproject.read_text())["project"]["version"]
 
 
@@ -146,7 +148,11 @@ def _add_view_options(p: argparse.ArgumentParser) -> None:
                    help=_ARCH_HELP + "; rendering always uses Vulkan")
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
+    """The command line's parser. ``simulate`` takes a flag for each integrator option declared
+    with one (:mod:`.integrator_flags`), which imports the integrators: given the ``argv`` about
+    to be parsed, they are imported only for a ``simulate`` command, and a plug-in it names with
+    ``--integrator`` adds its own flags; without ``argv``, the built-ins' flags are there."""
     parser = _Parser(prog="taichi-sim", description="Particle and mass-spring simulation on Taichi.",
                      epilog="Without a command: the interactive launcher where a display exists, else a "
                             "short showcase recorded into ./out/showcase/.")
@@ -175,42 +181,14 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--arch", choices=("cpu", "gpu"), default=None, help=_ARCH_HELP)
     sim.add_argument("--set", dest="assignments", action="append", type=_assignment, default=[],
                      metavar="NAME=VALUE", help=_SET_HELP)
-    sim.add_argument("--rtol", type=_positive_float, help="relative tolerance (adaptive methods)")
-    sim.add_argument("--atol", type=_positive_float, help="absolute tolerance (adaptive methods)")
-    sim.add_argument("--linear-solver", choices=("cg", "direct"),
-                     help="linear solver of the implicit methods (default cg)")
-    sim.add_argument("--max-step", type=_positive_float,
-                     help="largest step of an adaptive method in s (default: unbounded, or 10x the "
-                          "scene's default dt when the scene has collisions, tearing or emission)")
-    sim.add_argument("--cg-tolerance", type=_positive_float,
-                     help="relative residual at which CG stops (implicit methods; default 1e-3 for "
-                          "implicit_euler_linearised, adaptive (forcing terms) for implicit_euler on "
-                          "particles, else 1e-8 in f64 / 1e-5 in f32)")
-    sim.add_argument("--newton-iterations", type=_positive_int,
-                     help="most Newton iterations per implicit step, before the step is split "
-                          "(default 50)")
-    sim.add_argument("--newton-tolerance", type=_positive_float,
-                     help="relative nonlinear residual at which Newton stops, in (0, 1) (default 1e-3 "
-                          "for implicit_euler on particles, else 1e-6 in f64 / 1e-5 in f32)")
-    sim.add_argument("--substeps", type=_positive_int,
-                     help="substeps per step of xpbd (default 20)")
-    sim.add_argument("--iterations", type=_positive_int,
-                     help="Gauss-Seidel sweeps per substep of xpbd (default 1), or local/global "
-                          "iterations per step of projective_dynamics (default 10)")
-    sim.add_argument("--pd-tolerance", type=_positive_float,
-                     help="projective_dynamics stops iterating once an iteration moves no particle "
-                          "by more than this fraction of the step's largest displacement, in (0, 1)")
-    sim.add_argument("--chebyshev-rho", type=float,
-                     help="projective_dynamics' Chebyshev acceleration: the spectral radius "
-                          "estimate in [0, 1) (default 0: off)")
+    classes = integrator_classes(argv)
+    if classes is not None:
+        add_integrator_flags(sim, classes)
     _add_option(sim, "")
     sim.add_argument("--tolerance", type=_positive_float, metavar="METRES",
                      help="how far a step's positions may be from the solution of the equation its method "
-                          "solves (default 0.001 m; estimated at sampled steps): past it vbd, xpbd and "
-                          "projective_dynamics double their iterations (substeps for xpbd) up to 16 times "
-                          "their default, unless given, then warn; implicit_euler and implicit_midpoint "
-                          "tighten --newton-tolerance tenfold down to 1e-12, unless given, then end "
-                          "not_converged (exit 1)")
+                          "solves (default 0.001 m; estimated at sampled steps)"
+                          + (f": {tolerance_help(classes)}" if classes is not None else ""))
     sim.add_argument("--max-residual", type=_positive_float, metavar="R",
                      help="bound on the relative residual recorded beside the error estimate (default 1e-2)")
     sim.add_argument("--max-energy-growth", type=_positive_float, metavar="F",
@@ -259,7 +237,8 @@ def build_parser() -> argparse.ArgumentParser:
     rec.add_argument("--strain", action="store_true",
                      help="colour the cloth by spring strain, with a colour bar")
     rec.add_argument("--contacts", action="store_true",
-                     help="draw the contacts held in vbd's solve (as the launcher's x key does)")
+                     help="draw the contacts the integrator holds in its solve (as the launcher's x key "
+                          "does)")
     dest = rec.add_mutually_exclusive_group(required=True)
     dest.add_argument("--out", help="FILE.mp4, FILE.gif, or DIR/ for PNG frames")
     dest.add_argument("--showcase", metavar="DIR", nargs="?", const="media",
