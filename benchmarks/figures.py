@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import datetime
 import json
+import math
 import os
 import platform
 import re
@@ -66,7 +67,8 @@ def record(name: str, text: str, value: float, unit: str, *, what: str, command:
         unit: its unit (``"s"``, ``"steps/s"``).
         what: what was measured, one sentence (the table's first column).
         command: the command that measured it, to be run from the repository's root.
-        load: the load average when the bench started (:func:`load_average`; None: now).
+        load: the load average when the bench started (:func:`load_average`; None: now; a
+            figure taken by hand before its bench existed writes ``float("nan")``: not recorded).
         headline: whether the README's table of headline figures lists it.
     """
     if not NAME.match(name):
@@ -74,7 +76,7 @@ def record(name: str, text: str, value: float, unit: str, *, what: str, command:
     if not text or "<!--" in text or "\n" in text:
         raise ValueError(f"figure text must be one line of text, got {text!r}")
     entry = {"name": name, "text": text, "value": float(value), "unit": unit, "what": what,
-             "command": command, "machine": machine(), "load": load_average() if load is None else load, "date": datetime.date.today().isoformat(),
+             "command": command, "machine": machine(), "load": load_average() if load is None else (None if math.isnan(load) else load), "date": datetime.date.today().isoformat(),
              "headline": bool(headline)}
     folder.mkdir(parents=True, exist_ok=True)
     target = folder / f"{name}.json"
@@ -108,8 +110,12 @@ def table(figures: dict[str, dict]) -> str:
     for entry in sorted(figures.values(), key=lambda e: e["name"]):
         if entry["headline"]:
             rows.append(f"| {entry['what']} | **{entry['text']}** | `{entry['command']}` | "
-                        f"{entry['machine']}, load {entry['load']:g}, {entry['date']} |")
+                        f"{entry['machine']}, {_load_text(entry['load'])}, {entry['date']} |")
     return "\n".join(rows) + "\n"
+
+
+def _load_text(load) -> str:
+    return "load not recorded" if load is None else f"load {load:g}"
 
 
 def render(page: str, figures: dict[str, dict]) -> str:
