@@ -13,6 +13,7 @@ from ....collide.hash_grid import PrimitiveHash, cell_order
 from ....collide.mesh_check import check_contact_mesh
 from ....errors import ConfigError
 from .faces import ObjectFaces
+from .mesh_contact import FOUND, MeshContact
 
 CONTACTS_PER_VERTEX = 64  # contact pairs a vertex keeps between refreshes; more are counted, not kept
 PAIRS_PER_VERTEX = 16  # room in the pair list per vertex
@@ -64,7 +65,14 @@ class SolveContact(ObjectFaces):
         self.plane = scene.plane if objects else None
         self.obstacles = [p for p in scene.parts if getattr(p, "shape_functions", False)] if objects else []
         self.has_plane = self.plane is not None
-        self.has_objects = self.has_plane or bool(self.obstacles)
+        # the scene's collider mesh (a body), its post-step pass skipped (mesh_contact.py)
+        collider = scene.part("collider_mesh") if objects else None
+        self.body = None
+        if collider is not None:
+            self.body = MeshContact(collider, system, radius=radius, fraction=bound_fraction,
+                                    spacing=0.75 * _median_edge(scene))
+        self.has_body = self.body is not None
+        self.has_objects = self.has_plane or bool(self.obstacles) or self.has_body
         self.self_contact = bool(self_contact)
         self.stiffness, self.fraction = float(stiffness), float(bound_fraction)
         self.friction_epsilon, self.self_friction = float(friction_epsilon), float(self_friction)
@@ -300,6 +308,11 @@ class SolveContact(ObjectFaces):
                         n = collider.normal(c, q)
                         moved = slip - dt * collider.surface_velocity(c, t, q)
                         f, H = self._push(f, H, d, n, k, 1.0, moved, collider.friction[c], dt)
+            if ti.static(self.has_body):
+                body = self.body
+                if body.state[i] == FOUND:
+                    f, H = self._push(f, H, body.separation(i, p), body.normal[i], k, 1.0, slip - body.moved[i],
+                                      body.friction, dt)
             f, H = self.face_terms(i, x, dt, t, f, H)
         return f, H
 
@@ -376,6 +389,11 @@ class SolveContact(ObjectFaces):
                 for c in range(collider.count):
                     q = p - collider.path.center(c, t)
                     scale = ti.min(scale, self._approach_scale(collider.distance(c, q), collider.normal(c, q), step))
+            if ti.static(self.has_body):
+                body = self.body
+                if body.state[i] == FOUND:
+                    scale = ti.min(scale, self._approach_scale(body.gap(i, p), body.normal[i], step))
+                scale = body.ball_scale(i, p, step, scale)
             scale = self.face_scale(i, x, p, step, t, scale)
             out = old + scale * step
         return out
@@ -468,6 +486,9 @@ class SolveContact(ObjectFaces):
                     for c in range(collider.count):
                         if collider.distance(c, p - collider.path.center(c, t)) < self.radius:
                             touching = True
+                if ti.static(self.has_body):
+                    if self.body.touching(i, x):
+                        touching = True
             flags[i] = OBJECT_CONTACT if touching else 0
         if ti.static(self.self_contact):
             for s in range(ti.min(self.pair_count[None], self.pair_capacity)):
@@ -499,6 +520,16 @@ class SolveContact(ObjectFaces):
         if kind == 1:
             near = w[0] * x[ids[0]] + w[1] * x[ids[1]]
         return near, near - gap
+
+
+def _median_edge(scene) -> float:
+    """The median edge (m) of the scene's cloth at rest (0 without a mesh)."""
+    mesh = scene.mesh
+    if mesh is None or mesh.triangle_count == 0:
+        return 0.0
+    rest = scene.rest_x if scene.rest_x is not None else scene.state.to_numpy()[0]
+    tris = mesh.triangles_np.astype(np.int64)
+    return float(np.median(np.linalg.norm(rest[tris] - rest[np.roll(tris, 1, axis=1)], axis=2)))
 
 
 def check_contact_options(radius, stiffness, bound_fraction, friction_epsilon, refresh) -> None:

@@ -20,6 +20,8 @@ every piece (``SolveContact.penalty_dt``): scaled by a piece's own length, its p
 energy to a folding cloth.
 """
 
+import numpy as np
+
 MAX_PIECES = 256  # pieces of one substep before the step is given up (pins the cloth cannot let by)
 PACE_FIT = 0.9  # a piece shortened for the pace aims its guess at this share of the bounds
 PACE_SHARE = 0.005  # ... for all but this share of the free vertices (a few jiggling in a pile)
@@ -104,6 +106,16 @@ class PieceSchedule:
         piece = _fit_pins(pins, state, t, remaining)
         if piece <= 0.0:
             return 0.0
+        body = contact.body
+        if body is not None:
+            x = state.x.to_numpy()
+            speed = float(np.linalg.norm(state.v.to_numpy(), axis=1).max())
+            shorter = body.piece_length(x, t, piece, remaining / pieces_left)
+            if shorter < piece:
+                piece = _fit_pins(pins, state, t, shorter)
+                if piece <= 0.0:
+                    return 0.0
+            body.detect(state.x, t, t + piece, speed * piece)
         kernels["begin"](piece, use_acceleration, previous_dt, t + piece, 0)
         if pieces_left > 1 and contact.self_contact:
             over = contact.overshoot_above(PACE_SHARE)
@@ -113,6 +125,8 @@ class PieceSchedule:
                     piece = _fit_pins(pins, state, t, shorter)
                     if piece <= 0.0:
                         return 0.0
+                    if body is not None:
+                        body.detect(state.x, t, t + piece, speed * piece)
                     kernels["begin"](piece, use_acceleration, previous_dt, t + piece, 1)
         return piece
 
