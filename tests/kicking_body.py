@@ -2,7 +2,7 @@
 legs as closed triangle meshes (capsules), the right leg turning forward about its hip by
 ``KICK_ANGLE`` in ``KICK_TIME`` seconds, one OBJ per frame (``body_000.obj`` ...); a skirt (a cone
 sewn from panels, the garment scene's) around its hips; a paddle (a thin closed box) that turns
-about a horizontal axis. Used by test_vbd_mesh_contact.py and, at full size, by the measurement
+about a horizontal axis through a hanging sheet. Used by test_vbd_mesh_contact.py and, at full size, by the measurement
 in docs/collisions.md (``python tests/kicking_body.py DIR``)."""
 import math
 import os
@@ -113,20 +113,32 @@ def write_skirt(path: str, **size) -> int:
     return mesh.vertex_count
 
 
-def paddle_frames(fps: float = 60.0, turns: float = 0.5, duration: float = 0.25, size=(0.5, 0.03, 0.12),
-                  axis_height: float = 0.0):
-    """(frames, triangles): a closed box ``size`` (m) whose long side turns about the z axis
-    through (0, ``axis_height``, 0), ``turns`` turns over ``duration`` s (a paddle)."""
-    box = trimesh.creation.box(extents=size)
-    box.apply_translation((size[0] / 2, 0.0, 0.0))
+def paddle_frames(fps: float = 60.0, turns: float = 0.5, duration: float = 0.25, arm: float = 0.45,
+                  width: float = 0.12, thickness: float = 0.03, axis=(0.0, 0.3, 0.0)):
+    """(frames, triangles): a paddle, a closed box ``width`` (x) by ``arm`` by ``thickness`` (m),
+    from ``axis`` out along -z, turning about the x axis through ``axis`` by ``turns`` turns
+    over ``duration`` s (-z, then +y, then +z: through the plane z = 0 above the axis)."""
+    box = trimesh.creation.box(extents=(width, thickness, arm))
+    box.apply_translation((0.0, 0.0, -arm / 2))
+    v = np.asarray(box.vertices)
     frames = []
     count = int(round(duration * fps))
     for k in range(count + 1):
-        angle = 2 * math.pi * turns * k / count
-        c, s = math.cos(angle), math.sin(angle)
-        v = np.asarray(box.vertices)
-        frames.append(np.stack([c * v[:, 0] - s * v[:, 1], s * v[:, 0] + c * v[:, 1] + axis_height, v[:, 2]], axis=1))
+        a = 2 * math.pi * turns * k / count
+        c, s = math.cos(a), math.sin(a)
+        frames.append(np.stack([v[:, 0], c * v[:, 1] - s * v[:, 2], s * v[:, 1] + c * v[:, 2]], axis=1) + axis)
     return np.stack(frames), np.asarray(box.faces)
+
+
+def write_sheet(path: str, n: int = 16, size: float = 0.5, top: float = 1.0) -> None:
+    """A square sheet of n x n vertices in the plane z = 0, ``size`` (m) wide, its top edge at
+    y = ``top``, as an OBJ (a cloth to hang)."""
+    u = np.linspace(-size / 2, size / 2, n)
+    x, y = np.meshgrid(u, top - size / 2 + u[::-1] * -1.0)
+    vertices = np.stack([x.ravel(), y.ravel(), np.zeros(n * n)], axis=1)
+    ids = np.arange(n * n).reshape(n, n)
+    a, b, c, d = ids[:-1, :-1].ravel(), ids[:-1, 1:].ravel(), ids[1:, :-1].ravel(), ids[1:, 1:].ravel()
+    write_obj(path, vertices, np.concatenate([np.stack([a, c, b], 1), np.stack([b, c, d], 1)]))
 
 
 if __name__ == "__main__":  # the full-size body and skirt: python tests/kicking_body.py DIR

@@ -135,6 +135,8 @@ class SolveContact(ObjectFaces):
         self.dropped = ti.field(ti.i32, shape=())  # pairs not kept (lists full) since the last refresh
         self.dropped_total = 0
         self.pairs_total = 0
+        if self.has_body:
+            self.body.self_nearest = self.nearest  # its pace reads the self-contact bounds
 
     # -- detection (host side, once per refresh) -------------------------------------------------
 

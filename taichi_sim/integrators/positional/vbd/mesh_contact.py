@@ -113,6 +113,7 @@ class MeshContact:
         self.detections = 0
         self.last_t = None
         self._speeds = (-1, None)
+        self.self_nearest = None  # the self-contact bounds' distances ((n,) field, m), where the solve has them
         # +1 (-1): a closed mesh whose triangles wind counter-clockwise (clockwise) seen from
         # outside; a vertex that ended inside it is then pushed out, not further in. 0: a shell
         # of two sides (open, or not consistently wound), each vertex kept on its own side.
@@ -272,6 +273,27 @@ class MeshContact:
                     outside = ti.max(ti.max(lo - q1, q1 - hi), 0.0).norm()
                     ball = ti.max(reach - motion, outside)
             self.ball[i] = self.fraction * ball
+
+    def crowding(self) -> float:
+        """The largest share of its bound (its self-contact ball where the solve has
+        ``self_nearest``, else its own) that a vertex must move this piece to get out to the
+        skin where the body's move put it (0: none must). Above 1 the piece's sweeps cannot push
+        it out; pieces.py shortens the piece, since that push shrinks with it."""
+        self.has_self_nearest = self.self_nearest is not None
+        return float(self._crowding())
+
+    @ti.kernel
+    def _crowding(self) -> float:
+        most = 0.0
+        for i in range(self.system.particle_count):
+            if self.state[i] == FOUND:
+                push = self.skin - self.normal[i].dot(self.anchor[i] - self.point[i])
+                if push > 0.0:
+                    bound = self.ball[i]
+                    if ti.static(self.has_self_nearest):
+                        bound = ti.min(bound, self.fraction * self.self_nearest[i])
+                    ti.atomic_max(most, push / ti.max(bound, 1e-12))
+        return most
 
     # -- the solve (kernel functions) --------------------------------------------------------------
 

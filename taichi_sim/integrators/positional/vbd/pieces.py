@@ -25,6 +25,7 @@ import numpy as np
 MAX_PIECES = 256  # pieces of one substep before the step is given up (pins the cloth cannot let by)
 PACE_FIT = 0.9  # a piece shortened for the pace aims its guess at this share of the bounds
 PACE_SHARE = 0.005  # ... for all but this share of the free vertices (a few jiggling in a pile)
+MESH_RETRIES = 3  # shortenings of a piece where a moving collider mesh pushes a vertex past its bounds
 # what a substep returns instead of its non-finite particle count when it cannot go on
 LOST_PAIRS = -1  # a detection could miss pairs (positions non-finite or beyond its hash)
 PINS_STUCK = -2  # the scripted pins found no piece they fit in
@@ -116,6 +117,15 @@ class PieceSchedule:
                 if piece <= 0.0:
                     return 0.0
             body.detect(state.x, t, t + piece, speed * piece)
+            for _ in range(MESH_RETRIES):  # the body pushes a vertex further than its bounds allow
+                over = body.crowding()
+                shorter = max(piece * PACE_FIT / max(over, 1e-30), remaining / pieces_left)
+                if over <= 1.0 or shorter >= piece:
+                    break
+                piece = _fit_pins(pins, state, t, shorter)
+                if piece <= 0.0:
+                    return 0.0
+                body.detect(state.x, t, t + piece, speed * piece)
         kernels["begin"](piece, use_acceleration, previous_dt, t + piece, 0)
         if pieces_left > 1 and contact.self_contact:
             over = contact.overshoot_above(PACE_SHARE)
