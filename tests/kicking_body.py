@@ -15,7 +15,7 @@ KICK_ANGLE = math.radians(60.0)
 KICK_TIME = 1.0 / 3.0
 HIP = (0.075, 0.92, 0.0)  # the right hip joint (m); the left one mirrored in x
 LEG_RADIUS, LEG_LENGTH = 0.065, 0.7
-TORSO_RADIUS, TORSO_HEIGHT, TORSO_CENTRE = 0.12, 0.4, (0.0, 1.2, 0.0)
+TORSO_RADIUS, TORSO_HEIGHT, TORSO_CENTRE = 0.12, 0.4, (0.0, 1.25, 0.0)
 
 
 def _capsule(radius: float, height: float, sections: int) -> trimesh.Trimesh:

@@ -47,9 +47,9 @@ from ....collide.closest_points import closest_barycentric
 # A triangle whose corners lie no further than this share of the skin in front of a vertex's
 # contact plane counts as behind it (round-off of corners on the plane itself).
 BEHIND_TOLERANCE = 1e-4
-# The body's largest move over a piece, near the cloth, is held to this share of the room a
-# vertex's bound leaves it (pieces.py cuts the piece): a vertex the body pushed then gets out
-# in the piece's sweeps.
+# The body's largest move over a piece, near the cloth, is held to this share of bound_fraction
+# x the room a vertex is given (pieces.py cuts the piece): a vertex the body pushes then has a
+# short way out, and a thin part of the body (a paddle) cannot move past a vertex in one piece.
 MESH_PACE = 0.8
 FOUND = 1  # a vertex's state: a contact plane within reach
 
@@ -132,19 +132,27 @@ class MeshContact:
         frame_end = (np.floor(t * player.fps * (1 + 1e-12) + 1e-9) + 1) / player.fps
         if frame_end < t + length * (1 - 1e-9):
             length = frame_end - t
-        k, _ = player.segment(t + 0.5 * length)
-        lo_box, hi_box, speeds = self._segment_speeds(k)
-        centre = self.collider.spec.path.at(t)[0]
-        reach = self.skin + self.radius + self.room
-        lo, hi = x.min(axis=0) - centre - reach, x.max(axis=0) - centre + reach
-        near = np.all((hi_box >= lo) & (lo_box <= hi), axis=1)  # triangles within reach of the cloth
-        if not near.any():
-            return length
-        speed = float(speeds[near].max())  # m/s: no point of a triangle moves faster than its corners
+        speed = self.near_speed(x, t, length)
         allowed = MESH_PACE * self.fraction * self.room
         if speed * length > allowed:
             length = max(allowed / speed, min(shortest, length))
         return length
+
+    def near_speed(self, x: np.ndarray, t: float, length: float) -> float:
+        """The largest speed (m/s) of the mesh's triangles within reach of the cloth at ``x``
+        ((n, 3) m) over the piece from t of ``length`` s (0 beyond the last frame): no point of
+        a triangle moves faster than its corners, nor the mesh's origin than its path."""
+        player = self.player
+        path_speed = float(np.linalg.norm(self.collider.spec.path.at(t)[1]))
+        if not player.animated or t * player.fps >= player.count - 1:
+            return path_speed
+        k, _ = player.segment(t + 0.5 * length)
+        lo_box, hi_box, speeds = self._segment_speeds(k)
+        centre = self.collider.spec.path.at(t)[0]
+        reach = self.skin + self.radius + 2.0 * self.collider.cell
+        lo, hi = x.min(axis=0) - centre - reach, x.max(axis=0) - centre + reach
+        near = np.all((hi_box >= lo) & (lo_box <= hi), axis=1)
+        return path_speed + (float(speeds[near].max()) if near.any() else 0.0)
 
     def _segment_speeds(self, k: int):
         """Each triangle's box over frame segment k (lo, hi: (T, 3) m, mesh frame) and its
@@ -155,11 +163,11 @@ class MeshContact:
             self._speeds = (k, (lo, hi, step[self.collider.triangles_np].max(axis=1)))
         return self._speeds[1]
 
-    def detect(self, x, t0: float, t1: float, largest_move: float) -> None:
+    def detect(self, x, t0: float, t1: float, largest_move: float, x_np: np.ndarray) -> None:
         """The contact planes and bounds of a piece from t0 to t1 (s, one frame segment) at
-        positions ``x`` ((n,) vec3 field, m, the piece's start): the module docstring.
-        ``largest_move``: the most a cloth vertex is expected to move in the piece (m), which
-        the reach grows by so that a vertex's guess fits its bound."""
+        positions ``x`` ((n,) vec3 field, m, the piece's start; ``x_np`` the same as (n, 3)
+        numpy): the module docstring. ``largest_move``: the most a cloth vertex is expected to
+        move in the piece (m), which the reach grows by so that a vertex's guess fits its bound."""
         collider, player = self.collider, self.player
         collider.list_segment(player.segment(0.5 * (t0 + t1))[0])
         npr = runtime.np_real()
@@ -169,11 +177,13 @@ class MeshContact:
         self.after.from_numpy(end.astype(npr))
         c0 = collider.spec.path.at(t0)[0]
         c1 = collider.spec.path.at(t1)[0]
-        motion = float(np.linalg.norm(end - start, axis=1).max()) + float(np.linalg.norm(c1 - c0))
-        room = max(self.room, largest_move / self.fraction)
-        # at most a few grid cells around each vertex (the query's cost): a vertex beyond is
-        # given the room that reach leaves it
-        room = min(room, 2.0 * collider.cell)
+        # the body's move near the cloth (a vertex farther than the reach it sets cannot be met)
+        motion = self.near_speed(x_np, t0, t1 - t0) * (t1 - t0)
+        room = self.room
+        if self.self_nearest is None:
+            # no self-contact ball holds a vertex to about this already: room for its guess, up
+            # to two grid cells around it (the query's cost; a vertex beyond gets what reach leaves)
+            room = max(room, min(largest_move / self.fraction, 2.0 * collider.cell))
         reach = self.skin + self.radius + motion + room
         self._detect(x, ti.Vector(list(c0)), ti.Vector(list(c1)), reach, motion)
         self.detections += 1
@@ -274,16 +284,17 @@ class MeshContact:
                     ball = ti.max(reach - motion, outside)
             self.ball[i] = self.fraction * ball
 
-    def crowding(self) -> float:
-        """The largest share of its bound (its self-contact ball where the solve has
-        ``self_nearest``, else its own) that a vertex must move this piece to get out to the
-        skin where the body's move put it (0: none must). Above 1 the piece's sweeps cannot push
-        it out; pieces.py shortens the piece, since that push shrinks with it."""
+    def crowding(self, refreshes: int) -> float:
+        """The largest share of its bound (its self-contact ball, moved on ``refreshes`` times
+        in the piece, where the solve has ``self_nearest``; else its own) that a vertex must move
+        this piece to get out to the skin where the body's move put it (0: none must). Above 1
+        the piece's sweeps cannot push it out; pieces.py shortens the piece, since that push
+        shrinks with it."""
         self.has_self_nearest = self.self_nearest is not None
-        return float(self._crowding())
+        return float(self._crowding(refreshes))
 
     @ti.kernel
-    def _crowding(self) -> float:
+    def _crowding(self, refreshes: ti.i32) -> float:
         most = 0.0
         for i in range(self.system.particle_count):
             if self.state[i] == FOUND:
@@ -291,7 +302,7 @@ class MeshContact:
                 if push > 0.0:
                     bound = self.ball[i]
                     if ti.static(self.has_self_nearest):
-                        bound = ti.min(bound, self.fraction * self.self_nearest[i])
+                        bound = ti.min(bound, refreshes * self.fraction * self.self_nearest[i])
                     ti.atomic_max(most, push / ti.max(bound, 1e-12))
         return most
 
