@@ -106,7 +106,8 @@ def write_frames(folder: str, frames: np.ndarray, triangles: np.ndarray, name: s
 def write_skirt(path: str, **size) -> int:
     """The garment scene's skirt (its defaults, or smaller by ``size``) as an OBJ; returns its
     vertex count."""
-    from taichi_sim.scene.garment import skirt_mesh, write_obj as write_cloth
+    from taichi_sim.scene.garment import skirt_mesh
+    from taichi_sim.scene.garment import write_obj as write_cloth
 
     mesh = skirt_mesh(**size)
     write_cloth(mesh, path)

@@ -13,7 +13,7 @@ from ....collide.hash_grid import PrimitiveHash, cell_order
 from ....collide.mesh_check import check_contact_mesh
 from ....errors import ConfigError
 from .faces import ObjectFaces
-from .mesh_contact import FOUND, MeshContact
+from .mesh_contact import FOUND, MeshContact, median_edge
 
 CONTACTS_PER_VERTEX = 64  # contact pairs a vertex keeps between refreshes; more are counted, not kept
 PAIRS_PER_VERTEX = 16  # room in the pair list per vertex
@@ -26,7 +26,9 @@ OBJECT_CONTACT = 2  # flag of a vertex within the contact radius of an object
 class SolveContact(ObjectFaces):
     """What :class:`~.vbd.VBD` adds to vertex i's block when contact is in the solve.
 
-    Objects (the ground plane, spheres, capsules, boxes, where they are at the substep's end):
+    Objects (the ground plane, spheres, capsules, boxes, where they are at the substep's end;
+    the collider mesh through :class:`~.mesh_contact.MeshContact`, ``body``, its contact plane
+    per vertex found once per piece):
     with d the signed distance to the surface and n its outward normal, below the contact
     radius r the energy 1/2 k_i (r - d)^2 with k_i = ``stiffness`` m_i / dt^2 (dt the
     substep's length, ``penalty_dt``, also in each of its pieces), and IPC's lagged
@@ -48,7 +50,8 @@ class SolveContact(ObjectFaces):
 
     Args:
         scene: the :class:`~taichi_sim.scene.Scene` (its plane, the parts with the
-            ``Obstacle`` shape functions: spheres, capsules, boxes; its mesh).
+            ``Obstacle`` shape functions: spheres, capsules, boxes; its collider mesh; its
+            cloth mesh).
         delta: the integrator's (n,) displacement field x - x0 (m) (read for the slip).
         objects: put the scene's objects in the solve.
         object_faces: with ``objects``, the cloth's triangles against them too (faces.py).
@@ -70,7 +73,7 @@ class SolveContact(ObjectFaces):
         self.body = None
         if collider is not None:
             self.body = MeshContact(collider, system, radius=radius, fraction=bound_fraction,
-                                    spacing=0.75 * _median_edge(scene))
+                                    spacing=0.75 * median_edge(scene))
         self.has_body = self.body is not None
         self.has_objects = self.has_plane or bool(self.obstacles) or self.has_body
         self.self_contact = bool(self_contact)
@@ -522,16 +525,6 @@ class SolveContact(ObjectFaces):
         if kind == 1:
             near = w[0] * x[ids[0]] + w[1] * x[ids[1]]
         return near, near - gap
-
-
-def _median_edge(scene) -> float:
-    """The median edge (m) of the scene's cloth at rest (0 without a mesh)."""
-    mesh = scene.mesh
-    if mesh is None or mesh.triangle_count == 0:
-        return 0.0
-    rest = scene.rest_x if scene.rest_x is not None else scene.state.to_numpy()[0]
-    tris = mesh.triangles_np.astype(np.int64)
-    return float(np.median(np.linalg.norm(rest[tris] - rest[np.roll(tris, 1, axis=1)], axis=2)))
 
 
 def check_contact_options(radius, stiffness, bound_fraction, friction_epsilon, refresh) -> None:
