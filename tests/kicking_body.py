@@ -3,7 +3,7 @@ legs as closed triangle meshes (capsules), the right leg turning forward about i
 ``KICK_ANGLE`` in ``KICK_TIME`` seconds, one OBJ per frame (``body_000.obj`` ...); a skirt (a cone
 sewn from panels, the garment scene's) around its hips; a paddle (a thin closed box) that turns
 about a horizontal axis through a hanging sheet. Used by test_vbd_mesh_contact.py and, at full size, by the measurement
-in docs/collisions.md (``python tests/kicking_body.py DIR``)."""
+in docs/meshes.md (``python tests/kicking_body.py kick/skirt.obj 'kick/body_*.obj'``)."""
 import math
 import os
 import sys
@@ -142,9 +142,10 @@ def write_sheet(path: str, n: int = 16, size: float = 0.5, top: float = 1.0) -> 
     write_obj(path, vertices, np.concatenate([np.stack([a, c, b], 1), np.stack([b, c, d], 1)]))
 
 
-if __name__ == "__main__":  # the full-size body and skirt: python tests/kicking_body.py DIR
-    folder = sys.argv[1]
-    frames, triangles = body_frames(sections=int(sys.argv[2]) if len(sys.argv) > 2 else 28)
-    pattern = write_frames(folder, frames, triangles)
-    vertices = write_skirt(os.path.join(folder, "skirt.obj"))
-    print(f"{pattern}: {len(frames)} frames of {frames.shape[1]} vertices; skirt.obj: {vertices} vertices")
+if __name__ == "__main__":  # the full-size skirt and body: python tests/kicking_body.py SKIRT.obj 'DIR/body_*.obj' [SECTIONS]
+    skirt_path, pattern = sys.argv[1], sys.argv[2]
+    frames, triangles = body_frames(sections=int(sys.argv[3]) if len(sys.argv) > 3 else 28)
+    folder, name = os.path.dirname(pattern) or ".", os.path.basename(pattern).split("_*")[0]
+    write_frames(folder, frames, triangles, name=name)
+    vertices = write_skirt(skirt_path)
+    print(f"{pattern}: {len(frames)} frames of {frames.shape[1]} vertices; {skirt_path}: {vertices} vertices")

@@ -466,6 +466,8 @@ class SolveContact(ObjectFaces):
         if self.self_contact:
             self.pair_count[None] = 0
             self.vertex_pair_count.fill(0)
+        if self.has_body:
+            self.body.state.fill(0)
 
     def pair_total(self) -> int:
         """Contact pairs the last detection kept (0 without self-contact or after
