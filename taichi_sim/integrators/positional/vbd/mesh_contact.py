@@ -137,11 +137,10 @@ class MeshContact:
         move within reach of the cloth (``x`` (n, 3) m) stays below ``MESH_PACE`` x
         ``bound_fraction`` x the room (not below ``shortest`` s)."""
         player = self.player
-        if not player.animated or t * player.fps >= player.count - 1:
-            return length
-        frame_end = (np.floor(t * player.fps * (1 + 1e-12) + 1e-9) + 1) / player.fps
-        if frame_end < t + length * (1 - 1e-9):
-            length = frame_end - t
+        if player.animated and t * player.fps < player.count - 1:
+            frame_end = (np.floor(t * player.fps * (1 + 1e-12) + 1e-9) + 1) / player.fps
+            if frame_end < t + length * (1 - 1e-9):
+                length = frame_end - t
         speed = self.near_speed(x, t, length)
         allowed = MESH_PACE * self.fraction * self.room
         if speed * length > allowed:
