@@ -151,20 +151,10 @@ class MeshCollider(ScenePart):
         """Put the triangles where the frames have them at t (s), with their move since t - h."""
         if self.t_posed is not None and not self.player.animated:
             return  # a rigid mesh stays as built
-        segment, _ = self.player.segment(t)
-        if segment != self.listed_segment:
-            start, listed = self.grid.lists(*self._grown(segment))
-            self.cell_start.from_numpy(start.astype(np.int32))
-            self.cell_triangles.from_numpy(np.pad(listed, (0, self.cell_triangles.shape[0] - len(listed)))
-                                           .astype(np.int32))
-            self.listed_segment = segment
+        self.list_segment(self.player.segment(t)[0])
         npr = runtime.np_real()
-        now = self.player.vertices(t)
+        now = self.follow(t)
         corners = now[self.triangles_np]
-        normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-        length = np.linalg.norm(normals, axis=1, keepdims=True)
-        # a triangle passing through zero area between two frames keeps its last normal
-        self.normals_np = np.where(length > 0, normals / np.where(length > 0, length, 1.0), self.normals_np)
         shift = (now - self.player.vertices(t - h))[self.triangles_np].mean(axis=1)
         velocity = self.player.velocities(t)[self.triangles_np].mean(axis=1)
         self.corner.from_numpy(corners.astype(npr))
@@ -172,8 +162,34 @@ class MeshCollider(ScenePart):
         self.face_shift.from_numpy(shift.astype(npr))
         self.face_velocity.from_numpy(velocity.astype(npr))
         self.largest_shift = float(np.linalg.norm(shift, axis=1).max())
-        self.vertices_np = now
         self.t_posed = t
+
+    def list_segment(self, segment: int) -> None:
+        """Fill the grid's cell lists (``cell_start``, ``cell_triangles``) with the triangles'
+        boxes over frame segment ``segment``, grown by the skin (a no-op when listed already):
+        any pose within the segment is found through them."""
+        if segment != self.listed_segment:
+            start, listed = self.grid.lists(*self._grown(segment))
+            self.cell_start.from_numpy(start.astype(np.int32))
+            self.cell_triangles.from_numpy(np.pad(listed, (0, self.cell_triangles.shape[0] - len(listed)))
+                                           .astype(np.int32))
+            self.listed_segment = segment
+
+    def follow(self, t: float) -> np.ndarray:
+        """Take the pose at t (s) on the host only (what the npz, `check` and a viewer read:
+        ``t``, ``vertices_np``, ``normals_np``) and return its vertices (V, 3) m, mesh frame;
+        where vbd's solve meets the mesh (its post-step pass does not run) the solve calls it."""
+        self.t = t
+        if self.t_posed is not None and not self.player.animated:
+            return self.vertices_np
+        now = self.player.vertices(t)
+        corners = now[self.triangles_np]
+        normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+        length = np.linalg.norm(normals, axis=1, keepdims=True)
+        # a triangle passing through zero area between two frames keeps its last normal
+        self.normals_np = np.where(length > 0, normals / np.where(length > 0, length, 1.0), self.normals_np)
+        self.vertices_np = now
+        return now
 
     @classmethod
     def from_specs(cls, specs: list[MeshObstacle], context) -> "MeshCollider":

@@ -13,6 +13,7 @@ from ....collide.hash_grid import PrimitiveHash, cell_order
 from ....collide.mesh_check import check_contact_mesh
 from ....errors import ConfigError
 from .faces import ObjectFaces
+from .mesh_contact import FOUND, MeshContact, median_edge
 
 CONTACTS_PER_VERTEX = 64  # contact pairs a vertex keeps between refreshes; more are counted, not kept
 PAIRS_PER_VERTEX = 16  # room in the pair list per vertex
@@ -25,7 +26,9 @@ OBJECT_CONTACT = 2  # flag of a vertex within the contact radius of an object
 class SolveContact(ObjectFaces):
     """What :class:`~.vbd.VBD` adds to vertex i's block when contact is in the solve.
 
-    Objects (the ground plane, spheres, capsules, boxes, where they are at the substep's end):
+    Objects (the ground plane, spheres, capsules, boxes, where they are at the substep's end;
+    the collider mesh through :class:`~.mesh_contact.MeshContact`, ``body``, its contact plane
+    per vertex found once per piece):
     with d the signed distance to the surface and n its outward normal, below the contact
     radius r the energy 1/2 k_i (r - d)^2 with k_i = ``stiffness`` m_i / dt^2 (dt the
     substep's length, ``penalty_dt``, also in each of its pieces), and IPC's lagged
@@ -47,7 +50,8 @@ class SolveContact(ObjectFaces):
 
     Args:
         scene: the :class:`~taichi_sim.scene.Scene` (its plane, the parts with the
-            ``Obstacle`` shape functions: spheres, capsules, boxes; its mesh).
+            ``Obstacle`` shape functions: spheres, capsules, boxes; its collider mesh; its
+            cloth mesh).
         delta: the integrator's (n,) displacement field x - x0 (m) (read for the slip).
         objects: put the scene's objects in the solve.
         object_faces: with ``objects``, the cloth's triangles against them too (faces.py).
@@ -64,7 +68,14 @@ class SolveContact(ObjectFaces):
         self.plane = scene.plane if objects else None
         self.obstacles = [p for p in scene.parts if getattr(p, "shape_functions", False)] if objects else []
         self.has_plane = self.plane is not None
-        self.has_objects = self.has_plane or bool(self.obstacles)
+        # the scene's collider mesh (a body), its post-step pass skipped (mesh_contact.py)
+        collider = scene.part("collider_mesh") if objects else None
+        self.body = None
+        if collider is not None:
+            self.body = MeshContact(collider, system, radius=radius, fraction=bound_fraction,
+                                    spacing=0.75 * median_edge(scene))
+        self.has_body = self.body is not None
+        self.has_objects = self.has_plane or bool(self.obstacles) or self.has_body
         self.self_contact = bool(self_contact)
         self.stiffness, self.fraction = float(stiffness), float(bound_fraction)
         self.friction_epsilon, self.self_friction = float(friction_epsilon), float(self_friction)
@@ -127,6 +138,8 @@ class SolveContact(ObjectFaces):
         self.dropped = ti.field(ti.i32, shape=())  # pairs not kept (lists full) since the last refresh
         self.dropped_total = 0
         self.pairs_total = 0
+        if self.has_body:
+            self.body.self_nearest = self.nearest  # its pace reads the self-contact bounds
 
     # -- detection (host side, once per refresh) -------------------------------------------------
 
@@ -300,6 +313,11 @@ class SolveContact(ObjectFaces):
                         n = collider.normal(c, q)
                         moved = slip - dt * collider.surface_velocity(c, t, q)
                         f, H = self._push(f, H, d, n, k, 1.0, moved, collider.friction[c], dt)
+            if ti.static(self.has_body):
+                body = self.body
+                if body.state[i] == FOUND:
+                    f, H = self._push(f, H, body.separation(i, p), body.normal[i], k, 1.0, slip - body.moved[i],
+                                      body.friction, dt)
             f, H = self.face_terms(i, x, dt, t, f, H)
         return f, H
 
@@ -376,6 +394,11 @@ class SolveContact(ObjectFaces):
                 for c in range(collider.count):
                     q = p - collider.path.center(c, t)
                     scale = ti.min(scale, self._approach_scale(collider.distance(c, q), collider.normal(c, q), step))
+            if ti.static(self.has_body):
+                body = self.body
+                if body.state[i] == FOUND:
+                    scale = ti.min(scale, self._approach_scale(body.gap(i, p), body.normal[i], step))
+                scale = body.ball_scale(i, p, step, scale)
             scale = self.face_scale(i, x, p, step, t, scale)
             out = old + scale * step
         return out
@@ -443,6 +466,8 @@ class SolveContact(ObjectFaces):
         if self.self_contact:
             self.pair_count[None] = 0
             self.vertex_pair_count.fill(0)
+        if self.has_body:
+            self.body.state.fill(0)
 
     def pair_total(self) -> int:
         """Contact pairs the last detection kept (0 without self-contact or after
@@ -468,6 +493,9 @@ class SolveContact(ObjectFaces):
                     for c in range(collider.count):
                         if collider.distance(c, p - collider.path.center(c, t)) < self.radius:
                             touching = True
+                if ti.static(self.has_body):
+                    if self.body.touching(i, x):
+                        touching = True
             flags[i] = OBJECT_CONTACT if touching else 0
         if ti.static(self.self_contact):
             for s in range(ti.min(self.pair_count[None], self.pair_capacity)):

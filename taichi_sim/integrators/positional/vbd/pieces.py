@@ -20,9 +20,12 @@ every piece (``SolveContact.penalty_dt``): scaled by a piece's own length, its p
 energy to a folding cloth.
 """
 
+import numpy as np
+
 MAX_PIECES = 256  # pieces of one substep before the step is given up (pins the cloth cannot let by)
 PACE_FIT = 0.9  # a piece shortened for the pace aims its guess at this share of the bounds
 PACE_SHARE = 0.005  # ... for all but this share of the free vertices (a few jiggling in a pile)
+MESH_RETRIES = 3  # shortenings of a piece where a moving collider mesh pushes a vertex past its bounds
 # what a substep returns instead of its non-finite particle count when it cannot go on
 LOST_PAIRS = -1  # a detection could miss pairs (positions non-finite or beyond its hash)
 PINS_STUCK = -2  # the scripted pins found no piece they fit in
@@ -46,6 +49,7 @@ class PieceSchedule:
         self.most = most
         self.pieces = 0  # pieces run since construction
         self.last_length = 0.0  # the last piece's length (s): the next one's previous_dt
+        self.refreshes = 1  # self-contact detections a piece
 
     def substep(self, kernels: dict, sweeps, state, iterate, contact, pins, *, dt: float, t_end: float,
                 use_acceleration: int, previous_dt: float, iterations: int, warm_start: bool,
@@ -75,6 +79,8 @@ class PieceSchedule:
         Returns the non-finite particles, or ``LOST_PAIRS`` or ``PINS_STUCK`` (:data:`FAILURES`
         says why)."""
         contact.penalty_dt[None] = dt
+        # the self-contact detections in a piece (each moves the bounds on): a moving mesh's pace
+        self.refreshes = max(1, iterations // contact.refresh_every) if contact.refresh_every else 1
         t, remaining = t_end - dt, dt
         for done in range(MAX_PIECES):
             if contact.refresh(state.x):
@@ -104,6 +110,25 @@ class PieceSchedule:
         piece = _fit_pins(pins, state, t, remaining)
         if piece <= 0.0:
             return 0.0
+        body = contact.body
+        if body is not None:
+            x = state.x.to_numpy()
+            speed = float(np.linalg.norm(state.v.to_numpy(), axis=1).max())
+            shorter = body.piece_length(x, t, piece, remaining / pieces_left)
+            if shorter < piece:
+                piece = _fit_pins(pins, state, t, shorter)
+                if piece <= 0.0:
+                    return 0.0
+            body.detect(state.x, t, t + piece, speed * piece, x)
+            for _ in range(MESH_RETRIES):  # the body pushes a vertex further than its bounds allow
+                over = body.crowding(self.refreshes)
+                shorter = max(piece * PACE_FIT / max(over, 1e-30), remaining / pieces_left)
+                if over <= 1.0 or shorter >= piece:
+                    break
+                piece = _fit_pins(pins, state, t, shorter)
+                if piece <= 0.0:
+                    return 0.0
+                body.detect(state.x, t, t + piece, speed * piece, x)
         kernels["begin"](piece, use_acceleration, previous_dt, t + piece, 0)
         if pieces_left > 1 and contact.self_contact:
             over = contact.overshoot_above(PACE_SHARE)
@@ -113,6 +138,8 @@ class PieceSchedule:
                     piece = _fit_pins(pins, state, t, shorter)
                     if piece <= 0.0:
                         return 0.0
+                    if body is not None:
+                        body.detect(state.x, t, t + piece, speed * piece, x)
                     kernels["begin"](piece, use_acceleration, previous_dt, t + piece, 1)
         return piece
 

@@ -4,6 +4,7 @@ through which :class:`~.solver.VBD` learns what its solve meets and what it take
 from dataclasses import dataclass
 
 from ....collide.self_contact import SelfCollision
+from ....scene.colliders.mesh_collider import MeshCollider
 from ....scene.kinematic import KinematicPins
 from .contact import SolveContact
 from .pins import DrivenPins
@@ -20,7 +21,7 @@ class ContactSetup:
             None where the solve meets nothing.
         pins: the scene's scripted pins the solve moves itself (with self-contact), or None.
         replaces_parts: names of the scene parts whose work the solve does (the Stepper skips
-            their post-step events: ``self_collision``, ``kinematic``).
+            their post-step events: ``self_collision``, ``kinematic``, ``collider_mesh``).
         pauses_object_faces: whether the objects' post-step face pass waits (it would move
             vertices past the self-contact bounds).
         work_weight: a sweep's cost in sweeps over springs alone (the convergence monitor's
@@ -59,7 +60,8 @@ def contact_setup(scene, options: dict, self_contact: bool | None, delta) -> Con
                and mesh is not None and not mesh.tearable)
     options["self_contact"] = follows if self_contact is None else self_contact
     has_objects = options["objects"] and (
-        scene.plane is not None or any(getattr(p, "shape_functions", False) for p in scene.parts))
+        scene.plane is not None or any(getattr(p, "shape_functions", False) for p in scene.parts)
+        or scene.part(MeshCollider.name) is not None)
     if not (has_objects or options["self_contact"]):
         return ContactSetup()
     if options["radius"] is None:
@@ -74,7 +76,9 @@ def contact_setup(scene, options: dict, self_contact: bool | None, delta) -> Con
         contact=contact,
         pins=DrivenPins(pins, contact, scene.system.particle_count) if drives else None,
         replaces_parts=frozenset(({SelfCollision.name} if follows else set())
-                                 | ({KinematicPins.name} if drives else set())),
+                                 | ({KinematicPins.name} if drives else set())
+                                 # its post-step pass would move vertices past the solve's bounds
+                                 | ({MeshCollider.name} if contact.has_body else set())),
         # the objects' face pass would move vertices past the self-contact bounds; it waits only
         # where the solve meets the objects itself (option ``contact``)
         pauses_object_faces=contact.self_contact and contact.has_objects,
