@@ -1,0 +1,51 @@
+"""What a command's first step costs before it steps: the kernels set-up compiles (or loads from
+Taichi's cache), each a fixed cost of tens of milliseconds (docs/design-front-ends.md, "Compile
+time")."""
+import importlib
+import traceback
+
+import pytest
+
+import taichi_sim as ts
+
+_field_module = importlib.import_module("taichi.lang.field")  # taichi.lang.field is also a function
+
+
+def _caller() -> str:
+    """The package's line that asked for the kernel."""
+    frames = [f for f in traceback.extract_stack() if "/taichi_sim/" in f.filename]
+    return f"{frames[-1].filename.split('/taichi_sim/')[-1]}:{frames[-1].lineno}" if frames else "?"
+
+
+@pytest.fixture
+def setup_kernels(monkeypatch):
+    """The kernels Taichi makes for plumbing while the test runs: item access from Python
+    (``field[None] = v`` compiles one kernel per field, and per component of a vector) and
+    Taichi's own ``to_numpy`` / ``from_numpy`` / ``fill`` kernels, each one name per instance."""
+    made = []
+    accessor = _field_module.SNodeHostAccessor
+    original_init = accessor.__init__
+
+    def counted_init(self, snode):
+        made.append(f"item access at {_caller()}")
+        original_init(self, snode)
+
+    monkeypatch.setattr(accessor, "__init__", counted_init)
+    kernel = importlib.import_module("taichi.lang.kernel_impl").Kernel
+    original_materialize = kernel.materialize
+
+    def counted_materialize(self, key=None, args=None, arg_features=None):
+        if self.func.__module__ == "taichi._kernels" and (key not in self.compiled_kernels):
+            made.append(f"Taichi's {self.func.__name__} at {_caller()}")
+        return original_materialize(self, key, args, arg_features)
+
+    monkeypatch.setattr(kernel, "materialize", counted_materialize)
+    return made
+
+
+def test_a_contact_cloth_and_its_solver_set_up_without_plumbing_kernels(f64, setup_kernels):
+    # cloth-fold has every part set-up wrote from Python one value at a time: gravity, drag, the
+    # floor plane, self-contact with its hash grids, and vbd's contact detection and colouring
+    scene = ts.build_scene("cloth-fold", {"nx": 6, "ny": 6})
+    ts.Stepper(scene, "vbd", 1 / 60)  # the stepper attaches the scene's contact to vbd's solve
+    assert setup_kernels == [], "\n".join(setup_kernels)
