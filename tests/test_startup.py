@@ -2,12 +2,16 @@
 Taichi's cache), each a fixed cost of tens of milliseconds (docs/design-front-ends.md, "Compile
 time")."""
 import importlib
+import os
+import subprocess
+import sys
 import traceback
 
 import pytest
 
 import taichi_sim as ts
 
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 _field_module = importlib.import_module("taichi.lang.field")  # taichi.lang.field is also a function
 
 
@@ -49,3 +53,33 @@ def test_a_contact_cloth_and_its_solver_set_up_without_plumbing_kernels(f64, set
     scene = ts.build_scene("cloth-fold", {"nx": 6, "ny": 6})
     ts.Stepper(scene, "vbd", 1 / 60)  # the stepper attaches the scene's contact to vbd's solve
     assert setup_kernels == [], "\n".join(setup_kernels)
+
+
+_COMPILE_AND_EXIT = """
+import taichi as ti
+import taichi_sim as ts
+
+ts.init(precision="f64")
+@ti.kernel
+def twice(a: ti.f64) -> ti.f64:
+    return 2.0 * a
+twice(1.0)
+ts.init(precision="f64")  # a second program: resetting the first writes the cache
+twice(2.0)
+print("last line", flush=True)
+"""
+
+
+def test_a_process_prints_nothing_after_its_last_line_when_the_kernel_cache_is_locked(tmp_path):
+    # another process holds the cache's lock (a test worker or command exiting at the same
+    # moment): Taichi gives up writing after 0.2 s and warned on stderr, after the command's
+    # output and after pytest's summary
+    (tmp_path / "ticache.lock").touch()
+    env = {**os.environ, "TI_OFFLINE_CACHE_FILE_PATH": str(tmp_path), "PYTHONPATH": ROOT}
+    script = tmp_path / "compile_and_exit.py"  # a file: Taichi reads a kernel's source
+    script.write_text(_COMPILE_AND_EXIT)
+    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, env=env, cwd=ROOT,
+                          timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout == "last line\n"
+    assert done.stderr == ""
