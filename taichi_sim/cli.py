@@ -392,13 +392,14 @@ def cmd_default() -> int:
     from .app.launcher import Launcher
     from .app.session import Session
     from .app.showcase import QUICK_SHOWCASE, record_showcase
+    from .app.warm import START_INTEGRATOR, START_SCENE
     from .render import RenderUnavailable
 
     try:
         runtime.init(arch="cpu", precision="f64")
         problem = display_problem()
         if problem is None:
-            Launcher(Session("cloth", ["symplectic_euler"], interactive=True)).run()
+            Launcher(Session(START_SCENE, [START_INTEGRATOR], interactive=True)).run()
             return 0
         print(f"taichi-sim: {problem}: recording a short showcase into {QUICK_SHOWCASE_DIR}/ instead",
               file=sys.stderr)

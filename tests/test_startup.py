@@ -83,3 +83,32 @@ def test_a_process_prints_nothing_after_its_last_line_when_the_kernel_cache_is_l
     assert done.returncode == 0, done.stderr
     assert done.stdout == "last line\n"
     assert done.stderr == ""
+
+
+def test_the_warm_up_starts_where_the_launcher_of_taichi_sim_starts(monkeypatch):
+    # every kernel the warm-up compiles is keyed by the fields made before it: a warm-up that
+    # opened on another scene or method than `taichi-sim` does would fill the cache for nothing
+    from taichi_sim.app import display, launcher, warm
+    from taichi_sim.cli import cmd_default
+
+    opened = []
+
+    class Opened:
+        def __init__(self, session, *args, **kwargs):
+            opened.append(session)
+
+        def run(self):
+            pass
+
+    monkeypatch.setattr(display, "display_problem", lambda: None)
+    monkeypatch.setattr(launcher, "Launcher", Opened)
+    assert cmd_default() == 0
+    assert [(s.scene_name, s.integrators) for s in opened] == [(warm.START_SCENE, [warm.START_INTEGRATOR])]
+
+
+def test_the_warm_up_names_an_unknown_scene(capsys):
+    from taichi_sim.app import warm
+
+    assert warm.main(["no-such-scene"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "no-such-scene" in err
