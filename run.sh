@@ -13,10 +13,14 @@ fi
 # already open compiles its own first visits: a Taichi program reads the cache's index once).
 if [ -n "${DISPLAY:-}${WAYLAND_DISPLAY:-}" ] && [ "${TS_WARM:-1}" != 0 ]; then
   code="$(find taichi_sim -name '*.py' -print0 | sort -z | xargs -0 cat | sha256sum | cut -c1-16)"
-  if [ "$(cat .venv/.warmed 2>/dev/null || true)" != "$code" ]; then
+  running="$(cat .venv/warm.pid 2>/dev/null || true)"
+  if [ "$(cat .venv/.warmed 2>/dev/null || true)" != "$code" ] && \
+     ! { [ -n "$running" ] && kill -0 "$running" 2>/dev/null; }; then
     echo "[setup] compiling the launcher's scenes ahead in the background (once; log: .venv/warm.log)" >&2
-    (nice -n 19 .venv/bin/python -m taichi_sim.app.warm >.venv/warm.log 2>&1 && echo "$code" > .venv/.warmed) \
+    # once per version of the code, also where a scene failed (the log names it)
+    (nice -n 19 .venv/bin/python -m taichi_sim.app.warm >.venv/warm.log 2>&1; echo "$code" > .venv/.warmed) \
       </dev/null >/dev/null 2>&1 &
+    echo $! > .venv/warm.pid
   fi
 fi
 exec .venv/bin/taichi-sim
