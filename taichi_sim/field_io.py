@@ -7,6 +7,11 @@ one kernel for all of them (docs/design.md, "Compile time"). The values travel
 through one buffer, float32 when every field is f32 and float64 otherwise (which holds every
 f32, f64 and i32 value exactly); where a float64 buffer is needed on a backend that may lack
 float64 (Vulkan, Metal), each field is copied by Taichi's own kernel instead.
+
+Fields of shape () (a part's scalars and vectors: a thickness, a plane's point) go through here
+too: from Python, ``field[None] = value`` compiles a kernel of Taichi's own for each such field,
+and for a vector one per component (``snode_writer``), so a part that sets several of them at
+once does it with :func:`write` (docs/design-front-ends.md, "Compile time").
 """
 
 import math
@@ -23,8 +28,6 @@ def _layout(fields) -> tuple:
     rows, offset = [], 0
     for field in fields:
         shape = tuple(int(s) for s in field.shape)
-        if not shape:
-            raise ValueError("field_io needs fields with at least one index (not shape ())")
         element = ()
         if isinstance(field, MatrixField):  # a vector field is one of n x 1 (ndim 1)
             element = (field.n, field.m) if field.ndim == 2 else (field.n,)
@@ -42,22 +45,43 @@ def _flat(index, shape: ti.template()):
     return flat
 
 
+@ti.func
+def _put(out: ti.template(), at, value, element: ti.template(), real: ti.template()):
+    """Store one field element (a scalar, vector or matrix of ``element`` shape) at ``out[at:]``."""
+    if ti.static(len(element) == 0):
+        out[at] = ti.cast(value, real)
+    elif ti.static(len(element) == 1):
+        for c in ti.static(range(element[0])):
+            out[at + c] = ti.cast(value[c], real)
+    else:
+        for r, c in ti.static(ti.ndrange(element[0], element[1])):
+            out[at + r * element[1] + c] = ti.cast(value[r, c], real)
+
+
+@ti.func
+def _take(data: ti.template(), at, field: ti.template(), index: ti.template(), element: ti.template()):
+    """Store ``data[at:]`` in ``field[index]`` (an element of ``element`` shape; index None: a
+    field of shape ())."""
+    if ti.static(len(element) == 0):
+        field[index] = ti.cast(data[at], field.dtype)
+    elif ti.static(len(element) == 1):
+        for c in ti.static(range(element[0])):
+            field[index][c] = ti.cast(data[at + c], field.dtype)
+    else:
+        for r, c in ti.static(ti.ndrange(element[0], element[1])):
+            field[index][r, c] = ti.cast(data[at + r * element[1] + c], field.dtype)
+
+
 @ti.kernel
 def _gather(fields: ti.template(), layout: ti.template(), out: ti.types.ndarray(ndim=1), real: ti.template()):
     for k in ti.static(range(len(fields))):
         offset, shape, element = ti.static(layout[k])
         width = ti.static(math.prod(element))
-        for index in ti.grouped(fields[k]):
-            at = offset + _flat(index, shape) * width
-            value = fields[k][index]
-            if ti.static(len(element) == 0):
-                out[at] = ti.cast(value, real)
-            elif ti.static(len(element) == 1):
-                for c in ti.static(range(element[0])):
-                    out[at + c] = ti.cast(value[c], real)
-            else:
-                for r, c in ti.static(ti.ndrange(element[0], element[1])):
-                    out[at + r * element[1] + c] = ti.cast(value[r, c], real)
+        if ti.static(len(shape) == 0):  # shape (): one element, no loop
+            _put(out, offset, fields[k][None], element, real)
+        else:
+            for index in ti.grouped(fields[k]):
+                _put(out, offset + _flat(index, shape) * width, fields[k][index], element, real)
 
 
 @ti.kernel
@@ -65,16 +89,11 @@ def _scatter(fields: ti.template(), layout: ti.template(), data: ti.types.ndarra
     for k in ti.static(range(len(fields))):
         offset, shape, element = ti.static(layout[k])
         width = ti.static(math.prod(element))
-        for index in ti.grouped(fields[k]):
-            at = offset + _flat(index, shape) * width
-            if ti.static(len(element) == 0):
-                fields[k][index] = ti.cast(data[at], fields[k].dtype)
-            elif ti.static(len(element) == 1):
-                for c in ti.static(range(element[0])):
-                    fields[k][index][c] = ti.cast(data[at + c], fields[k].dtype)
-            else:
-                for r, c in ti.static(ti.ndrange(element[0], element[1])):
-                    fields[k][index][r, c] = ti.cast(data[at + r * element[1] + c], fields[k].dtype)
+        if ti.static(len(shape) == 0):
+            _take(data, offset, fields[k], None, element)
+        else:
+            for index in ti.grouped(fields[k]):
+                _take(data, offset + _flat(index, shape) * width, fields[k], index, element)
 
 
 def _views(buffer: np.ndarray, layout: tuple):

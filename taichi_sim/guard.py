@@ -208,7 +208,7 @@ class Guard:
         reference the bounds grow from, and as the last good state."""
         scene = self.scene
         self.facts = scene_facts(scene)  # springs may have torn, emitters changed
-        x = np.asarray(scene.state.x.to_numpy(), np.float64)
+        x = np.asarray(scene.state.to_numpy()[0], np.float64)  # the kernel the run's arrays are read with
         finite = np.isfinite(x).all(axis=1)
         if finite.any():
             reach = x[finite]

@@ -74,6 +74,7 @@ def init(arch: str = "cpu", precision: str = "f64", *, debug: bool = False,
         kwargs["cpu_max_num_threads"] = int(cpu_max_num_threads)
     frontend_cache.install()
     log = ""
+    _quiet_cache_locks()  # ti.init first resets the program before, which writes the cache
     with contextlib.redirect_stdout(io.StringIO()):  # ti.init prints "Starting on arch=..."
         if arch == "gpu":
             # Taichi's own log says why CUDA was skipped and which Vulkan device was found, in raw
@@ -180,6 +181,7 @@ def _write_kernel_cache_at_exit() -> None:
     import atexit
 
     def reset():
+        _quiet_cache_locks()
         try:
             ti.reset()
         except Exception:  # noqa: BLE001 - a failure to cache must not fail the exit
@@ -187,6 +189,19 @@ def _write_kernel_cache_at_exit() -> None:
 
     atexit.register(reset)
     _AT_EXIT["registered"] = True
+
+
+def _quiet_cache_locks() -> None:
+    """Keep Taichi's warnings about its cache's lock off stderr while a program is reset.
+
+    Resetting a program writes the kernels it compiled into the offline cache and trims the
+    cache, each under a lock file that Taichi tries for 0.2 s; where another process holds it
+    (a test worker exiting at the same moment, another command on a loaded machine) Taichi
+    gives up and prints "[W ...] Lock .../ticache.lock failed. ... try again." once for each.
+    Nothing is lost but this process's new entries (they compile again next time), and the line
+    came after the command's own last line or after pytest's summary. Only errors are printed
+    until the next :func:`init` sets the level again."""
+    ti.set_logging_level(ti.ERROR)
 
 
 class _Captured:

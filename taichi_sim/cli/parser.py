@@ -66,6 +66,19 @@ def _is_number(text: str) -> bool:
     return True
 
 
+class _VersionAction(argparse.Action):
+    """``--version``: print the version, looked up only when asked for (reading the package's
+    metadata took 0.1 s of every command's start), and exit."""
+
+    def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS,
+                 help="show program's version number and exit"):
+        super().__init__(option_strings=option_strings, dest=dest, default=default, nargs=0, help=help)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        print(f"{parser.prog} {_version()}")
+        parser.exit()
+
+
 def _version() -> str:
     """The installed package's version (from its metadata), or the source tree's when the
     package is run from a checkout that was never installed."""
@@ -156,7 +169,7 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     parser = _Parser(prog="taichi-sim", description="Particle and mass-spring simulation on Taichi.",
                      epilog="Without a command: the interactive launcher where a display exists, else a "
                             "short showcase recorded into ./out/showcase/.")
-    parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
+    parser.add_argument("--version", action=_VersionAction)
     sub = parser.add_subparsers(dest="command", parser_class=_Parser)
 
     lst = sub.add_parser("list", help="list scenes (with parameters) and integrators (with order)")

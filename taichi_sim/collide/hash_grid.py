@@ -1,7 +1,7 @@
 """A spatial hash of primitives' swept boxes (triangles or edges), rebuilt in kernels each stage."""
 import taichi as ti
 
-from .. import runtime
+from .. import field_io, runtime
 
 MAX_CELLS_PER_AXIS = 4  # a box spanning more cells is clipped and counted as overflow
 
@@ -49,7 +49,7 @@ class PrimitiveHash:
         self.capacity = max(1, entries_per_primitive * count)
         self.cell = ti.field(real, shape=())
         self.margin = ti.field(real, shape=())
-        self.cell[None], self.margin[None] = float(cell), float(margin)
+        field_io.write((self.cell, float(cell)), (self.margin, float(margin)))  # one kernel, not two
         self.lo = ti.Vector.field(3, real, shape=max(count, 1))
         self.hi = ti.Vector.field(3, real, shape=max(count, 1))
         self.cell_lo = ti.Vector.field(3, ti.i32, shape=max(count, 1))

@@ -26,7 +26,7 @@ import math
 import numpy as np
 import taichi as ti
 
-from .. import runtime
+from .. import field_io, runtime
 from ..part import ScenePart
 from .candidates import CandidatePairs, PairList
 from .ccd import (
@@ -102,9 +102,7 @@ class SelfCollision(CandidatePairs, KeepsOutOfObjects, ScenePart):
                           axis=0)
         self.edge_count = len(edges)
         self.edges = ti.Vector.field(2, ti.i32, shape=max(len(edges), 1))
-        self.edges.from_numpy(edges.astype(np.int32) if len(edges) else np.zeros((1, 2), np.int32))
         self.edge_alive = ti.field(ti.i32, shape=max(len(edges), 1))
-        self.edge_alive.fill(1)
         self.triangle_alive = ti.field(ti.i32, shape=max(mesh.triangle_count, 1))
         # Boxes grown by half the thickness each: two boxes overlap when their primitives could
         # be closer than the thickness (grown by all of it on both sides, twice the pairs).
@@ -127,11 +125,9 @@ class SelfCollision(CandidatePairs, KeepsOutOfObjects, ScenePart):
         self.friction = ti.field(real, shape=())
         self.contacts = ti.field(ti.i32, shape=())
         self.overlap = ti.field(real, shape=())  # the round's summed gaps (m) that a push can close
-        self.thickness[None], self.friction[None] = float(thickness), float(friction)
         # a touch is a moment closer than this: small beside the thickness the contacts keep,
         # large beside the round-off of a root's time
         self.delta = ti.field(real, shape=())
-        self.delta[None] = DELTA_FRACTION * float(thickness)
         self.x_collected = ti.Vector.field(3, real, shape=n)  # the end positions the pairs came from
         self.moved_count = ti.field(ti.i32, shape=())
         # the fail-safe's touching pairs (four vertex ids); longer when a round finds more
@@ -139,22 +135,26 @@ class SelfCollision(CandidatePairs, KeepsOutOfObjects, ScenePart):
         self.collided_count = ti.field(ti.i32, shape=())
         self.obstacles = tuple(obstacles)
         self.time = ti.field(real, shape=())  # the step's end (s): where the objects are
-        self.zones = ImpactZones(system.mass.to_numpy(), system.free.to_numpy(), floor=floor,
+        self.zones = ImpactZones(*field_io.read(system.mass, system.free), floor=floor,
                                  push_out=self._push_zone_out if self.obstacles else None)
         self.floor_point = ti.Vector.field(3, real, shape=())
         self.floor_normal = ti.Vector.field(3, real, shape=())  # zero: no floor
-        if floor is not None:
-            self.floor_point[None] = np.asarray(floor[0], float).tolist()
-            self.floor_normal[None] = np.asarray(floor[1], float).tolist()
         self.floor_count = ti.field(ti.i32, shape=())
         self.blocked = ti.field(ti.i32, shape=())  # contacts no push could resolve this step
         # the fail-safe's later rounds re-collect only around the vertices its zones moved
         self.changed = ti.field(ti.i32, shape=n)
         self.vertex_grid = PrimitiveHash(n, 1, cell, 0.5 * thickness)
         self.vertex_ids = ti.Vector.field(1, ti.i32, shape=n)
-        self.vertex_ids.from_numpy(np.arange(n, dtype=np.int32)[:, None])
         self.vertex_alive = ti.field(ti.i32, shape=n)
-        self.vertex_alive.fill(1)
+        # every value the stage starts from in one kernel: from Python each of these fields (and
+        # each component of a vector) compiles a kernel of its own, 13 where this is one
+        floor_values = () if floor is None else ((self.floor_point, np.asarray(floor[0], float)),
+                                                 (self.floor_normal, np.asarray(floor[1], float)))
+        field_io.write((self.edges, edges if len(edges) else np.zeros((1, 2))),
+                       (self.edge_alive, np.ones(self.edges.shape[0])),
+                       (self.vertex_ids, np.arange(n)[:, None]), (self.vertex_alive, np.ones(n)),
+                       (self.thickness, float(thickness)), (self.friction, float(friction)),
+                       (self.delta, DELTA_FRACTION * float(thickness)), *floor_values)
         self.t_end = None  # the time the last stage ended at, None before the first
         self.restore()
 

@@ -126,7 +126,7 @@ class ConvergenceMonitor:
         cloth frozen in mid-air), else ""."""
         if not self.active:
             return ""
-        self.floor = rounding_floor(self.model, state.x.to_numpy(), epsilon)
+        self.floor = rounding_floor(self.model, state.to_numpy()[0], epsilon)  # the kernel the run reads x, v with
         if math.isfinite(self.floor) and self.floor <= MAX_FLOOR:
             self.bound = max(self.max_residual, FLOOR_MARGIN * self.floor)
         if self.promises_exact and self.floor > MAX_FLOOR:

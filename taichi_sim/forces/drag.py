@@ -1,6 +1,6 @@
 import taichi as ti
 
-from .. import runtime
+from .. import field_io, runtime
 from .base import ForceTerm
 
 
@@ -17,10 +17,10 @@ class Drag(ForceTerm):
         self.set(k_drag)
 
     def set(self, k_drag: float) -> None:
-        self.k[None] = float(k_drag)
+        field_io.write((self.k, float(k_drag)))  # the kernel every part's values go through
 
     def get(self) -> float:
-        return float(self.k[None])
+        return float(field_io.read(self.k)[0])
 
     def anchored_fields(self) -> tuple:
         return (self.k,)

@@ -2,7 +2,7 @@
 import numpy as np
 import taichi as ti
 
-from .. import runtime
+from .. import field_io, runtime
 from .base import ForceTerm, ZeroJacobian
 
 
@@ -25,10 +25,10 @@ class Gravity(ZeroJacobian, ForceTerm):
         self.set(g)
 
     def set(self, g) -> None:
-        self.g[None] = np.asarray(g, dtype=float).reshape(3).tolist()
+        field_io.write((self.g, np.asarray(g, dtype=float).reshape(3)))  # one kernel, not one per component
 
     def get(self) -> np.ndarray:
-        return np.asarray(self.g[None].to_numpy(), dtype=float)
+        return np.asarray(field_io.read(self.g)[0], dtype=float)  # one kernel, not one per component
 
     def anchored_fields(self) -> tuple:
         return (self.g,)

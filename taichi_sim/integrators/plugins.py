@@ -11,7 +11,6 @@ import importlib
 import importlib.util
 import os
 import sys
-from importlib.metadata import entry_points
 from pathlib import Path
 
 from ..errors import ConfigError
@@ -36,6 +35,8 @@ def is_spec(name: str) -> bool:
 
 def installed_plugins() -> dict:
     """Entry points of the group ``taichi_sim.integrators``, by name (nothing is imported)."""
+    from importlib.metadata import entry_points  # 20 ms of imports a command without plug-ins skips
+
     return {ep.name: ep for ep in entry_points(group=ENTRY_POINT_GROUP)}
 
 

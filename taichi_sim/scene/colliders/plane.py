@@ -2,7 +2,7 @@
 import numpy as np
 import taichi as ti
 
-from ... import runtime
+from ... import field_io, runtime
 from ...part import ScenePart
 from ..visual import Plane
 
@@ -36,10 +36,9 @@ class PlaneCollider(ScenePart):
         self.normal = ti.Vector.field(3, real, shape=())
         self.restitution = ti.field(real, shape=())
         self.friction = ti.field(real, shape=())
-        self.point[None] = self.point_np.tolist()
-        self.normal[None] = self.normal_np.tolist()
-        self.restitution[None] = float(restitution)
-        self.friction[None] = float(friction)
+        # one kernel, where item assignment compiles one per scalar (eight)
+        field_io.write((self.point, self.point_np), (self.normal, self.normal_np),
+                       (self.restitution, float(restitution)), (self.friction, float(friction)))
 
     def __call__(self, state, t: float, h: float) -> None:
         self._project(state)

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import taichi as ti
 
-from .... import runtime
+from .... import field_io, runtime
 from ....collide.closest_points import closest_barycentric, segment_parameters
 from ....collide.hash_grid import PrimitiveHash, cell_order
 from ....collide.mesh_check import check_contact_mesh
@@ -106,17 +106,17 @@ class SolveContact(ObjectFaces):
         # spacing), so a longer reach buys no motion there, and the pairs to test grow as its cube
         # in a pile; it must cover the contact radius.
         self.reach = max(radius, 0.75 * float(np.median(lengths)))
-        free = system.free.to_numpy().astype(bool)
-        mass = system.mass.to_numpy()
+        mass, free = field_io.read(system.mass, system.free)  # one kernel, not one per field
+        free = free.astype(bool)
         self.mean_mass = float(mass[free].mean()) if free.any() else 1.0
         self.all_free = bool(free.all())
         self.edge_count = len(edges)
         self.edges = ti.Vector.field(2, ti.i32, shape=max(1, len(edges)))
-        self.edges.from_numpy(edges.astype(np.int32))
         self.triangle_alive = ti.field(ti.i32, shape=max(1, mesh.triangle_count))
-        self.triangle_alive.fill(1)
         self.edge_alive = ti.field(ti.i32, shape=max(1, len(edges)))
-        self.edge_alive.fill(1)
+        field_io.write((self.edges, edges if len(edges) else np.zeros((1, 2))),  # one kernel, not three
+                       (self.triangle_alive, np.ones(self.triangle_alive.shape[0])),
+                       (self.edge_alive, np.ones(self.edge_alive.shape[0])))
         # a vertex is a point: the triangles' boxes grow by all of the reach, the edges' by half each
         self.triangle_grid = PrimitiveHash(mesh.triangle_count, 3, self.reach, self.reach, entries_per_primitive=16)
         self.edge_grid = PrimitiveHash(len(edges), 2, self.reach, 0.5 * self.reach, entries_per_primitive=1,
@@ -463,7 +463,7 @@ class SolveContact(ObjectFaces):
         """Drop the pairs of the last detection (after a reset or a jump of the positions they
         were found at, so a viewer does not show stale pairs). The solve loses nothing: every
         substep detects again before it reads them."""
-        if self.self_contact:
+        if self.self_contact and self.refreshes:  # before the first detection they hold zeros
             self.pair_count[None] = 0
             self.vertex_pair_count.fill(0)
         if self.has_body:

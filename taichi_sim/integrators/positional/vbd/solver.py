@@ -7,7 +7,7 @@ from typing import Annotated
 import numpy as np
 import taichi as ti
 
-from .... import runtime
+from .... import field_io, runtime
 from ....errors import ConfigError
 from ....state import finite
 from ....systems.base import System
@@ -223,9 +223,8 @@ class VBD(Integrator):
         ends = self.springs.ends_np if self.has_springs else np.zeros((0, 2), np.int32)
         order, self.starts = colour_vertices(n, ends)
         self.order = ti.field(ti.i32, shape=max(1, n))
-        self.order.from_numpy(order)
         self.colour_start = ti.field(ti.i32, shape=len(self.starts))  # the serial kernels loop over colours
-        self.colour_start.from_numpy(np.asarray(self.starts, np.int32))
+        field_io.write((self.order, order), (self.colour_start, self.starts))  # one kernel, not two
         self._serial_springs = runtime.serial_loops(n + (self.springs.spring_count if self.has_springs else 0),
                                                     SERIAL_WORK)
         self._serial: bool | None = None  # set: a caller's choice (tests, benchmarks) over the rule
