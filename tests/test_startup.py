@@ -135,8 +135,8 @@ def test_the_warm_up_names_an_unknown_scene(capsys):
 def test_a_command_reads_no_package_metadata_unless_asked_for_the_version():
     # importlib.metadata's import and the lookup of the installed version took 0.1 s of every
     # command's start; `list` and `simulate` need neither, `--version` prints it
-    code = ("import sys; from taichi_sim.cli import main; from taichi_sim.cli_parser import build_parser; "
-            "build_parser().parse_args(['list']); print('importlib.metadata' in sys.modules)")
+    code = ("import sys; from taichi_sim.cli import main; from taichi_sim.cli.parser import build_parser; "
+            "build_parser(['list']).parse_args(['list']); print('importlib.metadata' in sys.modules)")
     env = {**os.environ, "PYTHONPATH": ROOT}
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=ROOT, timeout=120)
     assert done.stdout.split() == ["False"], done.stderr
