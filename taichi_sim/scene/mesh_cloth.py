@@ -192,9 +192,14 @@ def add_mesh_cloth(b: SceneBuilder, p: dict[str, Any], seed: int, mesh: ClothMes
 
 
 def finish_mesh_cloth(preset, b: SceneBuilder, p: dict[str, Any], seed: int):
-    """``preset.finish`` for a mesh cloth; a membrane's method and steps then (a positional
-    default becomes implicit Euler: see :func:`~taichi_sim.scene.materials.finish_membrane_scene`)."""
+    """``preset.finish`` for a mesh cloth. With a collider mesh, an ``xpbd`` default becomes
+    ``vbd``: xpbd meets the mesh only after each step, vertex by vertex, so a body that moves
+    passes through the garment, where vbd meets it inside its solve (docs/meshes.md, "On a
+    moving body"). Then a membrane's method and steps (a positional default becomes the
+    membrane's: see :func:`~taichi_sim.scene.materials.finish_membrane_scene`)."""
     scene = preset.finish(b, p, seed)
+    if p.get("collider_mesh") and scene.default_integrator == "xpbd":
+        scene.default_integrator = "vbd"
     material = membrane_material(p)
     if material is not None:
         bending = p["bending_stiffness"] if p["bending"] else 0.0
