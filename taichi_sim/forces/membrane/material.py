@@ -284,3 +284,22 @@ def project_psd(h):
                 for c in range(6):
                     out[r, c] += lam_k * v[r, k] * v[c, k]
     return out
+
+
+@ti.func
+def project_psd3(h):
+    """The nearest positive semi-definite matrix to the symmetric 3x3 ``h`` (Frobenius norm):
+    negative eigenvalues set to zero. Sylvester's test first (the leading minors of h plus
+    1e-9 of its mean eigenvalue are > 0: about 20 flops), so a block that is already PSD, as
+    near rest or stretched, skips the eigen-decomposition."""
+    shift = 1e-9 * ti.max(h[0, 0] + h[1, 1] + h[2, 2], 0.0) / 3.0
+    work = h + shift * ti.Matrix.identity(float, 3)
+    minor = work[0, 0] * work[1, 1] - work[0, 1] * work[1, 0]
+    out = h
+    if not (work[0, 0] > 0.0 and minor > 0.0 and work.determinant() > 0.0):
+        values, vectors = ti.sym_eig(h)
+        out = ti.Matrix.zero(float, 3, 3)
+        for k in ti.static(range(3)):
+            v = ti.Vector([vectors[0, k], vectors[1, k], vectors[2, k]])
+            out += ti.max(values[k], 0.0) * v.outer_product(v)
+    return out

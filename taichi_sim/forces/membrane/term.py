@@ -158,6 +158,11 @@ class Membrane(MembraneJacobians, ForceTerm):
     def triangle_stress(self, t, y, g):
         """(A psi (J), A R (W), the columns of A (P + P_v) (N m)) of triangle t at ``y``."""
         f0, f1 = self.columns(t, y.x, g)
+        return self.stress_at(t, y, g, f0, f1)
+
+    @ti.func
+    def stress_at(self, t, y, g, f0, f1):
+        """:meth:`triangle_stress` given the triangle's F = [f0 f1] at ``y``."""
         psi, p0, p1 = self.elastic(f0, f1)
         r = 0.0 * psi
         if ti.static(self.damped):

@@ -18,6 +18,7 @@ from .contact import check_contact_options
 from .contact_model import solve_forces
 from .energy import EnergyCap, closed_scene
 from .kernels import bind_kernels
+from .membranes import MembraneTerms
 from .pieces import FAILURES, PieceSchedule
 from .scene import ContactSetup, contact_setup
 from .springs import SpringTerms, fraction_option, positive_option
@@ -115,7 +116,8 @@ class VBD(Integrator):
     """
 
     name = "vbd"
-    takes_elastic_models = False  # its solve holds springs only (Integrator.takes_elastic_models)
+    # its solve holds the membrane's triangles and the bending stencils too (membranes.py)
+    takes_elastic_models = True
     order = 1
     requires_second_order = True
     description = "vertex block descent: backward Euler by per-vertex Newton steps, Gauss-Seidel over a colouring"
@@ -182,7 +184,12 @@ class VBD(Integrator):
         self.has_springs = self.springs is not None
         self.gravity = system.term("gravity")
         self.has_gravity = self.gravity is not None
-        self.others = [term for term in system.terms if term.name != "springs"]
+        membrane, bending = system.term("membrane"), system.term("bending")
+        self.membrane_terms = MembraneTerms(membrane, bending) if membrane is not None or bending is not None \
+            else None
+        self.has_membrane = self.membrane_terms is not None
+        own = {"springs", *(MembraneTerms.names if self.has_membrane else ())}
+        self.others = [term for term in system.terms if term.name not in own]
         self.point = system.make_state()  # the iterate (x, v = (x - x0) / dt)
         self.start_x = ti.Vector.field(3, real, shape=n)  # x0 (m)
         self.start_v = ti.Vector.field(3, real, shape=n)  # v0 (m/s)
@@ -196,13 +203,16 @@ class VBD(Integrator):
         self.spring_terms = SpringTerms(self.springs, augmented=self.augmented, penalty=self.penalty,
                                         penalty_growth=self.penalty_growth) if self.has_springs else None
         ends = self.springs.ends_np if self.has_springs else np.zeros((0, 2), np.int32)
+        if self.has_membrane:  # a triangle's or stencil's vertices in different colours too
+            ends = np.concatenate([np.asarray(ends, np.int64).reshape(-1, 2), self.membrane_terms.pairs()])
         order, self.starts = colour_vertices(n, ends)
         self.order = ti.field(ti.i32, shape=max(1, n))
         self.order.from_numpy(order)
         self.colour_start = ti.field(ti.i32, shape=len(self.starts))  # the serial kernels loop over colours
         self.colour_start.from_numpy(np.asarray(self.starts, np.int32))
-        self._serial_springs = runtime.serial_loops(n + (self.springs.spring_count if self.has_springs else 0),
-                                                    SERIAL_WORK)
+        self._serial_springs = runtime.serial_loops(
+            n + (self.springs.spring_count if self.has_springs else 0)
+            + (self.membrane_terms.work if self.has_membrane else 0), SERIAL_WORK)
         self._serial: bool | None = None  # set: a caller's choice (tests, benchmarks) over the rule
         self.rest_starts = ti.field(ti.i32, shape=())  # substeps whose sweeps started at V = 0
         self.last_rest = ti.field(ti.i32, shape=())  # whether the last begun start was V = 0
@@ -525,6 +535,10 @@ class VBD(Integrator):
             H = inertia * ti.Matrix.identity(self.delta.dtype, 3)
             if ti.static(self.has_springs):
                 f, block = self.spring_terms.at(i, self.point.x, self.point.v, dt)
+                r -= f
+                H += block
+            if ti.static(self.has_membrane):
+                f, block = self.membrane_terms.at(i, self.point, dt)
                 r -= f
                 H += block
             if ti.static(self.has_contact):
