@@ -5,7 +5,7 @@ assembles (the protocol of :class:`~taichi_sim.forces.ForceTerm`)."""
 import taichi as ti
 
 from ... import runtime
-from .material import project_psd, project_psd3, viscous_jacobian
+from .material import project_psd, viscous_jacobian, viscous_pair
 
 
 @ti.func
@@ -70,23 +70,23 @@ class MembraneJacobians:
     def corner_terms(self, t, corner, y, inv_dt):
         """Triangle t's force on its vertex ``corner`` (0, 1, 2; N) at ``y`` (positions and
         velocities) and that vertex's positive semi-definite block of the triangle's Hessian,
-        -(df/dx + inv_dt df/dv) (3x3, N/m): A proj(sum_cd g_c g_d d^2psi/dF_c dF_d) plus the
-        viscous part A inv_dt sum_cd g_c g_d dP_v/dFdot_cd, with g the corner's shape gradient
-        and ``proj`` on the 3x3 block (:func:`project_psd3`), not on the 6x6: the vertex solve of
-        vertex block descent reads this block alone, at the iterate, and the nearest PSD matrix
-        to it is the closest Newton model of the vertex's own energy. One triangle, no
-        precomputed pass."""
+        -(df/dx + inv_dt df/dv) (3x3, N/m): A proj(sum_cd u_c u_d d^2psi/dF_c dF_d) plus the
+        viscous part A inv_dt sum_cd u_c u_d dP_v/dFdot_cd, u the corner's shape gradient, with
+        ``proj`` on the 3x3 block (the material's ``*_corner``), not on the 6x6: the vertex
+        solve of vertex block descent reads this block alone, at the iterate, and the nearest
+        PSD matrix to it is the closest Newton model of the vertex's own energy. One triangle,
+        no precomputed pass."""
         g = self.shape_gradients(t)
         f0, f1 = self.columns(t, y.x, g)
         energy, dissipation, p0, p1 = self.stress_at(t, y, g, f0, f1)
-        u0 = ti.select(corner == 0, g[0, 0], ti.select(corner == 1, g[1, 0], g[2, 0]))
-        u1 = ti.select(corner == 0, g[0, 1], ti.select(corner == 1, g[1, 1], g[2, 1]))
+        u = ti.Vector([ti.select(corner == 0, g[0, 0], ti.select(corner == 1, g[1, 0], g[2, 0])),
+                       ti.select(corner == 0, g[0, 1], ti.select(corner == 1, g[1, 1], g[2, 1]))])
         area = self.area[t]
-        block = area * project_psd3(corner_pair_block(self.elastic_hessian(f0, f1), u0, u1, u0, u1))
+        block = area * self.elastic_corner(f0, f1, u)
         if ti.static(self.damped):
             m = self.moduli[None]
-            block += (area * inv_dt) * corner_pair_block(viscous_jacobian(f0, f1, m[0], m[1], m[2]), u0, u1, u0, u1)
-        return -(p0 * u0 + p1 * u1), block
+            block += (area * inv_dt) * viscous_pair(f0, f1, m[0], m[1], m[2], u, u)
+        return -(p0 * u[0] + p1 * u[1]), block
 
     @ti.func
     def jacobian_diagonal_block(self, i, y, a, b, t):
