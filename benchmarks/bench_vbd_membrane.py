@@ -4,7 +4,9 @@ preset (its springs), both at size x size, one vbd step of 1/60 s (its defaults:
 f32, in one process. After a warm-up of two steps each (compiling, or loading Taichi's cache),
 ``--rounds`` rounds alternate the two: each resets its scene and times ``--steps`` steps one by
 one (the cloth's fall from rest). Prints each side's median step, the ratio of steps/s
-(membrane / springs) per round and its median, and which sweeps ran (serial or parallel).
+(membrane / springs) per round and its median, and which sweeps ran (serial or parallel:
+vbd's rule, or ``--sweeps`` for both). ``--clock cpu`` times the process's CPU time instead
+of the wall's, for serial sweeps on a machine others share.
 
     .venv/bin/python benchmarks/bench_vbd_membrane.py                  # 64 x 64, neohookean
     .venv/bin/python benchmarks/bench_vbd_membrane.py --material stvk --size 32
@@ -21,17 +23,17 @@ import taichi as ti
 import taichi_sim as ts
 
 
-def timed_steps(scene, integrator, dt: float, steps: int) -> list[float]:
-    """Reset ``scene`` and ``integrator`` and time ``steps`` steps of dt (s each)."""
+def timed_steps(scene, integrator, dt: float, steps: int, clock=time.perf_counter) -> list[float]:
+    """Reset ``scene`` and ``integrator`` and time ``steps`` steps of dt (s each) by ``clock``."""
     scene.reset()
     integrator.reset()
     times = []
     t = 0.0
     for _ in range(steps):
-        start = time.perf_counter()
+        start = clock()
         report = integrator.step(scene.state, t, dt)
         ti.sync()
-        times.append(time.perf_counter() - start)
+        times.append(clock() - start)
         if not report.accepted:
             raise SystemExit(f"{integrator.name}: step at t = {t} not accepted: {report.message}")
         t += dt
@@ -45,7 +47,13 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=5)
     parser.add_argument("--steps", type=int, default=20)
     parser.add_argument("--precision", default="f32", choices=("f32", "f64"))
+    parser.add_argument("--sweeps", default="rule", choices=("rule", "serial", "parallel"),
+                        help="serial or parallel sweeps on both sides, or vbd's own rule (default)")
+    parser.add_argument("--clock", default="wall", choices=("wall", "cpu"),
+                        help="wall time, or the process's CPU time (with serial sweeps on a shared "
+                             "machine: what other processes take from it is not counted)")
     args = parser.parse_args()
+    clock = time.perf_counter if args.clock == "wall" else time.process_time
     print(f"load average (1 min): {os.getloadavg()[0]:.2f}")
     ts.init(arch="cpu", precision=args.precision)
     dt = 1 / 60
@@ -58,6 +66,8 @@ def main() -> None:
     for label, scene in sides.items():
         start = time.perf_counter()
         methods[label] = ts.create_integrator("vbd", scene.system)
+        if args.sweeps != "rule":
+            methods[label].serial = args.sweeps == "serial"
         timed_steps(scene, methods[label], dt, 2)
         print(f"{label}: warm-up (two steps, compiling or loading the cache) {time.perf_counter() - start:.1f} s, "
               f"{'serial' if methods[label].serial else 'parallel'} sweeps, {methods[label].colour_count} colours")
@@ -65,7 +75,7 @@ def main() -> None:
     ratios = []
     for r in range(args.rounds):
         for label, scene in sides.items():
-            medians[label].append(statistics.median(timed_steps(scene, methods[label], dt, args.steps)))
+            medians[label].append(statistics.median(timed_steps(scene, methods[label], dt, args.steps, clock)))
         ratios.append(medians["springs"][-1] / medians[args.material][-1])
         print(f"round {r + 1}: " + ", ".join(f"{label} {1e3 * medians[label][-1]:.2f} ms" for label in sides)
               + f"; steps/s {args.material} / springs {ratios[-1]:.3f}")

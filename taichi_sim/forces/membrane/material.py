@@ -165,15 +165,12 @@ def stvk_corner(f0, f1, mu, lam, u):
 @ti.func
 def _area_ratio(f0, f1):
     """(J = |f0 x f1|, the unit normal n, 1/J), with n = 0 and 1/J = 0 for a collapsed triangle
-    (no normal, no curvature of J)."""
+    (no normal, no curvature of J). Branch-free, so that the stress and a Hessian of one
+    triangle in one kernel share it (the compiler merges identical pure expressions)."""
     w = f0.cross(f1)
     jac = w.norm()
-    n = ti.Vector.zero(float, 3)
-    inv = 0.0 * jac
-    if jac > 1e-12 * (f0.dot(f0) + f1.dot(f1)):
-        n = w / jac
-        inv = 1.0 / jac
-    return jac, n, inv
+    inv = ti.select(jac > 1e-12 * (f0.dot(f0) + f1.dot(f1)), 1.0 / jac, 0.0 * jac)
+    return jac, w * inv, inv
 
 
 @ti.func
@@ -224,14 +221,21 @@ def neohookean_hessian(f0, f1, mu, lam):
 @ti.func
 def neohookean_corner(f0, f1, mu, lam, u):
     """:func:`neohookean_pair` (u, u) projected to PSD, in closed form: a corner's own block of
-    the triangle's Hessian per unit area, for its shape gradient u (1/m). With a = b and
-    a in the triangle's plane, the curvature term is (coef / J) |a|^2 n n^T and the rest,
-    mu |u|^2 I + l q_u q_u^T, is PSD with q_u in the plane: the normal n is an eigenvector, and
-    the projection raises its eigenvalue mu |u|^2 + coef |a|^2 / J to 0 where it is negative
-    (a triangle not stretched by mu / l in area), exactly as :func:`project_psd3` would."""
-    h = neohookean_pair(f0, f1, mu, lam, u, u)
+    the triangle's Hessian per unit area, for its shape gradient u (1/m). With r = s = u the
+    [n]x term cancels, a = b = u1 f0 - u0 f1 lies in the triangle's plane, so the curvature term
+    (coef / J) (|a|^2 I - a a^T - (n x a)(n x a)^T) is (coef / J) |a|^2 n n^T, and the rest,
+    mu |u|^2 I + l q_u q_u^T, is PSD with q_u in the plane: n is an eigenvector, of eigenvalue
+    mu |u|^2 + coef |a|^2 / J, which the projection raises to 0 where it is negative (a
+    triangle not stretched by mu / l in area), exactly as :func:`project_psd3` would
+    (tests/test_membrane.py checks the two agree)."""
+    lam = lam + mu
     jac, n, inv = _area_ratio(f0, f1)
-    return h + ti.max(-n.dot(h @ n), 0.0) * n.outer_product(n)
+    coef = lam * (jac - 1.0) - mu
+    q = u[0] * f1.cross(n) + u[1] * n.cross(f0)
+    a = u[1] * f0 - u[0] * f1
+    shear = mu * u.dot(u)
+    normal = ti.max(shear + coef * inv * a.dot(a), 0.0) - shear
+    return shear * ti.Matrix.identity(float, 3) + lam * q.outer_product(q) + normal * n.outer_product(n)
 
 
 @ti.func

@@ -4,6 +4,7 @@ its membrane triangles and bending stencils at the iterate; :class:`~.solver.VBD
 import numpy as np
 import taichi as ti
 
+from .... import runtime
 from ..colouring import element_pairs
 
 #: A triangle corner's share of a sweep against a spring's (its stress, 6x6 Hessian, the
@@ -20,10 +21,12 @@ class MembraneTerms:
     positive semi-definite block -(df_i/dx_i + df_i/dv_i / dt) at the iterate
     (:meth:`Membrane.corner_terms <taichi_sim.forces.membrane.Membrane.corner_terms>`: the
     elastic block projected to PSD, the viscous stress's block, PSD as it is, over dt, as a
-    spring's dashpot c / dt enters), and from each bending stencil it is in the stencil's force
-    and its constant block D sum w_i^2 I (:class:`~taichi_sim.forces.membrane.IsometricBending`,
-    PSD with no projection). Both are the terms' own functions: the stress and Hessian are
-    written once, in :mod:`taichi_sim.forces.membrane`.
+    spring's dashpot c / dt enters), and from the bending stencils it is in their force
+    -D (L x)_i and block D L_ii I, L the bending's constant Hessian over D
+    (:meth:`IsometricBending.operator <taichi_sim.forces.membrane.IsometricBending.operator>`:
+    its rows sum the stencils, so a vertex reads each neighbour once, not once per stencil).
+    The stress, the Hessians and L are the terms' own, written once in
+    :mod:`taichi_sim.forces.membrane`.
 
     The sweep is Gauss-Seidel over a vertex colouring: the vertices of one triangle or one
     stencil must lie in different colours (:meth:`pairs`), so that a colour's vertices, solved
@@ -43,6 +46,16 @@ class MembraneTerms:
         self.bending = bending
         self.has_membrane = membrane is not None
         self.has_bending = bending is not None
+        if self.has_bending:
+            offsets, columns, values = bending.operator()
+            self.bending_offsets = ti.field(ti.i32, shape=len(offsets))
+            self.bending_columns = ti.field(ti.i32, shape=max(1, len(columns)))
+            self.bending_values = ti.field(runtime.real(), shape=max(1, len(values)))
+            self.bending_entries = len(columns)
+            self.bending_offsets.from_numpy(offsets)
+            if len(columns):
+                self.bending_columns.from_numpy(columns)
+                self.bending_values.from_numpy(values.astype(runtime.np_real()))
 
     def pairs(self) -> np.ndarray:
         """(P, 2) int64: the pairs of vertices that share a triangle or a bending stencil."""
@@ -54,10 +67,10 @@ class MembraneTerms:
     @property
     def work(self) -> int:
         """A sweep's work in springs' worth (:data:`CORNER_WORK` per triangle corner, one per
-        bending stencil's vertex)."""
+        entry of the bending's rows)."""
         corners = 3 * self.membrane.triangle_count if self.has_membrane else 0
-        stencils = 4 * self.bending.edge_count if self.has_bending else 0
-        return CORNER_WORK * corners + stencils
+        reach = self.bending_entries if self.has_bending else 0
+        return CORNER_WORK * corners + reach
 
     @ti.func
     def at(self, i, y, dt):
@@ -73,6 +86,15 @@ class MembraneTerms:
                 f += force
                 H += block
         if ti.static(self.has_bending):
-            f += self.bending.force(i, y, 0.0, 0.0)
-            H -= self.bending.jacobian_diagonal_block(i, y, 0.0, 1.0, 0.0)
+            d = self.bending.stiffness[None]
+            lx = ti.Vector.zero(y.x.dtype, 3)
+            diagonal = ti.cast(0.0, y.x.dtype)
+            for e in range(self.bending_offsets[i], self.bending_offsets[i + 1]):
+                j = self.bending_columns[e]
+                value = self.bending_values[e]
+                lx += value * y.x[j]
+                if j == i:
+                    diagonal = value
+            f -= d * lx
+            H += (d * diagonal) * ti.Matrix.identity(y.x.dtype, 3)
         return f, H
