@@ -124,10 +124,11 @@ SHEET = {"nx": 8, "ny": 8, "pin": "edge", "density": 1.0, "area_drag": 2.0, "str
 @pytest.mark.parametrize("model", ["neohookean", "stvk"])
 def test_the_sweeps_converge_to_implicit_euler_on_a_membrane_sheet(f64, model):
     """An 8 x 8 membrane sheet (with bending and viscous damping) hanging from one edge, 10 steps
-    of 0.05 s: vbd with 400 sweeps ends within 1e-6 m of implicit Euler solved to a Newton
-    tolerance of 1e-10 (measured 7e-10 m after 20 steps; 20 sweeps lag 6 cm behind), and its
+    of 0.05 s (it swings down): vbd with 400 sweeps ends within 1e-6 m of implicit Euler solved to
+    a Newton tolerance of 1e-10 (7e-10 m measured after 20 steps, where 20 sweeps lag 6 cm behind), and its
     run is measured by the error estimate with nothing left out of the residual's model."""
     scene = ts.build_scene("cloth", {**SHEET, "material": model})
+    start = scene.state.to_numpy()[0]
     ts.run(scene, create_integrator("implicit_euler", scene.system, newton_tolerance=1e-10), dt=0.05, steps=10,
            energy_every=0)
     exact = scene.state.to_numpy()[0]
@@ -139,7 +140,7 @@ def test_the_sweeps_converge_to_implicit_euler_on_a_membrane_sheet(f64, model):
     result = ts.run(scene, vbd, dt=0.05, steps=10, energy_every=0)
     assert result.status.value == "ok"
     x = scene.state.to_numpy()[0]
-    assert 1.0 - exact[:, 1].min() > 1.01  # it hangs, stretched
+    assert np.abs(exact - start).max() > 0.5  # it falls, swinging down
     assert np.abs(x - exact).max() < 1e-6
 
 
