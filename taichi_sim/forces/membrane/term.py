@@ -8,8 +8,16 @@ from ..base import ForceTerm
 from ..springs.topology import incidence_of
 from .geometry import rest_frames
 from .jacobian import MembraneJacobians
-from .material import (MembraneMaterial, neohookean, neohookean_corner, neohookean_hessian, stvk, stvk_corner,
-                       stvk_hessian, viscous)
+from .material import (
+    MembraneMaterial,
+    neohookean,
+    neohookean_corner,
+    neohookean_hessian,
+    stvk,
+    stvk_corner,
+    stvk_hessian,
+    viscous,
+)
 
 
 @ti.data_oriented
