@@ -227,7 +227,7 @@ def neohookean_corner(f0, f1, mu, lam, u):
     mu |u|^2 I + l q_u q_u^T, is PSD with q_u in the plane: n is an eigenvector, of eigenvalue
     mu |u|^2 + coef |a|^2 / J, which the projection raises to 0 where it is negative (a
     triangle not stretched by mu / l in area), exactly as :func:`project_psd3` would
-    (tests/test_membrane.py checks the two agree)."""
+    (tests/test_vbd_membrane.py checks it against the nearest PSD matrix to the block)."""
     lam = lam + mu
     jac, n, inv = _area_ratio(f0, f1)
     coef = lam * (jac - 1.0) - mu
