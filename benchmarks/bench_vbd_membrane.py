@@ -10,6 +10,10 @@ of the wall's, for serial sweeps on a machine others share.
 
     .venv/bin/python benchmarks/bench_vbd_membrane.py                  # 64 x 64, neohookean
     .venv/bin/python benchmarks/bench_vbd_membrane.py --material stvk --size 32
+    .venv/bin/python benchmarks/bench_vbd_membrane.py --clock cpu --parts   # what the membrane's parts cost
+
+``--parts`` adds the membrane without its viscous damping, without its bending and without
+either, timed in the same rounds.
 
 The 1-minute load average is printed first: other processes on the machine slow every figure.
 """
@@ -52,6 +56,8 @@ def main() -> None:
     parser.add_argument("--clock", default="wall", choices=("wall", "cpu"),
                         help="wall time, or the process's CPU time (with serial sweeps on a shared "
                              "machine: what other processes take from it is not counted)")
+    parser.add_argument("--parts", action="store_true",
+                        help="also the membrane without damping, without bending, without either")
     args = parser.parse_args()
     clock = time.perf_counter if args.clock == "wall" else time.process_time
     print(f"load average (1 min): {os.getloadavg()[0]:.2f}")
@@ -62,6 +68,10 @@ def main() -> None:
         "springs": ts.build_scene("cloth", size),
         args.material: ts.build_scene("cloth-membrane", {**size, "material": args.material}),
     }
+    if args.parts:
+        for label, left_out in (("no damping", {"membrane_damping": 0.0}), ("no bending", {"bending_stiffness": 0.0}),
+                                ("neither", {"membrane_damping": 0.0, "bending_stiffness": 0.0})):
+            sides[label] = ts.build_scene("cloth-membrane", {**size, "material": args.material, **left_out})
     methods = {}
     for label, scene in sides.items():
         start = time.perf_counter()

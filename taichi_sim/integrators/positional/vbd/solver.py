@@ -50,12 +50,14 @@ class VBD(Integrator):
         r_i = m_i (x_i - x0_i - dt v0_i) / dt^2 - f_i(x, v),   v = (x - x0) / dt,
         H_i = m_i / dt^2 I - df_i/dx_i - df_i/dv_i / dt,       x_i -= H_i^-1 r_i,
 
-    with every force term of the scene (gravity, drag, springs with their dashpots, the grab)
+    with every force term of the scene (gravity, drag, springs with their dashpots, the grab, a
+    membrane's triangles with their viscous stress and its bending: :mod:`.membranes`)
     evaluated at the iterate, exactly as :class:`~taichi_sim.integrators.ImplicitEuler` does,
-    and each spring's 3x3 block kept positive semi-definite (a compressed spring's transverse
-    stiffness clamped at 0, as in the implicit methods). The vertices are coloured once so that
-    no two of a colour share a spring (:func:`colour_vertices`); a sweep solves one colour after
-    the other, each colour one parallel loop (Gauss-Seidel). ``iterations`` sweeps per substep.
+    and each spring's and triangle's 3x3 block kept positive semi-definite (a compressed
+    spring's transverse stiffness clamped at 0, a triangle's block projected). The vertices are
+    coloured once so that no two of a colour share a spring, a triangle or a bending stencil
+    (:func:`colour_vertices`); a sweep solves one colour after the other, each colour one
+    parallel loop (Gauss-Seidel). ``iterations`` sweeps per substep.
 
     Where a sweep starts: with ``warm_start`` the paper's adaptive initialisation, x0 + dt v0 +
     dt^2 a, a the last substep's acceleration projected on gravity and clamped between 0 and g
@@ -173,7 +175,7 @@ class VBD(Integrator):
                                     friction_epsilon=float(friction_epsilon), refresh=int(contact_refresh))
         # The parts the solve is made of, each given what it reads (see their modules):
         # the scene's contact (attach_scene), the energy cap, the pieces of a substep with
-        # contact and, below, the springs' terms.
+        # contact and, below, the springs' terms and a membrane's.
         self.setup = ContactSetup()  # what the attached scene put in the solve: nothing yet
         self._attached = None  # the scene attached (attach_scene)
         self.cap = EnergyCap(system)
@@ -284,8 +286,9 @@ class VBD(Integrator):
     @property
     def serial(self) -> bool:
         """Whether a substep's sweeps run as one serial task (else each colour a parallel loop,
-        :meth:`_sweep`): below SERIAL_WORK particles plus springs, and with self-contact in the
-        solve below SERIAL_CONTACT_PARTICLES particles too; never on a GPU. Assigning it
+        :meth:`_sweep`): below SERIAL_WORK particles plus springs plus a membrane's work
+        (:attr:`MembraneTerms.work <.membranes.MembraneTerms.work>`), and with self-contact in
+        the solve below SERIAL_CONTACT_PARTICLES particles too; never on a GPU. Assigning it
         overrides the rule."""
         if self._serial is not None:
             return self._serial
