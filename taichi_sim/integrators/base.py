@@ -110,8 +110,9 @@ class Integrator(ABC):
     takes_elastic_models: bool = True
     """Whether the method steps a system with continuum force terms (a membrane, bending:
     :attr:`~taichi_sim.forces.ForceTerm.elastic_model`): the methods that call eval_f or the
-    force-Jacobian API do; the positional ones (XPBD, projective dynamics, VBD), whose solves
-    hold only springs, would take those forces explicitly at their large steps and refuse."""
+    force-Jacobian API do, and VBD, whose vertex solve holds the membrane's triangles and the
+    bending stencils; XPBD and projective dynamics, whose solves hold only springs, would take
+    those forces explicitly at their large steps and refuse."""
 
     equation = None
     """The equation a step solves (:class:`~taichi_sim.integrators.equation.Equation`) for the
@@ -174,7 +175,7 @@ class Integrator(ABC):
             raise ConfigError(
                 f"integrator {self.name!r} cannot step a cloth of material {'+'.join(models)}: its solve holds "
                 f"springs only, and it would take the membrane and bending forces explicitly at its large "
-                f"steps; pick implicit_euler, implicit_midpoint or an explicit method (symplectic_euler, rk4)")
+                f"steps; pick implicit_euler, implicit_midpoint, vbd or an explicit method (symplectic_euler, rk4)")
         self.system = system
 
     initial_step_f_evals: int = 0

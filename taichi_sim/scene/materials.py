@@ -13,10 +13,10 @@ from .params import Param
 from .scene import Scene
 
 MATERIALS = ("springs", "stvk", "neohookean")
-#: The method a membrane cloth runs when its preset's own default is a positional method (they
-#: hold springs only and refuse a membrane: Integrator.takes_elastic_models).
+#: The method a membrane cloth runs when its preset's own default is a positional method that
+#: holds springs only and refuses a membrane (Integrator.takes_elastic_models; vbd takes one).
 MEMBRANE_INTEGRATOR = "implicit_euler"
-POSITIONAL = ("xpbd", "projective_dynamics", "vbd")
+POSITIONAL = ("xpbd", "projective_dynamics")
 
 MATERIAL_PARAMS: tuple[Param, ...] = (
     Param("material", "springs", "", "springs (the spring net of the other parameters), or a membrane of "
@@ -91,8 +91,8 @@ def membrane_explicit_step(scene: Scene, material: MembraneMaterial, bending: fl
 
 def finish_membrane_scene(scene: Scene, preset, p: dict[str, Any], material: MembraneMaterial,
                           explicit: tuple[str, ...], share: float) -> Scene:
-    """A membrane cloth's default method and steps: a positional default becomes
-    :data:`MEMBRANE_INTEGRATOR`; an explicit default, and an explicit method asked for by name,
+    """A membrane cloth's default method and steps: a positional default that refuses a
+    membrane (:data:`POSITIONAL`) becomes :data:`MEMBRANE_INTEGRATOR` (vbd stays); an explicit default, and an explicit method asked for by name,
     get a step below their stable limit on the membrane."""
     if scene.default_integrator in POSITIONAL:
         scene.default_integrator = MEMBRANE_INTEGRATOR

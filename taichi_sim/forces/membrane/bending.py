@@ -86,6 +86,23 @@ class IsometricBending(ForceTerm):
             self.slot[e] = slot[e]
         self.stiffness[None] = stiffness
 
+    def operator(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The energy's constant Hessian without D, L = sum_e w_e w_e^T (n x n: the Hessian is
+        D L (x) I3), as per-vertex rows: (offsets (n+1,) int32, columns (nnz,) int32, values
+        (nnz,) float64 (1/m^2)), row i's entries ``offsets[i]:offsets[i+1]``, its diagonal among
+        them. The force is -D (L x)_i: one term per vertex i shares a stencil with rather than
+        four per stencil (a grid vertex's 12 stencils reach 13 vertices)."""
+        from scipy.sparse import coo_matrix
+
+        n = self.offsets.shape[0] - 1
+        rows = np.repeat(self.vertices_np, 4, axis=1).ravel()
+        columns = np.tile(self.vertices_np, (1, 4)).ravel()
+        values = (self.weights_np[:, :, None] * self.weights_np[:, None, :]).ravel()
+        matrix = coo_matrix((values, (rows, columns)), shape=(n, n)).tocsr()
+        matrix.sum_duplicates()
+        matrix.sort_indices()
+        return matrix.indptr.astype(np.int32), matrix.indices.astype(np.int32), matrix.data.astype(np.float64)
+
     def arrays(self) -> dict:
         return {"bending_stencils": self.vertices_np, "bending_weights": self.weights_np,
                 "bending_stiffness": np.float64(self.stiffness_value)}

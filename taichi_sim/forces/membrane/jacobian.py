@@ -5,7 +5,22 @@ assembles (the protocol of :class:`~taichi_sim.forces.ForceTerm`)."""
 import taichi as ti
 
 from ... import runtime
-from .material import project_psd, viscous_jacobian
+from .material import project_psd, viscous_jacobian, viscous_pair
+
+
+@ti.func
+def corner_pair_block(k, r0, r1, s0, s1):
+    """sum_cd r_c s_d K_cd (3x3) of a 6x6 ``k`` in F's columns (K_cd its 3x3 blocks), for two
+    corners' shape gradients r = (r0, r1) and s = (s0, s1) (1/m): the (r, s) block of a
+    triangle's Hessian in its vertices, per unit area."""
+    block = ti.Matrix.zero(float, 3, 3)
+    r = ti.Vector([r0, r1])
+    s = ti.Vector([s0, s1])
+    for c, d in ti.static(ti.ndrange(2, 2)):
+        w = r[c] * s[d]
+        for p, q in ti.static(ti.ndrange(3, 3)):
+            block[p, q] += w * k[3 * c + p, 3 * d + q]
+    return block
 
 
 class MembraneJacobians:
@@ -49,12 +64,29 @@ class MembraneJacobians:
                 k += a * viscous_jacobian(f0, f1, m[0], m[1], m[2])
             area = self.area[t]
             for r, s in ti.static(ti.ndrange(3, 3)):
-                block = ti.Matrix.zero(float, 3, 3)
-                for c, d in ti.static(ti.ndrange(2, 2)):
-                    w = g[r, c] * g[s, d]
-                    for p, q in ti.static(ti.ndrange(3, 3)):
-                        block[p, q] += w * k[3 * c + p, 3 * d + q]
-                self.triangle_block[t, r, s] = -area * block
+                self.triangle_block[t, r, s] = -area * corner_pair_block(k, g[r, 0], g[r, 1], g[s, 0], g[s, 1])
+
+    @ti.func
+    def corner_terms(self, t, corner, y, inv_dt):
+        """Triangle t's force on its vertex ``corner`` (0, 1, 2; N) at ``y`` (positions and
+        velocities) and that vertex's positive semi-definite block of the triangle's Hessian,
+        -(df/dx + inv_dt df/dv) (3x3, N/m): A proj(sum_cd u_c u_d d^2psi/dF_c dF_d) plus the
+        viscous part A inv_dt sum_cd u_c u_d dP_v/dFdot_cd, u the corner's shape gradient, with
+        ``proj`` on the 3x3 block (the material's ``*_corner``), not on the 6x6: the vertex
+        solve of vertex block descent reads this block alone, at the iterate, and the nearest
+        PSD matrix to it is the closest Newton model of the vertex's own energy. One triangle,
+        no precomputed pass."""
+        g = self.shape_gradients(t)
+        f0, f1 = self.columns(t, y.x, g)
+        energy, dissipation, p0, p1 = self.stress_at(t, y, g, f0, f1)
+        u = ti.Vector([ti.select(corner == 0, g[0, 0], ti.select(corner == 1, g[1, 0], g[2, 0])),
+                       ti.select(corner == 0, g[0, 1], ti.select(corner == 1, g[1, 1], g[2, 1]))])
+        area = self.area[t]
+        block = area * self.elastic_corner(f0, f1, u)
+        if ti.static(self.damped):
+            m = self.moduli[None]
+            block += (area * inv_dt) * viscous_pair(f0, f1, m[0], m[1], m[2], u, u)
+        return -(p0 * u[0] + p1 * u[1]), block
 
     @ti.func
     def jacobian_diagonal_block(self, i, y, a, b, t):

@@ -88,17 +88,31 @@ def set_block(h: ti.template(), c: ti.template(), d: ti.template(), block):
 
 
 @ti.func
-def _shear_part(f0, f1, mu, lam):
-    """The PSD part mu (delta_cd (f0 f0^T + f1 f1^T) + f_d f_c^T) + lam f_c f_d^T of StVK's
-    Hessian (also the viscous stress's velocity Jacobian), 6x6; PSD when mu >= 0 and
-    mu + lam >= 0, which holds for every nu in (-1, 0.5)."""
+def _unit(c: ti.template()):
+    """The 2-vector e_c (c = 0, 1 at compile time): F's column c."""
+    return ti.Vector([1.0 - c, 1.0 * c])
+
+
+@ti.func
+def _assemble(pair: ti.template(), f0, f1, mu, lam):
+    """The 6x6 in F's columns whose 3x3 block (c, d) is ``pair``(f0, f1, mu, lam, e_c, e_d)."""
     h = ti.Matrix.zero(float, 6, 6)
-    both = f0.outer_product(f0) + f1.outer_product(f1)
-    set_block(h, 0, 0, mu * (both + f0.outer_product(f0)) + lam * f0.outer_product(f0))
-    set_block(h, 1, 1, mu * (both + f1.outer_product(f1)) + lam * f1.outer_product(f1))
-    set_block(h, 0, 1, mu * f1.outer_product(f0) + lam * f0.outer_product(f1))
-    set_block(h, 1, 0, mu * f0.outer_product(f1) + lam * f1.outer_product(f0))
+    for c, d in ti.static(ti.ndrange(2, 2)):
+        set_block(h, c, d, pair(f0, f1, mu, lam, _unit(c), _unit(d)))
     return h
+
+
+@ti.func
+def _shear_pair(f0, f1, mu, lam, r, s):
+    """sum_cd r_c s_d of the PSD part mu (delta_cd (f0 f0^T + f1 f1^T) + f_d f_c^T)
+    + lam f_c f_d^T of StVK's Hessian (also the viscous stress's velocity Jacobian), for two
+    weight 2-vectors r, s: mu ((r.s) F F^T + (F s)(F r)^T) + lam (F r)(F s)^T (3x3). As a
+    6x6 (:func:`_assemble`) it is PSD when mu >= 0 and mu + lam >= 0, which holds for every
+    nu in (-1, 0.5)."""
+    fr = r[0] * f0 + r[1] * f1
+    fs = s[0] * f0 + s[1] * f1
+    both = f0.outer_product(f0) + f1.outer_product(f1)
+    return mu * (r.dot(s) * both + fs.outer_product(fr)) + lam * fr.outer_product(fs)
 
 
 @ti.func
@@ -121,35 +135,42 @@ def stvk(f0, f1, mu, lam):
 
 
 @ti.func
-def stvk_hessian(f0, f1, mu, lam):
-    """d^2 psi / dF^2 of :func:`stvk` (6x6): S_cd I + mu (delta_cd (f0 f0^T + f1 f1^T)
-    + f_d f_c^T) + lam f_c f_d^T."""
+def stvk_pair(f0, f1, mu, lam, r, s):
+    """sum_cd r_c s_d d^2psi/dF_c dF_d of :func:`stvk` (3x3) for weight 2-vectors r, s:
+    (r^T S s) I + mu ((r.s) F F^T + (F s)(F r)^T) + lam (F r)(F s)^T. With r, s two corners'
+    shape gradients it is their block of the triangle's Hessian per unit area."""
     e00, e11, e01 = _green(f0, f1)
     trace = e00 + e11
     s00 = 2.0 * mu * e00 + lam * trace
     s11 = 2.0 * mu * e11 + lam * trace
     s01 = 2.0 * mu * e01
-    h = _shear_part(f0, f1, mu, lam)
-    for c in ti.static(range(3)):
-        h[c, c] += s00
-        h[3 + c, 3 + c] += s11
-        h[c, 3 + c] += s01
-        h[3 + c, c] += s01
-    return h
+    rss = s00 * r[0] * s[0] + s01 * (r[0] * s[1] + r[1] * s[0]) + s11 * r[1] * s[1]
+    return rss * ti.Matrix.identity(float, 3) + _shear_pair(f0, f1, mu, lam, r, s)
+
+
+@ti.func
+def stvk_hessian(f0, f1, mu, lam):
+    """d^2 psi / dF^2 of :func:`stvk` (6x6): S_cd I + mu (delta_cd (f0 f0^T + f1 f1^T)
+    + f_d f_c^T) + lam f_c f_d^T (:func:`stvk_pair` block by block)."""
+    return _assemble(stvk_pair, f0, f1, mu, lam)
+
+
+@ti.func
+def stvk_corner(f0, f1, mu, lam, u):
+    """:func:`stvk_pair` (u, u) projected to PSD (:func:`project_psd3`): a corner's own block
+    of the triangle's Hessian per unit area, for its shape gradient u (1/m)."""
+    return project_psd3(stvk_pair(f0, f1, mu, lam, u, u))
 
 
 @ti.func
 def _area_ratio(f0, f1):
     """(J = |f0 x f1|, the unit normal n, 1/J), with n = 0 and 1/J = 0 for a collapsed triangle
-    (no normal, no curvature of J)."""
+    (no normal, no curvature of J). Branch-free, so that the stress and a Hessian of one
+    triangle in one kernel share it (the compiler merges identical pure expressions)."""
     w = f0.cross(f1)
     jac = w.norm()
-    n = ti.Vector.zero(float, 3)
-    inv = 0.0 * jac
-    if jac > 1e-12 * (f0.dot(f0) + f1.dot(f1)):
-        n = w / jac
-        inv = 1.0 / jac
-    return jac, n, inv
+    inv = ti.select(jac > 1e-12 * (f0.dot(f0) + f1.dot(f1)), 1.0 / jac, 0.0 * jac)
+    return jac, w * inv, inv
 
 
 @ti.func
@@ -173,25 +194,48 @@ def neohookean(f0, f1, mu, lam):
 
 
 @ti.func
-def neohookean_hessian(f0, f1, mu, lam):
-    """d^2 psi / dF^2 of :func:`neohookean` (6x6; see there)."""
+def neohookean_pair(f0, f1, mu, lam, r, s):
+    """sum_cd r_c s_d d^2psi/dF_c dF_d of :func:`neohookean` (3x3) for weight 2-vectors r, s:
+    with G_r = sum_c r_c G_c = [a]x, a = r1 f0 - r0 f1 (b likewise for s) and q_r = sum_c r_c q_c,
+    mu (r.s) I + l q_r q_s^T + (coef / J) ((a.b) I - b a^T - (n x a)(n x b)^T)
+    + coef (r1 s0 - r0 s1) [n]x (see :func:`neohookean`)."""
     lam = lam + mu
     jac, n, inv = _area_ratio(f0, f1)
-    q0 = f1.cross(n)
-    q1 = n.cross(f0)
     coef = lam * (jac - 1.0) - mu
-    g0 = -_cross_matrix(f1)
-    g1 = _cross_matrix(f0)
-    proj = ti.Matrix.identity(float, 3) - n.outer_product(n)
-    nx = _cross_matrix(n)
-    h = ti.Matrix.zero(float, 6, 6)
-    set_block(h, 0, 0, mu * ti.Matrix.identity(float, 3) + lam * q0.outer_product(q0)
-              + coef * inv * (g0.transpose() @ proj @ g0))
-    set_block(h, 1, 1, mu * ti.Matrix.identity(float, 3) + lam * q1.outer_product(q1)
-              + coef * inv * (g1.transpose() @ proj @ g1))
-    set_block(h, 0, 1, lam * q0.outer_product(q1) + coef * (inv * (g0.transpose() @ proj @ g1) - nx))
-    set_block(h, 1, 0, lam * q1.outer_product(q0) + coef * (inv * (g1.transpose() @ proj @ g0) + nx))
-    return h
+    qr = r[0] * f1.cross(n) + r[1] * n.cross(f0)
+    qs = s[0] * f1.cross(n) + s[1] * n.cross(f0)
+    a = r[1] * f0 - r[0] * f1
+    b = s[1] * f0 - s[0] * f1
+    curved = a.dot(b) * ti.Matrix.identity(float, 3) - b.outer_product(a) - n.cross(a).outer_product(n.cross(b))
+    return (mu * r.dot(s)) * ti.Matrix.identity(float, 3) + lam * qr.outer_product(qs) + (coef * inv) * curved \
+        + (coef * (r[1] * s[0] - r[0] * s[1])) * _cross_matrix(n)
+
+
+@ti.func
+def neohookean_hessian(f0, f1, mu, lam):
+    """d^2 psi / dF^2 of :func:`neohookean` (6x6; see there): :func:`neohookean_pair` block by
+    block."""
+    return _assemble(neohookean_pair, f0, f1, mu, lam)
+
+
+@ti.func
+def neohookean_corner(f0, f1, mu, lam, u):
+    """:func:`neohookean_pair` (u, u) projected to PSD, in closed form: a corner's own block of
+    the triangle's Hessian per unit area, for its shape gradient u (1/m). With r = s = u the
+    [n]x term cancels, a = b = u1 f0 - u0 f1 lies in the triangle's plane, so the curvature term
+    (coef / J) (|a|^2 I - a a^T - (n x a)(n x a)^T) is (coef / J) |a|^2 n n^T, and the rest,
+    mu |u|^2 I + l q_u q_u^T, is PSD with q_u in the plane: n is an eigenvector, of eigenvalue
+    mu |u|^2 + coef |a|^2 / J, which the projection raises to 0 where it is negative (a
+    triangle not stretched by mu / l in area), exactly as :func:`project_psd3` would
+    (tests/test_vbd_membrane.py checks it against the nearest PSD matrix to the block)."""
+    lam = lam + mu
+    jac, n, inv = _area_ratio(f0, f1)
+    coef = lam * (jac - 1.0) - mu
+    q = u[0] * f1.cross(n) + u[1] * n.cross(f0)
+    a = u[1] * f0 - u[0] * f1
+    shear = mu * u.dot(u)
+    normal = ti.max(shear + coef * inv * a.dot(a), 0.0) - shear
+    return shear * ti.Matrix.identity(float, 3) + lam * q.outer_product(q) + normal * n.outer_product(n)
 
 
 @ti.func
@@ -212,8 +256,14 @@ def viscous(f0, f1, d0, d1, mu, lam, beta):
 
 @ti.func
 def viscous_jacobian(f0, f1, mu, lam, beta):
-    """dP_v/dFdot (6x6, N s/m): beta times StVK's PSD part (:func:`_shear_part`)."""
-    return beta * _shear_part(f0, f1, mu, lam)
+    """dP_v/dFdot (6x6, N s/m): beta times StVK's PSD part (:func:`_shear_pair`)."""
+    return beta * _assemble(_shear_pair, f0, f1, mu, lam)
+
+
+@ti.func
+def viscous_pair(f0, f1, mu, lam, beta, r, s):
+    """sum_cd r_c s_d dP_v/dFdot_cd (3x3, N s/m) for weight 2-vectors r, s; PSD for r = s."""
+    return beta * _shear_pair(f0, f1, mu, lam, r, s)
 
 
 @ti.func
@@ -283,4 +333,23 @@ def project_psd(h):
             for r in range(6):
                 for c in range(6):
                     out[r, c] += lam_k * v[r, k] * v[c, k]
+    return out
+
+
+@ti.func
+def project_psd3(h):
+    """The nearest positive semi-definite matrix to the symmetric 3x3 ``h`` (Frobenius norm):
+    negative eigenvalues set to zero. Sylvester's test first (the leading minors of h plus
+    1e-9 of its mean eigenvalue are > 0: about 20 flops), so a block that is already PSD, as
+    near rest or stretched, skips the eigen-decomposition."""
+    shift = 1e-9 * ti.max(h[0, 0] + h[1, 1] + h[2, 2], 0.0) / 3.0
+    work = h + shift * ti.Matrix.identity(float, 3)
+    minor = work[0, 0] * work[1, 1] - work[0, 1] * work[1, 0]
+    out = h
+    if not (work[0, 0] > 0.0 and minor > 0.0 and work.determinant() > 0.0):
+        values, vectors = ti.sym_eig(h)
+        out = ti.Matrix.zero(float, 3, 3)
+        for k in ti.static(range(3)):
+            v = ti.Vector([vectors[0, k], vectors[1, k], vectors[2, k]])
+            out += ti.max(values[k], 0.0) * v.outer_product(v)
     return out

@@ -8,7 +8,16 @@ from ..base import ForceTerm
 from ..springs.topology import incidence_of
 from .geometry import rest_frames
 from .jacobian import MembraneJacobians
-from .material import MembraneMaterial, neohookean, neohookean_hessian, stvk, stvk_hessian, viscous
+from .material import (
+    MembraneMaterial,
+    neohookean,
+    neohookean_corner,
+    neohookean_hessian,
+    stvk,
+    stvk_corner,
+    stvk_hessian,
+    viscous,
+)
 
 
 @ti.data_oriented
@@ -155,9 +164,26 @@ class Membrane(MembraneJacobians, ForceTerm):
         return h
 
     @ti.func
+    def elastic_corner(self, f0, f1, u):
+        """A corner's own block of d^2(psi)/dx^2 per unit area (3x3, N/m^3), projected to PSD,
+        for its shape gradient u (2-vector, 1/m) (the material's ``*_corner``)."""
+        m = self.moduli[None]
+        h = ti.Matrix.zero(float, 3, 3)
+        if ti.static(self.model == "stvk"):
+            h = stvk_corner(f0, f1, m[0], m[1], u)
+        else:
+            h = neohookean_corner(f0, f1, m[0], m[1], u)
+        return h
+
+    @ti.func
     def triangle_stress(self, t, y, g):
         """(A psi (J), A R (W), the columns of A (P + P_v) (N m)) of triangle t at ``y``."""
         f0, f1 = self.columns(t, y.x, g)
+        return self.stress_at(t, y, g, f0, f1)
+
+    @ti.func
+    def stress_at(self, t, y, g, f0, f1):
+        """:meth:`triangle_stress` given the triangle's F = [f0 f1] at ``y``."""
         psi, p0, p1 = self.elastic(f0, f1)
         r = 0.0 * psi
         if ti.static(self.damped):

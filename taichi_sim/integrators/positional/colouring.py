@@ -1,6 +1,6 @@
 """Colourings of a spring graph for Gauss-Seidel sweeps in parallel: of its edges (springs of one
-colour share no particle: XPBD) and of its vertices (particles of one colour share no spring:
-VBD)."""
+colour share no particle: XPBD) and of its vertices (particles of one colour share no spring,
+triangle or bending stencil: VBD, the elements given as their pairs by :func:`element_pairs`)."""
 from __future__ import annotations
 
 import numpy as np
@@ -59,3 +59,19 @@ def colour_vertices(particle_count: int, ends: np.ndarray) -> tuple[np.ndarray, 
     count = int(colour.max()) + 1 if particle_count else 0
     starts = np.searchsorted(colour[order], np.arange(count + 1)).tolist()
     return order, starts
+
+
+def element_pairs(elements: np.ndarray) -> np.ndarray:
+    """Every pair of vertices that share an element: (P, 2) int64, each pair once with the
+    lower id first, from ``elements`` ((E, k) vertex ids: triangles, bending stencils). Given to
+    :func:`colour_vertices` as springs, they keep an element's vertices in different colours,
+    so no two vertices of a colour read each other's position in their solves."""
+    elements = np.asarray(elements, dtype=np.int64)
+    if elements.ndim != 2 or elements.shape[1] < 2:
+        return np.zeros((0, 2), np.int64)
+    k = elements.shape[1]
+    first, second = np.triu_indices(k, 1)
+    pairs = np.stack([elements[:, first].ravel(), elements[:, second].ravel()], axis=1)
+    pairs = np.sort(pairs, axis=1)
+    pairs = pairs[pairs[:, 0] != pairs[:, 1]]
+    return np.unique(pairs, axis=0) if len(pairs) else pairs

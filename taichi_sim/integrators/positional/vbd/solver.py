@@ -20,6 +20,7 @@ from .contact import check_contact_options
 from .contact_model import solve_forces
 from .energy import EnergyCap, closed_scene
 from .kernels import bind_kernels
+from .membranes import MembraneTerms
 from .pieces import FAILURES, PieceSchedule
 from .scene import ContactSetup, contact_setup
 from .springs import SpringTerms, fraction_option, positive_option
@@ -51,12 +52,14 @@ class VBD(Integrator):
         r_i = m_i (x_i - x0_i - dt v0_i) / dt^2 - f_i(x, v),   v = (x - x0) / dt,
         H_i = m_i / dt^2 I - df_i/dx_i - df_i/dv_i / dt,       x_i -= H_i^-1 r_i,
 
-    with every force term of the scene (gravity, drag, springs with their dashpots, the grab)
+    with every force term of the scene (gravity, drag, springs with their dashpots, the grab, a
+    membrane's triangles with their viscous stress and its bending: :mod:`.membranes`)
     evaluated at the iterate, exactly as :class:`~taichi_sim.integrators.ImplicitEuler` does,
-    and each spring's 3x3 block kept positive semi-definite (a compressed spring's transverse
-    stiffness clamped at 0, as in the implicit methods). The vertices are coloured once so that
-    no two of a colour share a spring (:func:`colour_vertices`); a sweep solves one colour after
-    the other, each colour one parallel loop (Gauss-Seidel). ``iterations`` sweeps per substep.
+    and each spring's and triangle's 3x3 block kept positive semi-definite (a compressed
+    spring's transverse stiffness clamped at 0, a triangle's block projected). The vertices are
+    coloured once so that no two of a colour share a spring, a triangle or a bending stencil
+    (:func:`colour_vertices`); a sweep solves one colour after the other, each colour one
+    parallel loop (Gauss-Seidel). ``iterations`` sweeps per substep.
 
     Where a sweep starts: with ``warm_start`` the paper's adaptive initialisation, x0 + dt v0 +
     dt^2 a, a the last substep's acceleration projected on gravity and clamped between 0 and g
@@ -118,7 +121,8 @@ class VBD(Integrator):
 
     name = "vbd"
     plot_colour = "#393b79"  # in the benchmarks' plots
-    takes_elastic_models = False  # its solve holds springs only (Integrator.takes_elastic_models)
+    # its solve holds the membrane's triangles and the bending stencils too (membranes.py)
+    takes_elastic_models = True
     order = 1
     requires_second_order = True
     description = "vertex block descent: backward Euler by per-vertex Newton steps, Gauss-Seidel over a colouring"
@@ -196,7 +200,7 @@ class VBD(Integrator):
                                     friction_epsilon=float(friction_epsilon), refresh=int(contact_refresh))
         # The parts the solve is made of, each given what it reads (see their modules):
         # the scene's contact (attach_scene), the energy cap, the pieces of a substep with
-        # contact and, below, the springs' terms.
+        # contact and, below, the springs' terms and a membrane's.
         self.setup = ContactSetup()  # what the attached scene put in the solve: nothing yet
         self._attached = None  # the scene attached (attach_scene)
         self.cap = EnergyCap(system)
@@ -207,7 +211,12 @@ class VBD(Integrator):
         self.has_springs = self.springs is not None
         self.gravity = system.term("gravity")
         self.has_gravity = self.gravity is not None
-        self.others = [term for term in system.terms if term.name != "springs"]
+        membrane, bending = system.term("membrane"), system.term("bending")
+        self.membrane_terms = MembraneTerms(membrane, bending) if membrane is not None or bending is not None \
+            else None
+        self.has_membrane = self.membrane_terms is not None
+        own = {"springs", *(MembraneTerms.names if self.has_membrane else ())}
+        self.others = [term for term in system.terms if term.name not in own]
         self.point = system.make_state()  # the iterate (x, v = (x - x0) / dt)
         self.start_x = ti.Vector.field(3, real, shape=n)  # x0 (m)
         self.start_v = ti.Vector.field(3, real, shape=n)  # v0 (m/s)
@@ -221,12 +230,15 @@ class VBD(Integrator):
         self.spring_terms = SpringTerms(self.springs, augmented=self.augmented, penalty=self.penalty,
                                         penalty_growth=self.penalty_growth) if self.has_springs else None
         ends = self.springs.ends_np if self.has_springs else np.zeros((0, 2), np.int32)
+        if self.has_membrane:  # a triangle's or stencil's vertices in different colours too
+            ends = np.concatenate([np.asarray(ends, np.int64).reshape(-1, 2), self.membrane_terms.pairs()])
         order, self.starts = colour_vertices(n, ends)
         self.order = ti.field(ti.i32, shape=max(1, n))
         self.colour_start = ti.field(ti.i32, shape=len(self.starts))  # the serial kernels loop over colours
         field_io.write((self.order, order), (self.colour_start, self.starts))  # one kernel, not two
-        self._serial_springs = runtime.serial_loops(n + (self.springs.spring_count if self.has_springs else 0),
-                                                    SERIAL_WORK)
+        self._serial_springs = runtime.serial_loops(
+            n + (self.springs.spring_count if self.has_springs else 0)
+            + (self.membrane_terms.work if self.has_membrane else 0), SERIAL_WORK)
         self._serial: bool | None = None  # set: a caller's choice (tests, benchmarks) over the rule
         self.rest_starts = ti.field(ti.i32, shape=())  # substeps whose sweeps started at V = 0
         self.last_rest = ti.field(ti.i32, shape=())  # whether the last begun start was V = 0
@@ -298,8 +310,9 @@ class VBD(Integrator):
     @property
     def serial(self) -> bool:
         """Whether a substep's sweeps run as one serial task (else each colour a parallel loop,
-        :meth:`_sweep`): below SERIAL_WORK particles plus springs, and with self-contact in the
-        solve below SERIAL_CONTACT_PARTICLES particles too; never on a GPU. Assigning it
+        :meth:`_sweep`): below SERIAL_WORK particles plus springs plus a membrane's work
+        (:attr:`MembraneTerms.work <.membranes.MembraneTerms.work>`), and with self-contact in
+        the solve below SERIAL_CONTACT_PARTICLES particles too; never on a GPU. Assigning it
         overrides the rule."""
         if self._serial is not None:
             return self._serial
@@ -549,6 +562,10 @@ class VBD(Integrator):
             H = inertia * ti.Matrix.identity(self.delta.dtype, 3)
             if ti.static(self.has_springs):
                 f, block = self.spring_terms.at(i, self.point.x, self.point.v, dt)
+                r -= f
+                H += block
+            if ti.static(self.has_membrane):
+                f, block = self.membrane_terms.at(i, self.point, dt)
                 r -= f
                 H += block
             if ti.static(self.has_contact):

@@ -1,0 +1,100 @@
+"""Vertex block descent's continuum cloth terms: the force and 3x3 block one vertex takes from
+its membrane triangles and bending stencils at the iterate; :class:`~.solver.VBD` owns them."""
+
+import numpy as np
+import taichi as ti
+
+from .... import runtime
+from ..colouring import element_pairs
+
+#: A triangle corner's share of a sweep against a spring's (its stress, 6x6 Hessian, the
+#: contraction to the vertex's block and, where needed, a 3x3 eigen-decomposition), for the
+#: rule that picks serial or parallel sweeps (solver.SERIAL_WORK).
+CORNER_WORK = 8
+
+
+@ti.data_oriented
+class MembraneTerms:
+    """The membrane's and bending's part of a vertex's solve in :class:`~.solver.VBD`.
+
+    Vertex i takes, from each triangle it is a corner of, the triangle's force on it and its
+    positive semi-definite block -(df_i/dx_i + df_i/dv_i / dt) at the iterate
+    (:meth:`Membrane.corner_terms <taichi_sim.forces.membrane.Membrane.corner_terms>`: the
+    elastic block projected to PSD, the viscous stress's block, PSD as it is, over dt, as a
+    spring's dashpot c / dt enters), and from the bending stencils it is in their force
+    -D (L x)_i and block D L_ii I, L the bending's constant Hessian over D
+    (:meth:`IsometricBending.operator <taichi_sim.forces.membrane.IsometricBending.operator>`:
+    its rows sum the stencils, so a vertex reads each neighbour once, not once per stencil).
+    The stress, the Hessians and L are the terms' own, written once in
+    :mod:`taichi_sim.forces.membrane`.
+
+    The sweep is Gauss-Seidel over a vertex colouring: the vertices of one triangle or one
+    stencil must lie in different colours (:meth:`pairs`), so that a colour's vertices, solved
+    at once, never read each other's positions.
+
+    Args:
+        membrane: the system's :class:`~taichi_sim.forces.membrane.Membrane` term, or None.
+        bending: the system's :class:`~taichi_sim.forces.membrane.IsometricBending` term, or None.
+    """
+
+    names = ("membrane", "bending")  # the system's terms these stand for (solver: not in its others)
+
+    def __init__(self, membrane, bending):
+        if membrane is None and bending is None:
+            raise ValueError("MembraneTerms needs a membrane or a bending term")
+        self.membrane = membrane
+        self.bending = bending
+        self.has_membrane = membrane is not None
+        self.has_bending = bending is not None
+        if self.has_bending:
+            offsets, columns, values = bending.operator()
+            self.bending_offsets = ti.field(ti.i32, shape=len(offsets))
+            self.bending_columns = ti.field(ti.i32, shape=max(1, len(columns)))
+            self.bending_values = ti.field(runtime.real(), shape=max(1, len(values)))
+            self.bending_entries = len(columns)
+            self.bending_offsets.from_numpy(offsets)
+            if len(columns):
+                self.bending_columns.from_numpy(columns)
+                self.bending_values.from_numpy(values.astype(runtime.np_real()))
+
+    def pairs(self) -> np.ndarray:
+        """(P, 2) int64: the pairs of vertices that share a triangle or a bending stencil."""
+        parts = [element_pairs(self.membrane.triangles_np)] if self.has_membrane else []
+        if self.has_bending:
+            parts.append(element_pairs(self.bending.vertices_np))
+        return np.unique(np.concatenate(parts), axis=0)
+
+    @property
+    def work(self) -> int:
+        """A sweep's work in springs' worth (:data:`CORNER_WORK` per triangle corner, one per
+        entry of the bending's rows)."""
+        corners = 3 * self.membrane.triangle_count if self.has_membrane else 0
+        reach = self.bending_entries if self.has_bending else 0
+        return CORNER_WORK * corners + reach
+
+    @ti.func
+    def at(self, i, y, dt):
+        """The force on vertex i (N) and its block of H (3x3, N/m) from its triangles and
+        bending stencils at the state ``y`` (positions (m) and velocities (m/s): the iterate)."""
+        f = ti.Vector.zero(y.x.dtype, 3)
+        H = ti.Matrix.zero(y.x.dtype, 3, 3)
+        if ti.static(self.has_membrane):
+            membrane = self.membrane
+            inv_dt = 1.0 / dt
+            for e in range(membrane.offsets[i], membrane.offsets[i + 1]):
+                force, block = membrane.corner_terms(membrane.incident[e], membrane.slot[e], y, inv_dt)
+                f += force
+                H += block
+        if ti.static(self.has_bending):
+            d = self.bending.stiffness[None]
+            lx = ti.Vector.zero(y.x.dtype, 3)
+            diagonal = ti.cast(0.0, y.x.dtype)
+            for e in range(self.bending_offsets[i], self.bending_offsets[i + 1]):
+                j = self.bending_columns[e]
+                value = self.bending_values[e]
+                lx += value * y.x[j]
+                if j == i:
+                    diagonal = value
+            f -= d * lx
+            H += (d * diagonal) * ti.Matrix.identity(y.x.dtype, 3)
+        return f, H
