@@ -91,6 +91,25 @@ def test_xpbd_meets_a_tolerance_by_taking_more_substeps_and_lands_within_it(f64,
     assert loose.worst_error_estimate > 1e-4  # the default work alone would not have met it
 
 
+def test_xpbd_at_k_1e8_raises_its_substeps_within_the_first_steps_and_does_not_blow_up(f32):
+    # The warning matrix's case: a 16 x 16 cloth at k = 1e8 N/m, xpbd with its defaults, f32,
+    # stepped without asking for checks. The step from rest reads 0.28 mm (the springs are not
+    # loaded yet); the next ones are 1-4 mm off at 20 substeps. Sampled again only after some
+    # 300 steps, the run kept its 20 substeps until the stretch's energy (k C^2 / 2 of 0.1 mm)
+    # tripped the blow-up guard at step 17: the run's start is sampled where its work doubles.
+    from taichi_sim.bench.stiffcloth import cloth_params
+
+    scene = ts.build_scene("cloth", cloth_params(16, 1e8))
+    integrator = ts.create_integrator("xpbd", scene.system)
+    stepper = Stepper(scene, integrator, 1 / 60)
+    for s in range(30):
+        stepper.step(check=s == 29)
+    assert stepper.failure is None
+    assert stepper.monitor.times[:2] == pytest.approx([1 / 60, 2 / 60])
+    assert integrator.substeps >= 80 and not stepper.warnings
+    assert stepper.monitor.worst_distance <= stepper.monitor.tolerance
+
+
 def test_a_method_at_its_cap_warns_with_the_cap_and_the_estimate(f64):
     # xpbd's substeps do bring a stiff cloth closer (about fourfold per doubling), but a cap of
     # 40 stops them short of 1 um
