@@ -110,6 +110,30 @@ def test_xpbd_at_k_1e8_raises_its_substeps_within_the_first_steps_and_does_not_b
     assert stepper.monitor.worst_distance <= stepper.monitor.tolerance
 
 
+def test_a_step_near_the_tolerance_is_decided_by_solving_it(f32):
+    # vbd's first step of a 10-particle pendulum at k = 1e8 N/m lags its swing: one Newton
+    # step (and its chord step) reads 0.59 mm of a true 1.02 mm, since a linear step along the
+    # turn stretches the stiff springs. Against a 1 mm tolerance the sample solves the step.
+    from taichi_sim.convergence import distance
+
+    scene = ts.build_scene("pendulum", {"particle_count": 10, "stiffness": 1e8})
+    stepper = Stepper(scene, ts.create_integrator("vbd", scene.system), 1 / 60, raise_work=False)
+    stepper.step(check=True)
+    model = stepper.monitor.distance_model
+    x0, v0 = (a.astype(float) for a in stepper.monitor._start.to_numpy())
+    x1, v1 = (a.astype(float) for a in scene.state.to_numpy())
+    assert model.jacobians > 2
+    x_star, _ = model.solve_step(x0, v0, 1 / 60, guess=x1, tolerance=1e-9)
+    true = float(np.max(np.linalg.norm(x1 - x_star, axis=1)))
+    assert 1e-3 < true < 1.2e-3
+    assert model.distance(x0, v0, x1, v1, 1 / 60) < 0.7 * true  # the estimate alone
+    assert stepper.monitor.distances == pytest.approx([true], rel=0.02)
+    assert stepper.warnings  # 1.02 mm > 1 mm: the run says so
+    far = model.distance(x0, v0, x1, v1, 1 / 60, tolerance=1e-1)  # far from it: not solved
+    assert far < 0.7 * true and model.jacobians == 1
+    assert distance.DECIDE * 1e-3 > true
+
+
 def test_a_method_at_its_cap_warns_with_the_cap_and_the_estimate(f64):
     # xpbd's substeps do bring a stiff cloth closer (about fourfold per doubling), but a cap of
     # 40 stops them short of 1 um

@@ -181,9 +181,7 @@ class ConvergenceMonitor:
         if not self.active:
             return math.nan, math.nan
         start = time.perf_counter()
-        if self.work < self.sample_work:
-            self.early += self.sample_seconds
-        self.work = 0.0
+        paid = self.work >= self.sample_work
         if self._tracked and math.isfinite(self.integrator.solved_h):
             h = self.integrator.solved_h
         x0, v0 = self._start.to_numpy()
@@ -193,7 +191,17 @@ class ConvergenceMonitor:
         if self._terms:
             extra = combined(extra, self._term_forces(state, x0, v0, x1, v1, t, h))
         value = relative_residual(self.model, self.equation, x0, v0, x1, v1, h, extra)
-        distance = self.distance_model.distance(x0, v0, x1, v1, h, extra) if h > 0 else math.nan
+        distance = math.nan
+        if h > 0:
+            distance = self.distance_model.distance(x0, v0, x1, v1, h, extra, self.tolerance)
+        # a sample that solved its step to decide (distance.DECIDE) cost a sample per Jacobian:
+        # the next waits for the work that pays for them (deterministic, as the rest)
+        cost = getattr(self.distance_model, "jacobians", 1) if h > 0 else 1
+        if paid:
+            self.work = -(cost - 1) * self.sample_work
+        else:
+            self.early += cost * self.sample_seconds
+            self.work = 0.0
         self.record(t, value, distance)
         self.seconds += time.perf_counter() - start
         return value, distance
