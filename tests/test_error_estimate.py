@@ -110,6 +110,23 @@ def test_xpbd_at_k_1e8_raises_its_substeps_within_the_first_steps_and_does_not_b
     assert stepper.monitor.worst_distance <= stepper.monitor.tolerance
 
 
+def test_a_stretch_the_guard_would_call_a_blow_up_is_judged_by_the_estimate_first(f32, monkeypatch):
+    # The same run with none of the start's denser samples (a 64 x 64 cloth has none: they cost
+    # more than EARLY_SECONDS): its stretch's energy passes the guard's bound at step 17. The
+    # step is sampled before the guard judges it, found off, and solved with more substeps.
+    from taichi_sim.bench.stiffcloth import cloth_params
+    from taichi_sim.convergence import monitor
+
+    monkeypatch.setattr(monitor, "EARLY_SECONDS", 0.0)
+    scene = ts.build_scene("cloth", cloth_params(16, 1e8))
+    integrator = ts.create_integrator("xpbd", scene.system)
+    stepper = Stepper(scene, integrator, 1 / 60)
+    for s in range(30):
+        stepper.step(check=s == 29)
+    assert stepper.failure is None and integrator.substeps > 20
+    assert 2 <= len(stepper.monitor.times) <= 4 and stepper.monitor.times[0] > 10 / 60
+
+
 def test_a_step_near_the_tolerance_is_decided_by_solving_it(f32):
     # vbd's first step of a 10-particle pendulum at k = 1e8 N/m lags its swing: one Newton
     # step (and its chord step) reads 0.59 mm of a true 1.02 mm, since a linear step along the

@@ -26,7 +26,8 @@ positions (for implicit midpoint: twice the midpoint stage's, x1 = 2 X - x0).
 
 Where it has to decide against a tolerance and reads within a factor of ``DECIDE`` of it, the
 estimate is not trusted to decide, and the step is solved instead (:func:`solve_step` from x1,
-at most ``REFINE_ITERATIONS`` Jacobians): the figure is then the distance itself. The
+at most ``REFINE_ITERATIONS`` Jacobians, fewer where the caller cannot pay for them): the
+figure is then the distance itself. The
 estimate's one Newton step (and its chord step) reads low where x1 - x* is mostly a turn of
 near-inextensible springs (a cloth or chain that lags its swing): the linear step moves the
 particles along the turn's tangent, which lengthens each spring by a second-order amount that
@@ -165,19 +166,20 @@ class DistanceModel:
         out[self.free] = scale * delta
         return out
 
-    def distance(self, x0, v0, x1, v1, h, extra=None, tolerance: float | None = None) -> float:
+    def distance(self, x0, v0, x1, v1, h, extra=None, tolerance: float | None = None,
+                 refine: int = REFINE_ITERATIONS) -> float:
         """The estimate's figure: ``max_i |x1_i - x*_i|`` (m); 0 with nothing free. With a
         ``tolerance`` (m), a figure within a factor of ``DECIDE`` of it is replaced by the
-        solved step's distance where :meth:`solve_step` gets there within ``REFINE_ITERATIONS``
-        (module docstring). :attr:`jacobians` is then the Jacobians the figure took."""
+        solved step's distance where :meth:`solve_step` gets there within ``refine`` Newton
+        steps (module docstring). :attr:`jacobians` is then the Jacobians the figure took."""
         estimate = _largest(self.correction(x0, v0, x1, v1, h, extra=extra))
         self.jacobians = 1
-        if tolerance is None or not tolerance / DECIDE < estimate < DECIDE * tolerance:
+        if tolerance is None or refine < 1 or not tolerance / DECIDE < estimate < DECIDE * tolerance:
             return estimate
         self.iterations = 0
         try:
             x_star, _ = self.solve_step(x0, v0, h, guess=x1, tolerance=REFINE_FRACTION * tolerance,
-                                        max_iterations=REFINE_ITERATIONS, extra=extra)
+                                        max_iterations=refine, extra=extra)
         except RuntimeError:
             return estimate
         finally:

@@ -29,7 +29,7 @@ import time
 
 from ..errors import ConfigError
 from ..integrators.equation import EXACT, Equation
-from .distance import DistanceModel
+from .distance import REFINE_ITERATIONS, DistanceModel
 from .residual import (
     BUDGET,
     FLOOR_MARGIN,
@@ -52,6 +52,10 @@ WORK_SECONDS_PER_PARTICLE = 1e-7
 #: docstring): all of them on a 16 x 16 cloth (0.017 s a sample), the first seven on a 32 x 32
 #: (0.14 s), none on a 64 x 64 (1.1 s), whose first sample is paid by the budget.
 EARLY_SECONDS = 1.0
+#: The modelled time (s) a sample may spend solving its step to decide against the tolerance
+#: (:data:`~.distance.DECIDE`): up to 8 Jacobians on a 16 x 16 or 32 x 32 cloth, none on a
+#: 64 x 64 (a Jacobian's factorisation there takes 1-2 s), whose estimate stands.
+REFINE_SECONDS = 1.0
 
 
 def check_tolerance(value) -> float:
@@ -123,6 +127,7 @@ class ConvergenceMonitor:
             n = int(self.model.free.sum())
             # the work (method's units) that pays for one sample within BUDGET (module docstring)
             self.sample_seconds = SAMPLE_SECONDS_PER_DOF * (3 * n) ** 1.5
+            self.refine = min(REFINE_ITERATIONS, int(REFINE_SECONDS / max(self.sample_seconds, 1e-12)))
             unit = WORK_SECONDS_PER_PARTICLE * max(n, 1) * float(getattr(integrator, "work_weight", 1.0))
             self.sample_work = self.sample_seconds / (BUDGET * unit)
 
@@ -193,7 +198,7 @@ class ConvergenceMonitor:
         value = relative_residual(self.model, self.equation, x0, v0, x1, v1, h, extra)
         distance = math.nan
         if h > 0:
-            distance = self.distance_model.distance(x0, v0, x1, v1, h, extra, self.tolerance)
+            distance = self.distance_model.distance(x0, v0, x1, v1, h, extra, self.tolerance, self.refine)
         # a sample that solved its step to decide (distance.DECIDE) cost a sample per Jacobian:
         # the next waits for the work that pays for them (deterministic, as the rest)
         cost = getattr(self.distance_model, "jacobians", 1) if h > 0 else 1
