@@ -53,7 +53,7 @@ WORK_SECONDS_PER_PARTICLE = 1e-7
 #: (0.14 s), none on a 64 x 64 (1.1 s), whose first sample is paid by the budget.
 EARLY_SECONDS = 1.0
 #: The modelled time (s) a sample may spend solving its step to decide against the tolerance
-#: (:data:`~.distance.DECIDE`): up to 8 Jacobians on a 16 x 16 or 32 x 32 cloth, none on a
+#: (:data:`~.distance.DECIDE`): up to 16 Jacobians on a 16 x 16 cloth, 7 on a 32 x 32, none on a
 #: 64 x 64 (a Jacobian's factorisation there takes 1-2 s), whose estimate stands.
 REFINE_SECONDS = 1.0
 
