@@ -239,3 +239,17 @@ def test_newton_tightens_its_own_test_to_meet_a_tolerance_in_metres(f64):
 
 def loose_tolerance(scene) -> float:
     return ts.create_integrator("implicit_euler", scene.system).newton_tolerance
+
+
+def test_simulate_lets_the_tolerance_raise_the_scenes_options_but_not_the_callers(tmp_path, capsys):
+    # cloth-stiff carries xpbd's 50 substeps as the scene's option: a tolerance may raise them
+    # (they were passed as the caller's, kept as given, so its 64 x 64 run at k = 1e8 stopped
+    # diverged); --substeps 50 is the caller's and stays.
+    from taichi_sim.cli import main
+
+    common = ["simulate", "cloth-stiff", "--set", "nx=8", "--set", "ny=8", "--steps", "2", "--tolerance", "1e-7"]
+    assert main(common + ["--out", str(tmp_path / "scene.npz")]) == 0
+    assert int(np.load(tmp_path / "scene.npz")["f_evals"]) > 2 * 50
+    assert main(common + ["--substeps", "50", "--out", str(tmp_path / "given.npz")]) == 0
+    assert int(np.load(tmp_path / "given.npz")["f_evals"]) == 2 * 50
+    assert "exceeds --tolerance" in capsys.readouterr().err
