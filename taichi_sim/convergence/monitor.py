@@ -49,9 +49,10 @@ DEFAULT_TOLERANCE = 1e-3
 SAMPLE_SECONDS_PER_DOF = 8e-7
 WORK_SECONDS_PER_PARTICLE = 1e-7
 #: The modelled sample time (s) a run may spend on its start's denser samples (module
-#: docstring): all of them on a 16 x 16 cloth (0.017 s a sample), the first seven on a 32 x 32
-#: (0.14 s), none on a 64 x 64 (1.1 s), whose first sample is paid by the budget.
-EARLY_SECONDS = 1.0
+#: docstring): all of them on a 16 x 16 cloth (0.017 s a sample), the first three on a 32 x 32
+#: (0.14 s; fewer where a sample solved its step to decide), none on a 64 x 64 (1.1 s), whose
+#: first sample is paid by the budget.
+EARLY_SECONDS = 0.5
 #: The modelled time (s) a sample may spend solving its step to decide against the tolerance
 #: (:data:`~.distance.DECIDE`): up to 16 Jacobians on a 16 x 16 cloth, 7 on a 32 x 32, none on a
 #: 64 x 64 (a Jacobian's factorisation there takes 1-2 s), whose estimate stands.
