@@ -178,7 +178,8 @@ class DistanceModel:
         """The estimate's figure: ``max_i |x1_i - x*_i|`` (m); 0 with nothing free. With a
         ``tolerance`` (m), a figure within a factor of ``DECIDE`` of it is replaced by the
         solved step's distance where :meth:`solve_step` gets there within ``refine`` Newton
-        steps (module docstring). :attr:`jacobians` is then the Jacobians the figure took."""
+        steps, else by the larger of it and the last iterate's distance plus the corrections'
+        tail (module docstring). :attr:`jacobians` is then the Jacobians the figure took."""
         estimate = _largest(self.correction(x0, v0, x1, v1, h, extra=extra))
         self.jacobians = 1
         if tolerance is None or refine < 1 or not tolerance / DECIDE < estimate < DECIDE * tolerance:
