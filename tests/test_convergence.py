@@ -192,9 +192,10 @@ def test_samples_keep_to_their_share_of_the_run_but_the_last_step_is_always_meas
     scene = cloth(stiffness=1e2)
     monkeypatch.setattr(monitor, "BUDGET", 1e-9)  # no sample pays for itself
     result = ts.run(scene, ts.create_integrator("xpbd", scene.system, substeps=2), dt=1 / 60, steps=20)
-    # a scene this small has its first step sampled too (FREE_SAMPLE_SECONDS), and the last always
-    assert result.residual_t == pytest.approx([1 / 60, 20 / 60])
-    monkeypatch.setattr(monitor, "FREE_SAMPLE_SECONDS", 0.0)
+    # a scene this small has its start sampled where the run's work doubled (EARLY_SECONDS), and
+    # the last step always
+    assert result.residual_t == pytest.approx([s / 60 for s in (1, 2, 4, 8, 16, 20)])
+    monkeypatch.setattr(monitor, "EARLY_SECONDS", 0.0)
     scene.reset()
     result = ts.run(scene, ts.create_integrator("xpbd", scene.system, substeps=2), dt=1 / 60, steps=20)
     assert result.residual_t == pytest.approx([20 / 60])

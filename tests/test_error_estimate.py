@@ -91,6 +91,66 @@ def test_xpbd_meets_a_tolerance_by_taking_more_substeps_and_lands_within_it(f64,
     assert loose.worst_error_estimate > 1e-4  # the default work alone would not have met it
 
 
+def test_xpbd_at_k_1e8_raises_its_substeps_within_the_first_steps_and_does_not_blow_up(f32):
+    # The warning matrix's case: a 16 x 16 cloth at k = 1e8 N/m, xpbd with its defaults, f32,
+    # stepped without asking for checks. The step from rest reads 0.28 mm (the springs are not
+    # loaded yet); the next ones are 1-4 mm off at 20 substeps. Sampled again only after some
+    # 300 steps, the run kept its 20 substeps until the stretch's energy (k C^2 / 2 of 0.1 mm)
+    # tripped the blow-up guard at step 17: the run's start is sampled where its work doubles.
+    from taichi_sim.bench.stiffcloth import cloth_params
+
+    scene = ts.build_scene("cloth", cloth_params(16, 1e8))
+    integrator = ts.create_integrator("xpbd", scene.system)
+    stepper = Stepper(scene, integrator, 1 / 60)
+    for s in range(30):
+        stepper.step(check=s == 29)
+    assert stepper.failure is None
+    assert stepper.monitor.times[:2] == pytest.approx([1 / 60, 2 / 60])
+    assert integrator.substeps >= 80 and not stepper.warnings
+    assert stepper.monitor.worst_distance <= stepper.monitor.tolerance
+
+
+def test_a_stretch_the_guard_would_call_a_blow_up_is_judged_by_the_estimate_first(f32, monkeypatch):
+    # The same run with none of the start's denser samples (a 64 x 64 cloth has none: they cost
+    # more than EARLY_SECONDS): its stretch's energy passes the guard's bound at step 17. The
+    # step is sampled before the guard judges it, found off, and solved with more substeps.
+    from taichi_sim.bench.stiffcloth import cloth_params
+    from taichi_sim.convergence import monitor
+
+    monkeypatch.setattr(monitor, "EARLY_SECONDS", 0.0)
+    scene = ts.build_scene("cloth", cloth_params(16, 1e8))
+    integrator = ts.create_integrator("xpbd", scene.system)
+    stepper = Stepper(scene, integrator, 1 / 60)
+    for s in range(30):
+        stepper.step(check=s == 29)
+    assert stepper.failure is None and integrator.substeps > 20
+    assert 2 <= len(stepper.monitor.times) <= 4 and stepper.monitor.times[0] > 10 / 60
+
+
+def test_a_step_near_the_tolerance_is_decided_by_solving_it(f32):
+    # vbd's first step of a 10-particle pendulum at k = 1e8 N/m lags its swing: one Newton
+    # step (and its chord step) reads 0.59 mm of a true 1.02 mm, since a linear step along the
+    # turn stretches the stiff springs. Against a 1 mm tolerance the sample solves the step.
+    from taichi_sim.convergence import distance
+
+    scene = ts.build_scene("pendulum", {"particle_count": 10, "stiffness": 1e8})
+    stepper = Stepper(scene, ts.create_integrator("vbd", scene.system), 1 / 60, raise_work=False)
+    stepper.step(check=True)
+    model = stepper.monitor.distance_model
+    x0, v0 = (a.astype(float) for a in stepper.monitor._start.to_numpy())
+    x1, v1 = (a.astype(float) for a in scene.state.to_numpy())
+    assert model.jacobians > 2
+    x_star, _ = model.solve_step(x0, v0, 1 / 60, guess=x1, tolerance=1e-9)
+    true = float(np.max(np.linalg.norm(x1 - x_star, axis=1)))
+    assert 1e-3 < true < 1.2e-3
+    assert model.distance(x0, v0, x1, v1, 1 / 60) < 0.7 * true  # the estimate alone
+    assert stepper.monitor.distances == pytest.approx([true], rel=0.02)
+    assert stepper.warnings  # 1.02 mm > 1 mm: the run says so
+    far = model.distance(x0, v0, x1, v1, 1 / 60, tolerance=1e-1)  # far from it: not solved
+    assert far < 0.7 * true and model.jacobians == 1
+    assert distance.DECIDE * 1e-3 > true
+
+
 def test_a_method_at_its_cap_warns_with_the_cap_and_the_estimate(f64):
     # xpbd's substeps do bring a stiff cloth closer (about fourfold per doubling), but a cap of
     # 40 stops them short of 1 um
@@ -179,3 +239,38 @@ def test_newton_tightens_its_own_test_to_meet_a_tolerance_in_metres(f64):
 
 def loose_tolerance(scene) -> float:
     return ts.create_integrator("implicit_euler", scene.system).newton_tolerance
+
+
+def test_simulate_lets_the_tolerance_raise_the_scenes_options_but_not_the_callers(tmp_path, capsys):
+    # cloth-stiff carries xpbd's 50 substeps as the scene's option: a tolerance may raise them
+    # (they were passed as the caller's, kept as given, so its 64 x 64 run at k = 1e8 stopped
+    # diverged); --substeps 50 is the caller's and stays.
+    from taichi_sim.cli import main
+
+    common = ["simulate", "cloth-stiff", "--set", "nx=8", "--set", "ny=8", "--steps", "2", "--tolerance", "1e-7"]
+    assert main(common + ["--out", str(tmp_path / "scene.npz")]) == 0
+    assert int(np.load(tmp_path / "scene.npz")["f_evals"]) > 2 * 50
+    assert main(common + ["--substeps", "50", "--out", str(tmp_path / "given.npz")]) == 0
+    assert int(np.load(tmp_path / "given.npz")["f_evals"]) == 2 * 50
+    assert "exceeds --tolerance" in capsys.readouterr().err
+
+
+def test_a_solve_stopped_short_adds_the_tail_of_its_corrections(f32):
+    # vbd's first step of a 16 x 16 cloth at k = 1e8 N/m, its work kept: Newton from the
+    # step's result gets 1.28 of 2.08 mm in 4 steps (it takes the stiff turn a part at a time);
+    # the decision's figure adds the corrections' geometric tail and reads at least the truth.
+    from taichi_sim.bench.stiffcloth import cloth_params
+
+    scene = ts.build_scene("cloth", cloth_params(16, 1e8))
+    stepper = Stepper(scene, ts.create_integrator("vbd", scene.system), 1 / 60, raise_work=False)
+    stepper.step(check=True)
+    model = stepper.monitor.distance_model
+    x0, v0 = (a.astype(float) for a in stepper.monitor._start.to_numpy())
+    x1, v1 = (a.astype(float) for a in scene.state.to_numpy())
+    x_star, _ = model.solve_step(x0, v0, 1 / 60, guess=x1, tolerance=1e-8, max_iterations=3000)
+    true = float(np.max(np.linalg.norm(x1 - x_star, axis=1)))
+    partial, _ = model.solve_step(x0, v0, 1 / 60, guess=x1, tolerance=1e-5, max_iterations=4, strict=False)
+    assert not model.converged and float(np.max(np.linalg.norm(x1 - partial, axis=1))) < 0.7 * true
+    figure = model.distance(x0, v0, x1, v1, 1 / 60, tolerance=1e-3, refine=4)
+    assert not model.converged and model.jacobians == 5
+    assert true <= figure < 2 * true

@@ -99,7 +99,8 @@ def test_the_energy_cap_keeps_larger_unconverged_cloths_from_gaining_energy(f64)
         assert np.abs(scene.state.to_numpy()[0] - scene.x0).max() > 0.01  # not frozen
         return top - start, start
 
-    raw = ts.Stepper(scene, create_integrator("vbd", scene.system, energy_cap=False), 1 / 60)
+    # its work kept: the tolerance, sampling the swing's first steps, would raise the substeps
+    raw = ts.Stepper(scene, create_integrator("vbd", scene.system, energy_cap=False), 1 / 60, raise_work=False)
     assert highest_rise(raw, 1e4, 1 / 60)[0] > 5.0
     capped = create_integrator("vbd", scene.system)
     stepper = ts.Stepper(scene, capped, 1 / 60)

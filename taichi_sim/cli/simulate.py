@@ -38,6 +38,7 @@ def cmd_simulate(args) -> int:
         if name in options:
             raise ConfigError(f"--option {name} repeats a value given by its own flag; give it once")
         options[name] = value
+    given = frozenset(options)  # the caller's: --tolerance may raise the scene's, not these
     options = {**preset.options_for(integrator_name), **options}  # the scene's, unless told
     adaptive = check_options(integrator_name, options).adaptive
     dt = args.dt if args.dt is not None or adaptive else preset.default_dt
@@ -83,6 +84,7 @@ def cmd_simulate(args) -> int:
     if adaptive and scene.post_step and "max_step" not in options:
         options["max_step"] = 10 * preset.default_dt  # events act only between steps
     integrator = create_integrator(integrator_name, scene.system, **options)
+    integrator.given_options = given
     warning = stability_warning(scene, integrator_name, None if adaptive else dt)
     if warning:  # warn, never refuse
         print(f"taichi-sim: warning: {warning}", file=sys.stderr)
