@@ -1,4 +1,4 @@
-"""Contact inside vertex block descent (docs/vbd.md, "Contact in the solve"): nothing crosses at
+"""Contact inside vertex block descent (docs/vbd-contact.md): nothing crosses at
 speed, a folding cloth never intersects itself, objects keep vertices out and friction holds a
 vertex on a slope; bad contact options and tangled starts are refused. Small scenes: kernel
 compilation dominates."""

@@ -147,7 +147,7 @@ class Integrator(ABC):
     """Whether, once bound to a scene, the method's solve keeps the cloth off itself with
     bounds on each vertex's move (``vbd`` with self-contact): the object colliders' face pass,
     which would move vertices past those bounds after the step, then does not run (their
-    vertex pass does). A box's edge under a fold moved by it tangled the fold (docs/vbd.md)."""
+    vertex pass does). A box's edge under a fold moved by it tangled the fold (docs/vbd-contact.md)."""
     tracks_solved_start = False
     """Whether the method, when ``solved_start`` is set to a State, copies into it the start of
     the last piece of a step it solved (a substep, a halving) and sets ``solved_h`` (s)."""

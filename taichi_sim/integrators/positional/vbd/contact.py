@@ -1,6 +1,6 @@
 """Contact inside vertex block descent: the scene's objects and the cloth against itself as
 energies in each vertex's 3x3 block, and the conservative bounds on each vertex's displacement
-that keep anything from crossing between two detections (docs/vbd.md, "Contact in the solve")."""
+that keep anything from crossing between two detections (docs/vbd-contact.md)."""
 
 import math
 

@@ -1,7 +1,7 @@
 """A triangle-mesh collider (a body, rigid or moving by a sequence of frames) inside vertex
 block descent: a contact plane per cloth vertex, found once per piece of a substep, with a
 penalty energy, friction and a bound on each vertex's move that stays conservative on a mesh
-that is not convex and that moves (docs/vbd.md, "Contact in the solve").
+that is not convex and that moves (docs/vbd-contact.md).
 
 **Detection** (:meth:`MeshContact.detect`, before each piece's start guess), for a piece from
 t0 to t1 within one frame segment (the mesh's vertices move linearly in it; pieces.py cuts a

@@ -12,7 +12,7 @@ each piece of a substep the pins move from where they are to where the script pu
 piece's end, in the solve, where the other vertices see them, and a piece is made short enough
 that no pin moves further than its bound (the script's path is not linear in time, so the
 length is found by shortening until it fits). A pin pressed against the cloth has a small bound
-and makes short pieces: each piece is a detection and its sweeps (:mod:`.pieces`, docs/vbd.md, "Scripted pins").
+and makes short pieces: each piece is a detection and its sweeps (:mod:`.pieces`, docs/vbd-contact.md, "Scripted pins").
 """
 import numpy as np
 import taichi as ti
