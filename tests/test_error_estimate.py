@@ -2,6 +2,7 @@
 that system's solution (taichi_sim/convergence/distance.py), meets a --tolerance by raising its
 work, and warns only when its answer is off."""
 import math
+import re
 
 import numpy as np
 import pytest
@@ -250,6 +251,8 @@ def test_simulate_lets_the_tolerance_raise_the_scenes_options_but_not_the_caller
     common = ["simulate", "cloth-stiff", "--set", "nx=8", "--set", "ny=8", "--steps", "2", "--tolerance", "1e-7"]
     assert main(common + ["--out", str(tmp_path / "scene.npz")]) == 0
     assert int(np.load(tmp_path / "scene.npz")["f_evals"]) > 2 * 50
+    summary = capsys.readouterr().out
+    assert re.search(r"of xpbd\(substeps=50->\d+\)", summary), summary  # the work it paid for
     assert main(common + ["--substeps", "50", "--out", str(tmp_path / "given.npz")]) == 0
     assert int(np.load(tmp_path / "given.npz")["f_evals"]) == 2 * 50
     assert "exceeds --tolerance" in capsys.readouterr().err

@@ -111,7 +111,7 @@ def cmd_simulate(args) -> int:
             print(f"taichi-sim: warning: {part.warning()}", file=sys.stderr)
     if not args.quiet:
         rejected = f" ({result.rejected_steps} rejected)" if result.rejected_steps else ""
-        label = method_label(integrator_name, options)
+        label = method_label(integrator_name, _options_at_end(integrator, options))
         print(f"{scene.name}: {result.steps} steps{rejected} of {label} to t = {result.t:.6g} s, "
               f"{result.f_evals} f-evals, {result.wall_time:.3f} s on {runtime.backend()}{_rate(result)}, "
               f"status {result.status.value} -> {path}")
@@ -135,6 +135,18 @@ def cmd_simulate(args) -> int:
             print(f"{scene.name}: largest |C| over the constraints {float(result.constraint_violation.max()):.3g} m "
                   f"over the run, {result.constraint_violation[-1]:.3g} m at the end")
     return 0 if result.status.value == "ok" else 1
+
+
+def _options_at_end(integrator, options: dict) -> dict:
+    """The options as the run ended: the one a tolerance raises (``work_option``) shown as
+    ``50->100`` where the run raised it, so the summary names the work it paid for."""
+    name = integrator.work_option
+    if not name or not hasattr(integrator, name):
+        return options
+    start, end = options.get(name), getattr(integrator, name)
+    if start is None or start == end:
+        return options
+    return {**options, name: f"{start}->{end}"}
 
 
 def _rate(result) -> str:
