@@ -35,35 +35,11 @@ import taichi as ti
 import taichi_sim as ts
 from taichi_sim.atomic import write_atomically
 from taichi_sim.bench.stiffcloth import cloth_params
+from taichi_sim.integrators import parse_method_label, split_method_labels
 
 DT = 1 / 60
 METHODS = ("xpbd(substeps=50)", "xpbd(substeps=100)", "xpbd(substeps=200)", "xpbd(substeps=50, iterations=4)",
            "vbd", "projective_dynamics", "implicit_euler_linearised")
-
-
-def parse_method(text: str) -> tuple[str, dict]:
-    """``name(a=1, b=2.0)`` -> ("name", {"a": 1, "b": 2.0}) (bench_vbd's syntax)."""
-    import ast
-
-    text = text.strip()
-    if "(" not in text:
-        return text, {}
-    name, rest = text.split("(", 1)
-    call = ast.parse(f"f({rest}", mode="eval").body
-    return name.strip(), {kw.arg: ast.literal_eval(kw.value) for kw in call.keywords}
-
-
-def split_methods(text: str) -> list[str]:
-    """Split at the commas outside parentheses."""
-    out, depth, current = [], 0, ""
-    for ch in text:
-        depth += (ch == "(") - (ch == ")")
-        if ch == "," and depth == 0:
-            out.append(current)
-            current = ""
-        else:
-            current += ch
-    return [m.strip() for m in out + [current] if m.strip()]
 
 
 def reference(params: dict, steps: int, path: Path | None) -> np.ndarray:
@@ -89,7 +65,7 @@ def reference(params: dict, steps: int, path: Path | None) -> np.ndarray:
 
 
 def measure(params: dict, method: str, steps: int, exact: np.ndarray) -> dict:
-    name, options = parse_method(method)
+    name, options = parse_method_label(method)
     ts.init(arch="cpu", precision="f32")
     scene = ts.build_scene("cloth", params)
     integrator = ts.create_integrator(name, scene.system, **options)
@@ -167,7 +143,7 @@ def main():
     print(f"{args.size}x{args.size} cloth, k = {args.stiffness:g} N/m, {steps} steps of 1/60 s, f32; distance (m) "
           f"from implicit_euler (newton_tolerance 1e-7, f64; {time.perf_counter() - start:.0f} s)")
     print("| method | status | steps/s | steps/s by CPU time | rms (m) | max (m) |\n|---|---|---|---|---|---|")
-    for method in split_methods(args.methods):
+    for method in split_method_labels(args.methods):
         row = measure(params, method, steps, exact)
         print(f"| {method} | {row['status']} | {row['steps_per_s']:.1f} | {row['cpu_steps_per_s']:.1f} | "
               f"{row['rms']:.4f} | {row['max']:.4f} |",

@@ -28,7 +28,6 @@ machine can take them from the development machine instead of computing them aga
 The 1-minute load average is printed first: other processes on the machine slow every figure.
 """
 import argparse
-import ast
 import math
 import os
 import statistics
@@ -41,36 +40,13 @@ import taichi as ti
 import taichi_sim as ts
 from taichi_sim.atomic import write_atomically
 from taichi_sim.bench.stiffcloth import cloth_params, reference_solution
+from taichi_sim.integrators import parse_method_label, split_method_labels
 from taichi_sim.scene.cloth import swept_stiffness
 
 DT = 1 / 60
 METHODS = ("vbd(iterations=10)", "vbd", "vbd(iterations=40)", "vbd(chebyshev_rho=0.9)",
            "vbd(substeps=5, iterations=4)", "vbd(substeps=20, iterations=1)", "vbd(augmented=True)",
            "xpbd", "projective_dynamics")
-
-
-def parse_method(text: str) -> tuple[str, dict]:
-    """``name(a=1, b=2.0)`` -> ("name", {"a": 1, "b": 2.0})."""
-    text = text.strip()
-    if "(" not in text:
-        return text, {}
-    name, rest = text.split("(", 1)
-    call = ast.parse(f"f({rest}", mode="eval").body
-    return name.strip(), {kw.arg: ast.literal_eval(kw.value) for kw in call.keywords}
-
-
-def split_methods(text: str) -> list[str]:
-    """Split a comma-separated list of methods at the commas outside parentheses."""
-    out, depth, current = [], 0, ""
-    for ch in text:
-        depth += ch == "("
-        depth -= ch == ")"
-        if ch == "," and depth == 0:
-            out.append(current)
-            current = ""
-        else:
-            current += ch
-    return [m for m in out + [current] if m.strip()]
 
 
 def studied_cloth(size: int, k: float, per_area: bool) -> dict:
@@ -118,7 +94,7 @@ def distances(x: np.ndarray, reference: np.ndarray) -> tuple[float, float]:
 
 def measure(params: dict, method: str, steps: int, exact: np.ndarray, motion: np.ndarray,
             arch: str = "cpu") -> dict:
-    name, options = parse_method(method)
+    name, options = parse_method_label(method)
     ts.init(arch=arch, precision="f32")
     scene = ts.build_scene("cloth", params)
     integrator = ts.create_integrator(name, scene.system, **options)
@@ -177,7 +153,7 @@ def main():
         exact, motion = references[k]
         print(f"{k:8.0e} {'implicit_euler (the BE reference)':<40} {'ok':<8} {'':>8} {'':>8} {0.0:8.4f} "
               f"{0.0:8.4f} {distances(exact, motion)[0]:8.4f} {distances(exact, motion)[1]:8.4f}", flush=True)
-        for method in split_methods(args.methods):
+        for method in split_method_labels(args.methods):
             row = measure(studied_cloth(args.size, k, args.per_area), method.strip(), steps, exact, motion, args.arch)
             print(f"{k:8.0e} {row['method']:<40} {row['status']:<8} {row['steps_per_s']:8.1f} {row['ms']:8.2f} "
                   f"{row['rms']:8.4f} {row['max']:8.4f} {row['rms_motion']:8.4f} {row['max_motion']:8.4f} "

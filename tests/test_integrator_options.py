@@ -126,3 +126,13 @@ def test_flags_and_option_values_are_checked_from_the_declarations(f64):
     assert args.flag_options == {"tolerance": 0.5, "substeps": 3}  # the flag's option, by its own name
     spec = option_specs(INTEGRATORS["rk45"])["max_step"]
     assert spec.parse("inf") == float("inf") and spec.unit == "s"
+
+
+def test_a_method_label_reads_back_as_the_method_and_its_options():
+    from taichi_sim.integrators import method_label, parse_method_label, split_method_labels
+
+    for name, options in [("vbd", {}), ("xpbd", {"substeps": 50, "iterations": 4}),
+                          ("implicit_euler", {"newton_tolerance": 1e-8, "linear_solver": "direct"})]:
+        assert parse_method_label(method_label(name, options)) == (name, options)
+    assert split_method_labels("vbd,xpbd(substeps=50, iterations=4), rk4") == \
+        ["vbd", "xpbd(substeps=50, iterations=4)", " rk4"]

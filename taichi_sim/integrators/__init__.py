@@ -100,6 +100,33 @@ def method_label(name: str, options: dict) -> str:
     return f"{name}({', '.join(f'{k}={v}' for k, v in options.items())})"
 
 
+def parse_method_label(text: str) -> tuple[str, dict]:
+    """The inverse of :func:`method_label`: ``xpbd(substeps=50, iterations=2)`` ->
+    ``("xpbd", {"substeps": 50, "iterations": 2})`` (values as Python literals)."""
+    import ast
+
+    text = text.strip()
+    if "(" not in text:
+        return text, {}
+    name, rest = text.split("(", 1)
+    call = ast.parse(f"f({rest}", mode="eval").body
+    return name.strip(), {kw.arg: ast.literal_eval(kw.value) for kw in call.keywords}
+
+
+def split_method_labels(text: str) -> list[str]:
+    """A comma-separated list of :func:`method_label` texts, split at the commas outside
+    parentheses."""
+    out, depth, current = [], 0, ""
+    for ch in text:
+        depth += (ch == "(") - (ch == ")")
+        if ch == "," and depth == 0:
+            out.append(current)
+            current = ""
+        else:
+            current += ch
+    return [m for m in out + [current] if m.strip()]
+
+
 def create_integrator(name: str, system, **options) -> Integrator:
     """Bind the integrator called ``name`` to ``system`` (allocates its scratch once).
 
