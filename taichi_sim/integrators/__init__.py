@@ -101,8 +101,9 @@ def method_label(name: str, options: dict) -> str:
 
 
 def parse_method_label(text: str) -> tuple[str, dict]:
-    """The inverse of :func:`method_label`: ``xpbd(substeps=50, iterations=2)`` ->
-    ``("xpbd", {"substeps": 50, "iterations": 2})`` (values as Python literals)."""
+    """The inverse of :func:`method_label`: ``xpbd(substeps=50, linear_solver=direct)`` ->
+    ``("xpbd", {"substeps": 50, "linear_solver": "direct"})`` (values as Python literals; a
+    bare word, as method_label writes a text, is that text)."""
     import ast
 
     text = text.strip()
@@ -110,7 +111,11 @@ def parse_method_label(text: str) -> tuple[str, dict]:
         return text, {}
     name, rest = text.split("(", 1)
     call = ast.parse(f"f({rest}", mode="eval").body
-    return name.strip(), {kw.arg: ast.literal_eval(kw.value) for kw in call.keywords}
+
+    def value(node):
+        return node.id if isinstance(node, ast.Name) else ast.literal_eval(node)
+
+    return name.strip(), {kw.arg: value(kw.value) for kw in call.keywords}
 
 
 def split_method_labels(text: str) -> list[str]:
