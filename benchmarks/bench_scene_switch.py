@@ -20,9 +20,10 @@ import sys
 import tempfile
 import time
 
-from taichi_sim.app.launcher import STATUS_ENV
-from taichi_sim.app.warm import START_SCENE
+from taichi_sim.app.launcher import FIRST, STATUS_ENV
 from taichi_sim.scene import SCENES
+
+START_SCENE = FIRST[0]  # where `taichi-sim` opens the launcher
 
 
 def main() -> int:
