@@ -14,7 +14,7 @@ from taichi_sim.errors import ConfigError
 from taichi_sim.geometry import self_intersections
 from taichi_sim.integrators import create_integrator
 from taichi_sim.integrators.positional.vbd import contact as vbd_contact
-from taichi_sim.integrators.positional.vbd import solver as vbd_module
+from taichi_sim.integrators.positional.vbd import kernels as vbd_schedule
 from taichi_sim.scene.builder import SceneBuilder
 from taichi_sim.scene.colliders import SpherePath
 
@@ -155,17 +155,17 @@ def test_with_self_contact_in_the_solve_a_smaller_cloth_sweeps_in_parallel(f32, 
         pytest.skip("the rule applies to a CPU with a spare thread")
     spare = threads - 1
     scene = fold(12)  # 144 particles
-    monkeypatch.setattr(vbd_module, "SERIAL_CONTACT_PARTICLES", 144 * spare + 1)
+    monkeypatch.setattr(vbd_schedule, "SERIAL_CONTACT_PARTICLES", 144 * spare + 1)
     alone = create_integrator("vbd", scene.system, self_contact=False)
     contact = create_integrator("vbd", scene.system, self_contact=True)
     for vbd in (alone, contact):
         vbd.attach_scene(scene)
     assert alone.serial and contact.serial  # 144 particles: below either break-even
-    monkeypatch.setattr(vbd_module, "SERIAL_CONTACT_PARTICLES", 144 * spare)
+    monkeypatch.setattr(vbd_schedule, "SERIAL_CONTACT_PARTICLES", 144 * spare)
     assert alone.serial and not contact.serial
     contact.serial = True  # a caller's choice against the rule
     assert contact.serial
-    monkeypatch.setattr(vbd_module, "SERIAL_CONTACT_PARTICLES", 144 * spare + 1)
+    monkeypatch.setattr(vbd_schedule, "SERIAL_CONTACT_PARTICLES", 144 * spare + 1)
     contact.serial = False
     assert not contact.serial
     energy, _ = step_clean(scene, contact, 45)

@@ -2,7 +2,6 @@
 energies in each vertex's 3x3 block, and the conservative bounds on each vertex's displacement
 that keep anything from crossing between two detections (docs/vbd-contact.md)."""
 
-import math
 
 import numpy as np
 import taichi as ti
@@ -527,18 +526,3 @@ class SolveContact(ObjectFaces):
         if kind == 1:
             near = w[0] * x[ids[0]] + w[1] * x[ids[1]]
         return near, near - gap
-
-
-def check_contact_options(radius, stiffness, bound_fraction, friction_epsilon, refresh) -> None:
-    """Refuse bad contact options by name (ConfigError); None radius means "the scene's"."""
-    for name, value in (("contact_radius", radius), ("contact_stiffness", stiffness),
-                        ("friction_epsilon", friction_epsilon)):
-        if value is None and name == "contact_radius":
-            continue
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
-            raise ConfigError(f"{name} must be a finite number > 0, got {value!r}")
-    if isinstance(bound_fraction, bool) or not isinstance(bound_fraction, (int, float)) \
-            or not 0 < bound_fraction < 0.5:
-        raise ConfigError(f"bound_fraction must be a number in (0, 0.5), got {bound_fraction!r}")
-    if isinstance(refresh, bool) or not isinstance(refresh, (int, np.integer)) or refresh < 0:
-        raise ConfigError(f"contact_refresh must be an integer >= 0 (0: once per piece), got {refresh!r}")

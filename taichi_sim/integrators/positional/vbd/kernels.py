@@ -4,6 +4,31 @@ kernel functions of :class:`~.solver.VBD`, which read its parts (springs, contac
 compile time."""
 import taichi as ti
 
+from .... import runtime
+
+# Below this many particles plus springs (times spare threads) the colour loops run on one
+# thread and a whole substep is one kernel launch: a colour of a 64 x 64 cloth is ~450
+# vertices, too few to pay a parallel loop's hand-off (see XPBD's SERIAL_SPRINGS, measured the
+# same way); never on a GPU.
+SERIAL_WORK = 2_000_000
+# With self-contact in the solve a vertex's block also sums its contact pairs (several times a
+# spring's work), so the colours pay a parallel loop from far fewer vertices: the break-even in
+# particles (times spare threads). cloth-fold's first second on a 2-vCPU machine (two cores, no
+# shared core), parallel against serial sweeps: 1.2 times slower at 64 x 64 (4096 particles),
+# 1.5 times faster at 90 x 90 (8100), 2.0 times at 128 x 128 (docs/vbd.md).
+SERIAL_CONTACT_PARTICLES = 6_000
+
+
+def serial_sweeps(work: int, particles: int, self_contact: bool) -> bool:
+    """Whether a substep's sweeps run as one serial task: a sweep's ``work`` (particles plus
+    springs plus a membrane's work, :attr:`MembraneTerms.work <.membranes.MembraneTerms.work>`)
+    below SERIAL_WORK and, with self-contact in the solve, ``particles`` below
+    SERIAL_CONTACT_PARTICLES too; never on a GPU."""
+    serial = runtime.serial_loops(work, SERIAL_WORK)
+    if self_contact:
+        return serial and runtime.serial_loops(particles, SERIAL_CONTACT_PARTICLES)
+    return serial
+
 
 def bind_kernels(vbd, y) -> dict:
     """The kernels of ``vbd`` (a :class:`~.solver.VBD`) over the state ``y``: a whole serial

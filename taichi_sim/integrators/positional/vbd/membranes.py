@@ -9,7 +9,7 @@ from ..colouring import element_pairs
 
 #: A triangle corner's share of a sweep against a spring's (its stress, 6x6 Hessian, the
 #: contraction to the vertex's block and, where needed, a 3x3 eigen-decomposition), for the
-#: rule that picks serial or parallel sweeps (solver.SERIAL_WORK).
+#: rule that picks serial or parallel sweeps (kernels.SERIAL_WORK).
 CORNER_WORK = 8
 
 

@@ -8,34 +8,19 @@ import numpy as np
 import taichi as ti
 
 from .... import field_io, runtime
-from ....errors import ConfigError
 from ....state import finite
 from ....systems.base import System
 from ...base import Integrator, Status, StepReport
 from ...equation import FIXED_WORK, Equation
-from ...implicit.common import positive_int
 from ...options import Option
 from ..colouring import colour_vertices
-from .contact import check_contact_options
 from .contact_model import solve_forces
 from .energy import EnergyCap, closed_scene
-from .kernels import bind_kernels
+from .kernels import bind_kernels, serial_sweeps
 from .membranes import MembraneTerms
 from .pieces import FAILURES, PieceSchedule
 from .scene import ContactSetup, contact_setup
-from .springs import SpringTerms, fraction_option, positive_option
-
-# Below this many particles plus springs (times spare threads) the colour loops run on one
-# thread and a whole substep is one kernel launch: a colour of a 64 x 64 cloth is ~450
-# vertices, too few to pay a parallel loop's hand-off (see XPBD's SERIAL_SPRINGS, measured the
-# same way); never on a GPU.
-SERIAL_WORK = 2_000_000
-# With self-contact in the solve a vertex's block also sums its contact pairs (several times a
-# spring's work), so the colours pay a parallel loop from far fewer vertices: the break-even in
-# particles (times spare threads). cloth-fold's first second on a 2-vCPU machine (two cores, no
-# shared core), parallel against serial sweeps: 1.2 times slower at 64 x 64 (4096 particles),
-# 1.5 times faster at 90 x 90 (8100), 2.0 times at 128 x 128 (docs/vbd.md).
-SERIAL_CONTACT_PARTICLES = 6_000
+from .springs import SpringTerms
 
 
 @ti.data_oriented
@@ -176,23 +161,13 @@ class VBD(Integrator):
             object_faces: Annotated[bool, Option("the cloth's triangles against the objects too")] = True,
             energy_cap: Annotated[bool, Option("cap a closed scene's energy per substep")] = True):
         super().__init__(system)
-        self.iterations = positive_int("iterations", iterations)
-        self.substeps = positive_int("substeps", substeps)
-        if not isinstance(warm_start, (bool, np.bool_)):
-            raise ConfigError(f"warm_start must be True or False, got {warm_start!r}")
+        # the options' types and bounds are checked from their declarations above (Integrator.__new__)
+        self.iterations, self.substeps = int(iterations), int(substeps)
         self.warm_start = bool(warm_start)
-        self.chebyshev_rho = fraction_option("chebyshev_rho", chebyshev_rho)
-        if not isinstance(augmented, (bool, np.bool_)):
-            raise ConfigError(f"augmented must be True or False, got {augmented!r}")
+        self.chebyshev_rho = float(chebyshev_rho)
         self.augmented = bool(augmented)
-        self.penalty = positive_option("penalty", penalty)
-        self.penalty_growth = positive_option("penalty_growth", penalty_growth, allow_zero=True)
-        for name, flag in (("contact", contact), ("self_contact", True if self_contact is None else self_contact),
-                           ("object_faces", object_faces), ("energy_cap", energy_cap)):
-            if not isinstance(flag, (bool, np.bool_)):
-                raise ConfigError(f"{name} must be True or False, got {flag!r}")
-        check_contact_options(contact_radius, contact_stiffness, bound_fraction, friction_epsilon, contact_refresh)
-        self.contact_pieces = positive_int("contact_pieces", contact_pieces)
+        self.penalty, self.penalty_growth = float(penalty), float(penalty_growth)
+        self.contact_pieces = int(contact_pieces)
         self.self_contact = None if self_contact is None else bool(self_contact)
         self.energy_cap = bool(energy_cap)
         self.contact_options = dict(objects=bool(contact), object_faces=bool(object_faces), radius=contact_radius,
@@ -236,9 +211,8 @@ class VBD(Integrator):
         self.order = ti.field(ti.i32, shape=max(1, n))
         self.colour_start = ti.field(ti.i32, shape=len(self.starts))  # the serial kernels loop over colours
         field_io.write((self.order, order), (self.colour_start, self.starts))  # one kernel, not two
-        self._serial_springs = runtime.serial_loops(
-            n + (self.springs.spring_count if self.has_springs else 0)
-            + (self.membrane_terms.work if self.has_membrane else 0), SERIAL_WORK)
+        self._work = n + (self.springs.spring_count if self.has_springs else 0) \
+            + (self.membrane_terms.work if self.has_membrane else 0)  # a sweep's, in springs' worth
         self._serial: bool | None = None  # set: a caller's choice (tests, benchmarks) over the rule
         self.rest_starts = ti.field(ti.i32, shape=())  # substeps whose sweeps started at V = 0
         self.last_rest = ti.field(ti.i32, shape=())  # whether the last begun start was V = 0
@@ -310,16 +284,10 @@ class VBD(Integrator):
     @property
     def serial(self) -> bool:
         """Whether a substep's sweeps run as one serial task (else each colour a parallel loop,
-        :meth:`_sweep`): below SERIAL_WORK particles plus springs plus a membrane's work
-        (:attr:`MembraneTerms.work <.membranes.MembraneTerms.work>`), and with self-contact in
-        the solve below SERIAL_CONTACT_PARTICLES particles too; never on a GPU. Assigning it
-        overrides the rule."""
+        :meth:`_sweep`), by :func:`.kernels.serial_sweeps`; assigning it overrides the rule."""
         if self._serial is not None:
             return self._serial
-        if self.has_self_contact:
-            return self._serial_springs and runtime.serial_loops(self.system.particle_count,
-                                                                 SERIAL_CONTACT_PARTICLES)
-        return self._serial_springs
+        return serial_sweeps(self._work, self.system.particle_count, self.has_self_contact)
 
     @serial.setter
     def serial(self, value: bool) -> None:

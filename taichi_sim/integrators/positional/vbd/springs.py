@@ -1,25 +1,10 @@
 """Vertex block descent's spring terms (the per-vertex force and 3x3 block, the augmented
 formulation after AVBD) and the checks of its options; :class:`~.solver.VBD` owns them."""
 
-import math
 
 import taichi as ti
 
 from .... import runtime
-from ....errors import ConfigError
-
-
-def positive_option(name: str, value, allow_zero: bool = False) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
-            or value < 0 or (value == 0 and not allow_zero):
-        raise ConfigError(f"{name} must be a finite number {'>=' if allow_zero else '>'} 0, got {value!r}")
-    return float(value)
-
-
-def fraction_option(name: str, value) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value < 1:
-        raise ConfigError(f"{name} must be a number in [0, 1), got {value!r}")
-    return float(value)
 
 
 @ti.data_oriented
