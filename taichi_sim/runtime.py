@@ -22,8 +22,12 @@ from .errors import ConfigError
 
 ARCHS = ("cpu", "gpu")
 PRECISIONS = ("f32", "f64")
+COMPILE_MODES = ("optimised", "quick")
+COMPILE_MODE_VARIABLE = "TAICHI_SIM_COMPILE"
+"""The environment variable that sets :func:`init`'s ``compile_mode`` when the call gives none
+(the test suite sets it to ``quick``, tests/conftest.py; its subprocesses inherit it)."""
 
-_current: dict = {"arch": None, "precision": None, "backend": None, "threads": 1}
+_current: dict = {"arch": None, "precision": None, "backend": None, "threads": 1, "compile_mode": None}
 
 GPU_BACKENDS = (ti.cuda, ti.metal, ti.vulkan)
 """What ``arch="gpu"`` tries, in order, before the CPU. Taichi's own ``ti.gpu`` goes on to OpenGL
@@ -49,7 +53,7 @@ Machines with more threads were not measured: that the break-even shrinks as
 
 def init(arch: str = "cpu", precision: str = "f64", *, debug: bool = False,
          offline_cache: bool = True, cpu_max_num_threads: int | None = None,
-         kernel_profiler: bool = False) -> None:
+         kernel_profiler: bool = False, compile_mode: str | None = None) -> None:
     """Initialise Taichi for taichi_sim.
 
     Args:
@@ -61,15 +65,34 @@ def init(arch: str = "cpu", precision: str = "f64", *, debug: bool = False,
         cpu_max_num_threads: limit the CPU thread pool (default: all cores).
         kernel_profiler: record each kernel launch's time (``ti.profiler``; it adds a little
             to every launch, so leave it off except to find where time goes).
+        compile_mode: ``"optimised"`` (Taichi's defaults) or ``"quick"``: Taichi's IR optimiser
+            leaves out its whole-kernel common-subexpression elimination and its control-flow
+            pass (Taichi's ``opt_level=0``; LLVM still optimises the code it is given). A kernel
+            compiles in about two thirds of the time or less (a cloth's ``rk4`` stage: half),
+            while some steps run slower and the results may differ in the last bits (the
+            floating-point operations LLVM is handed differ), so runs use ``"optimised"``; the
+            test suite compiles ``"quick"``, and tests/test_compile_levels.py holds the two to
+            the same answers (docs/first-contact.md, "The suite's time"). None: the
+            :data:`COMPILE_MODE_VARIABLE` environment variable, else ``"optimised"``. Compiled
+            kernels are cached per mode.
     """
     if arch not in ARCHS:
         raise ConfigError(f"arch must be one of {', '.join(ARCHS)}, got {arch!r}")
     if precision not in PRECISIONS:
         raise ConfigError(f"precision must be one of {', '.join(PRECISIONS)}, got {precision!r}")
+    if compile_mode is None:
+        compile_mode = os.environ.get(COMPILE_MODE_VARIABLE) or "optimised"
+        if compile_mode not in COMPILE_MODES:
+            raise ConfigError(f"{COMPILE_MODE_VARIABLE} must be one of {', '.join(COMPILE_MODES)}, "
+                              f"got {compile_mode!r}")
+    elif compile_mode not in COMPILE_MODES:
+        raise ConfigError(f"compile_mode must be one of {', '.join(COMPILE_MODES)}, got {compile_mode!r}")
     kwargs = dict(arch=ti.cpu if arch == "cpu" else list(GPU_BACKENDS),
                   default_fp=ti.f64 if precision == "f64" else ti.f32,
                   default_ip=ti.i32, debug=debug, offline_cache=offline_cache,
                   log_level=ti.WARN, kernel_profiler=kernel_profiler)
+    if compile_mode == "quick":
+        kwargs["opt_level"] = 0
     if cpu_max_num_threads is not None:
         kwargs["cpu_max_num_threads"] = int(cpu_max_num_threads)
     frontend_cache.install()
@@ -94,7 +117,8 @@ def init(arch: str = "cpu", precision: str = "f64", *, debug: bool = False,
     if arch == "gpu":
         print(f"taichi_sim: --arch gpu: {describe_gpu_choice(chosen, log)}", file=sys.stderr)
     threads = int(cpu_max_num_threads) if cpu_max_num_threads is not None else usable_cpus()
-    _current.update(arch=arch, precision=precision, backend=chosen, threads=max(1, threads))
+    _current.update(arch=arch, precision=precision, backend=chosen, threads=max(1, threads),
+                    compile_mode=compile_mode)
 
 
 def usable_cpus() -> int:

@@ -18,6 +18,12 @@ TEST_ARCH = os.environ.get("TAICHI_SIM_TEST_ARCH", "cpu")
 os.environ.setdefault("TI_OFFLINE_CACHE_FILE_PATH",
                       os.path.join(os.path.expanduser("~"), ".cache", "taichi_sim", "test-kernels"))
 os.environ.setdefault("TI_OFFLINE_CACHE_MAX_SIZE_OF_FILES", str(1 << 30))
+# The suite compiles its kernels "quick" (Taichi's opt_level 0: its IR optimiser's two costliest
+# passes left out), which takes about a fifth off an empty-cache run; the answers are the
+# optimised code's to rounding, which tests/test_compile_levels.py checks method by method, and
+# the tests that compare two runs bit for bit compile "optimised" themselves
+# (docs/first-contact.md, "The suite's time").
+os.environ.setdefault("TAICHI_SIM_COMPILE", "quick")
 
 
 @pytest.fixture
