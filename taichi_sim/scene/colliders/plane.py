@@ -5,10 +5,12 @@ import taichi as ti
 from ... import field_io, runtime
 from ...part import ScenePart
 from ..visual import Plane
+from .shape import Shape, register_shape
 
 
+@register_shape
 @ti.data_oriented
-class PlaneCollider(ScenePart):
+class PlaneCollider(Shape, ScenePart):
     """A ground plane: a free particle below it is projected onto it, and its normal velocity
     is reflected and scaled by ``restitution`` (0: it stops, 1: elastic bounce); ``friction``
     mu scales the tangential velocity down by mu * (1 + e) |v_n| (Coulomb), never reversing it.
@@ -20,8 +22,12 @@ class PlaneCollider(ScenePart):
         point: a point on the plane (m); normal: its upward normal (nonzero; normalised here).
     """
 
-    name = "plane"
+    name = key = "plane"
     order = 20
+    noun = label = "ground plane"
+    # plane_point (3,) m; plane_normal (3,), the side it points to outside; faces are not judged
+    # (a flat plane is entered by a face only where a corner enters it)
+    size_keys, moving = ("plane_point", "plane_normal"), False
 
     def __init__(self, point, normal, restitution: float, friction: float, free):
         real = runtime.real()
@@ -48,6 +54,11 @@ class PlaneCollider(ScenePart):
 
     def arrays(self) -> dict:
         return {"plane_point": self.point_np, "plane_normal": self.normal_np}
+
+    @classmethod
+    def point_depths(cls, x, objects):
+        point, normal = np.ravel(objects["plane_point"]), np.ravel(objects["plane_normal"])
+        return -((x - point) @ (normal / np.linalg.norm(normal)))[:, None]
 
     def visuals(self) -> list:
         return [Plane(point=self.point_np.reshape(3).astype(np.float64), normal=self.normal_np.reshape(3))]
