@@ -10,9 +10,10 @@ corners move linearly nears that plane faster than its fastest corner, so an adv
 that rate never crosses the surface; a face that does not near it cannot touch in the step),
 and a face that reaches the surface heading in is stopped there.
 
-The shapes' distances to a triangle: exact from the features for spheres and capsules
-(:func:`sphere_to_triangle`, :func:`segment_to_triangle`), a lower bound from the separating
-axes for boxes (:func:`box_separation`, exact as an overlap).
+The shapes' distances to a triangle live in each kind's file: exact from the features for
+spheres and capsules (:func:`.sphere.sphere_to_triangle`, :func:`.capsule.capsule_to_triangle`),
+a lower bound from the separating axes for boxes (:func:`.box.box_separation`, exact as an
+overlap).
 """
 import numpy as np
 import taichi as ti
