@@ -142,7 +142,8 @@ class CapsuleColliders(TranslatingShapes):
     def point_depths(cls, x, objects):
         centers, half = rows(objects["capsule_center"]), rows(objects["capsule_half_axis"])
         radii = np.ravel(objects["capsule_radius"]).astype(np.float64)
-        distance = [segment_point_distance(x, *np.broadcast_arrays(c - h, c + h, x)[:2]) for c, h in zip(centers, half)]
+        distance = [segment_point_distance(x, np.broadcast_to(c - h, x.shape), np.broadcast_to(c + h, x.shape))
+                    for c, h in zip(centers, half)]
         return radii[None] - np.stack(distance, axis=1).reshape(len(x), len(radii))
 
     @classmethod
@@ -184,7 +185,6 @@ class CapsuleColliders(TranslatingShapes):
         if d.norm() > 0.0:
             n = d.normalized()
         return n
-
 
 
 Capsule.part_class = CapsuleColliders
