@@ -50,6 +50,15 @@ def test_the_cylinder_is_registered_by_its_own_file_and_its_spec_is_checked():
         Cylinder(SpherePath((0.0, 0.0, 0.0)), 1.0, (0.0, 0.0, 0.0))
 
 
+@pytest.mark.parametrize("args, message", [
+    (((0.0, 0.0, 0.0), (0.0, 0.0, 0.0), 0.5), "plane_normal must be a nonzero 3-vector"),
+    (((0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 1.5), r"restitution must be in \[0, 1\]"),
+    (((0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 0.5, -0.1), "plane_friction must be >= 0")])
+def test_the_ground_plane_spec_refuses_bad_values_by_name(args, message):
+    with pytest.raises(ValueError, match=message):
+        SceneBuilder().set_plane(*args)
+
+
 def test_vbd_solve_keeps_a_cloth_falling_on_the_cylinder_out(f64):
     """Every vbd solve ends with no vertex inside the cylinder (measured before the post-step
     events, which are a fail-safe here), and the cloth rests on the flat top, not on the dome of

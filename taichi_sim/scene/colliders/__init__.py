@@ -7,11 +7,11 @@ from .capsule import Capsule, CapsuleColliders
 from .mesh_collider import MeshObstacle
 from .mesh_frames import load_mesh_file
 from .path import SpherePath
-from .plane import PlaneCollider
+from .plane import GroundPlane, PlaneCollider
 from .shape import Shape, face_depths, faces_inside, inside_objects, object_depths, register_shape, shapes
 from .sphere import Sphere, SphereColliders
 from .translating import TranslatingShapes
 
-__all__ = ["Box", "BoxColliders", "Capsule", "CapsuleColliders", "MeshObstacle", "load_mesh_file", "PlaneCollider",
+__all__ = ["Box", "BoxColliders", "Capsule", "CapsuleColliders", "GroundPlane", "MeshObstacle", "load_mesh_file", "PlaneCollider",
            "Shape", "Sphere", "SphereColliders", "SpherePath", "TranslatingShapes", "face_depths", "faces_inside",
            "inside_objects", "object_depths", "register_shape", "shapes"]
