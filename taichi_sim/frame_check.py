@@ -3,12 +3,14 @@
 Three questions, each answered for every saved frame (``x_history``, or the final ``x``):
 whether any two triangles of the cloth intersect (:func:`~taichi_sim.geometry.self_intersections`,
 exact predicates); whether any vertex lies inside one of the scene's objects
-(:func:`~taichi_sim.geometry.inside.inside_objects`: spheres, capsules and boxes where the run
-kept their centres with the frames, the ground plane always; the collider mesh where the run
+(:func:`~taichi_sim.scene.colliders.shape.inside_objects`, over every registered collider kind:
+the moving ones, spheres, capsules and boxes, where the run kept their centres with the frames,
+the ground plane always; the collider mesh where the run
 kept its pose with the frames, :func:`~taichi_sim.geometry.mesh_inside.mesh_depths`; pinned
 vertices, which no collider moves, are left out); and whether an object reaches into a face
 between its vertices: points on each triangle (:func:`~taichi_sim.geometry.inside.face_samples`,
-25 a triangle) deeper inside a sphere, capsule or box than ``FACE_SHARE`` of its thinnest size,
+25 a triangle) deeper inside an object whose faces are judged (a sphere, capsule or box) than
+``FACE_SHARE`` of its thinnest size,
 or deeper inside the collider mesh than ``INSIDE_TOLERANCE`` (a mesh has no thinnest size, and
 its collider keeps vertices a skin away, so any depth is a body poking between them; triangles
 with a pinned corner are left out: a pin inside an object drags its triangles in, which no
@@ -22,13 +24,11 @@ import zipfile
 import numpy as np
 
 from .errors import ConfigError
-from .geometry import inside_objects, self_intersections
-from .geometry.inside import FACE_DIVISIONS, FACE_SHARE, INSIDE_TOLERANCE, face_depths, face_samples
+from .geometry import self_intersections
+from .geometry.inside import FACE_DIVISIONS, FACE_SHARE, INSIDE_TOLERANCE, face_samples
 from .geometry.mesh_inside import mesh_depths
+from .scene.colliders.shape import face_depths, inside_objects, shape, shapes
 
-_OBJECT_KEYS = ("sphere_radius", "capsule_radius", "capsule_half_axis", "box_half_extents",
-                "plane_point", "plane_normal")
-_MOVING = ("sphere", "capsule", "box")
 _MESH_KEYS = ("collider_mesh_vertices", "collider_mesh_triangles", "collider_mesh_center",
               "collider_mesh_vertices_history", "collider_mesh_center_history")
 
@@ -40,8 +40,9 @@ def load_run(path: str) -> dict[str, np.ndarray]:
     if os.path.isfile(path) and not zipfile.is_zipfile(path):
         raise ConfigError(f"{path} is not a run's npz (not a zip archive): give a file "
                           "written by `taichi-sim simulate --out RUN.npz`")
-    wanted = ("triangles", "x", "x_history", "t_history", "t", "scene", "pinned", *_OBJECT_KEYS, *_MESH_KEYS,
-              *(f"{kind}_center" for kind in _MOVING), *(f"{kind}_center_history" for kind in _MOVING))
+    wanted = ("triangles", "x", "x_history", "t_history", "t", "scene", "pinned", *_MESH_KEYS,
+              *(k for kind in shapes() for k in kind.npz_keys()),
+              *(f"{kind.key}_center_history" for kind in shapes() if kind.moving))
     try:
         with np.load(path) as data:
             arrays = {k: data[k] for k in wanted if k in data.files}
@@ -63,18 +64,20 @@ def objects_at(arrays: dict, frame: int, history: bool) -> tuple[dict, list[str]
     """(The object keys of frame ``frame`` for :func:`inside_objects`, the object kinds left
     unchecked). A saved history checks the objects whose centres it kept; the final frame
     alone is checked against the centres the file holds (those at its end)."""
-    out = {k: arrays[k] for k in ("plane_point", "plane_normal") if k in arrays}
-    unchecked = []
-    for kind in _MOVING:
-        if f"{kind}_center" not in arrays:
+    out, unchecked = {}, []
+    for kind in shapes():
+        if not kind.present(arrays):
             continue
-        sizes = {k: arrays[k] for k in _OBJECT_KEYS if k.startswith(kind)}
-        if history and f"{kind}_center_history" in arrays:
-            out.update(sizes, **{f"{kind}_center": arrays[f"{kind}_center_history"][frame]})
+        sizes = {k: arrays[k] for k in kind.size_keys}
+        center = f"{kind.key}_center"
+        if not kind.moving:
+            out.update(sizes)
+        elif history and f"{center}_history" in arrays:
+            out.update(sizes, **{center: arrays[f"{center}_history"][frame]})
         elif not history:
-            out.update(sizes, **{f"{kind}_center": arrays[f"{kind}_center"]})
+            out.update(sizes, **{center: arrays[center]})
         else:
-            unchecked.append(kind)
+            unchecked.append(kind.key)
     return out, unchecked
 
 
@@ -207,7 +210,8 @@ def _face_note() -> str:
 
 def _deepest_face_point(x, triangles, objects):
     """(object kind, depth as a share of that object's thinnest size, depth (m)) of the face
-    point deepest inside a sphere, capsule or box by that share; None without such objects."""
+    point deepest inside an object whose faces are judged, by that share; None without such
+    objects."""
     if len(triangles) == 0:
         return None
     best = None
@@ -219,5 +223,5 @@ def _deepest_face_point(x, triangles, objects):
 
 
 def _object_name(kind: str) -> str:
-    return {"plane": "ground plane", "sphere": "spheres", "capsule": "capsules", "box": "boxes",
-            "collider_mesh": "collider mesh"}[kind]
+    """How the report names the objects of a kind (its key, or ``collider_mesh``)."""
+    return "collider mesh" if kind == "collider_mesh" else shape(kind).label

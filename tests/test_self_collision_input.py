@@ -141,7 +141,7 @@ def test_a_start_that_already_passes_through_itself_is_refused_before_the_run():
 
 
 def test_points_inside_each_kind_of_object_are_found_and_points_on_a_surface_are_not():
-    from taichi_sim.geometry.inside import inside_objects
+    from taichi_sim.scene.colliders.shape import inside_objects
 
     arrays = {"sphere_center": [[0.0, 1.0, 0.0]], "sphere_radius": [0.5],
               "capsule_center": [[0.0, 0.0, 0.0]], "capsule_radius": [0.1], "capsule_half_axis": [[0.3, 0.0, 0.0]],
@@ -165,7 +165,8 @@ def test_a_box_is_as_thin_as_its_least_half_extent():
     # A slab 1 m square and 4 cm thick (not a cube): a face whose edge lies 2 mm inside its top
     # has gone a tenth of the slab's thinnest size in, far past FACE_SHARE; measured against
     # the slab's largest half extent (0.5 m) it would be 0.4 %, and pass.
-    from taichi_sim.geometry.inside import FACE_SHARE, face_depths, faces_inside, object_depths
+    from taichi_sim.geometry.inside import FACE_SHARE
+    from taichi_sim.scene.colliders.shape import face_depths, faces_inside, object_depths
 
     arrays = {"box_center": [[0.0, 0.0, 0.0]], "box_half_extents": [[0.5, 0.02, 0.5]]}
     depth, thinnest = object_depths(np.array([[0.0, 0.0, 0.0], [0.3, 0.015, -0.4]]), arrays)["box"]

@@ -292,7 +292,7 @@ def test_a_fold_over_a_box_edge_never_intersects_because_the_face_pass_waits(f32
     across the box's edge past the solve's bounds and tangled the fold (16 x 16: 60 of 91
     frames intersecting, the first at 0.52 s): with self-contact in the solve it does not run,
     and runs again once another method steps the scene."""
-    from taichi_sim.geometry.inside import inside_objects
+    from taichi_sim.scene.colliders.shape import inside_objects
 
     scene = ts.build_scene("cloth-fold", {"nx": 16, "ny": 16, "height": 1.4, "box": True, "box_y": 0.15,
                                           "box_half_x": 0.3, "box_half_y": 0.15, "box_half_z": 0.3})

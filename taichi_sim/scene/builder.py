@@ -16,7 +16,7 @@ from ..mesh import TriangleMesh
 from ..part import PartContext, PartSpec
 from ..systems.constraints import PLANE, POINT, ROD, Constraints, check_gains
 from ..systems.particles import ParticleSystem
-from .colliders import Box, Capsule, MeshObstacle, PlaneCollider, Sphere, SpherePath
+from .colliders import Box, Capsule, GroundPlane, MeshObstacle, Sphere, SpherePath
 from .events import Emitter, EmitterSpec, Tearing
 from .grab import Grabber
 from .scene import Scene
@@ -54,7 +54,7 @@ class SceneBuilder:
         self._wind: dict | None = None
         self._turbulence: dict | None = None
         self._part_specs: list[PartSpec] = []  # the objects of every collider kind, as asked for
-        self._plane: tuple | None = None
+        self._plane: GroundPlane | None = None
         self._object_faces = True
         self._tear_strain = None
         self._self_collision = None
@@ -271,15 +271,9 @@ class SceneBuilder:
                                    path or SpherePath((0.0, 0.0, 0.0)), float(friction), float(skin), float(fps)))
 
     def set_plane(self, point, normal, restitution: float, friction: float = 0.0) -> None:
-        """A ground plane through ``point`` with upward ``normal`` (nonzero); restitution in [0, 1]."""
-        if not 0.0 <= restitution <= 1.0:
-            raise ValueError("restitution must be in [0, 1]")
-        if not friction >= 0:
-            raise ValueError("plane_friction must be >= 0")
-        n = np.asarray(normal, float)
-        if n.shape != (3,) or not np.linalg.norm(n) > 0:
-            raise ValueError("plane_normal must be a nonzero 3-vector")
-        self._plane = (point, normal, float(restitution), float(friction))
+        """A ground plane through ``point`` with upward ``normal`` (nonzero); restitution in [0, 1]
+        (:class:`~taichi_sim.scene.colliders.plane.GroundPlane`; the last one set is the scene's)."""
+        self._plane = GroundPlane(point, normal, float(restitution), float(friction))
 
     def enable_self_collision(self, thickness: float, friction: float = 0.0, iterations: int = 4, *,
                               fit: bool = False) -> None:
@@ -436,7 +430,7 @@ class SceneBuilder:
         parts += [kind.from_specs(specs, context) for kind, specs in kinds.items()]
         plane = None
         if self._plane is not None:
-            plane = PlaneCollider(*self._plane, free=system.free)
+            plane = self._plane.part_class.from_specs([self._plane], context)
             parts.append(plane)
         # last of the position changes, so that nothing moves the cloth after its guarantee
         if self._self_collision is not None:

@@ -88,11 +88,12 @@ class Scene:
         "" (also for a scene without a cloth mesh). Read it before a run, on the scene as built:
         the first steps push those vertices out, and a cloth caught across an object folds
         through itself (a fold started through a capsule intersected in 180 of its 181
-        frames). Spheres, capsules, boxes and the plane are checked, not a collider mesh; pinned
+        frames). Every registered collider kind is checked (spheres, capsules, boxes and the plane
+        among them: :mod:`~taichi_sim.scene.colliders.shape`), not a collider mesh; pinned
         vertices are left out (no collider moves them), and so are their triangles. Triangles an
         object reaches into between their vertices (as `check` finds them:
-        :func:`~taichi_sim.geometry.inside.faces_inside`) are named too."""
-        from ..geometry.inside import faces_inside, inside_objects
+        :func:`~taichi_sim.scene.colliders.shape.faces_inside`) are named too."""
+        from .colliders.shape import faces_inside, inside_objects, shape
 
         if self.mesh is None:
             return ""
@@ -105,10 +106,11 @@ class Scene:
                  if mask.any()]
         if not found and not faces:
             return ""
-        where = [f"{count} inside the {'ground plane' if kind == 'plane' else kind}" for kind, count in found]
+        where = [f"{count} inside the {shape(kind).noun}" for kind, count in found]
         if found:
             where[-1] += f", of {len(self.x0)} vertices"
-        where += [f"{count} of {len(self.mesh.triangles_np)} triangles reaching into the {kind}" for kind, count in faces]
+        where += [f"{count} of {len(self.mesh.triangles_np)} triangles reaching into the {shape(kind).noun}"
+                  for kind, count in faces]
         return (f"the cloth starts inside an object ({'; '.join(where)}): the first "
                 f"steps push it out and the cloth may fold through itself (`taichi-sim "
                 f"check` on the saved frames tells); move the object or the cloth")

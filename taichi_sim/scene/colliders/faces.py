@@ -10,15 +10,15 @@ corners move linearly nears that plane faster than its fastest corner, so an adv
 that rate never crosses the surface; a face that does not near it cannot touch in the step),
 and a face that reaches the surface heading in is stopped there.
 
-The shapes' distances to a triangle: exact from the features for spheres and capsules
-(:func:`sphere_to_triangle`, :func:`segment_to_triangle`), a lower bound from the separating
-axes for boxes (:func:`box_separation`, exact as an overlap).
+The shapes' distances to a triangle live in each kind's file: exact from the features for
+spheres and capsules (:func:`.sphere.sphere_to_triangle`, :func:`.capsule.capsule_to_triangle`),
+a lower bound from the separating axes for boxes (:func:`.box.box_separation`, exact as an
+overlap).
 """
 import numpy as np
 import taichi as ti
 
 from ... import field_io, runtime
-from ...collide.closest_points import closest_barycentric, inside, segment_parameters
 from ...collide.friction import inelastic_friction
 
 # Rounds of face pushes per step (they stop when one pushes nothing): a push can move a corner
@@ -52,110 +52,14 @@ ALLOWED_OVERLAP = 0.005
 
 
 @ti.func
-def _on_triangle(w, a, b, c):
+def on_triangle(w, a, b, c):
     return w[0] * a + w[1] * b + w[2] * c
 
 
 @ti.func
-def _corner(j, a, b, c):
+def corner(j, a, b, c):
     """Corner j (0, 1 or 2, known only at run time) of triangle (a, b, c)."""
     return ti.select(j == 0, a, ti.select(j == 1, b, c))
-
-
-@ti.func
-def sphere_to_triangle(radius, a, b, c):
-    """A sphere of ``radius`` (m) at the origin against triangle (a, b, c): (separation (m,
-    negative inside), barycentric weights of the triangle's nearest point, the unit normal from
-    the sphere to it, the sphere's surface point there)."""
-    w = closest_barycentric(0.0 * a, a, b, c)
-    p = _on_triangle(w, a, b, c)
-    dist = p.norm()
-    n = (b - a).cross(c - a).normalized()  # at the centre itself: out through the face's normal
-    if dist > 0.0:
-        n = p / dist
-    return dist - radius, w, n, radius * n
-
-
-@ti.func
-def segment_to_triangle(e0, e1, a, b, c):
-    """The nearest points of segment [e0, e1] and a triangle it does not cross (see
-    :func:`segment_crosses_triangle`): (distance (m),
-    the triangle point's barycentric weights, the segment's point). The nearest pair of a
-    segment and a triangle apart joins an end of one to the other or an edge to an edge."""
-    best = 0.0 * a[0] + 1e30
-    best_w = 0.0 * a
-    best_z = e0
-    for end in range(2):  # dynamic loops: one copy of each test
-        e = ti.select(end == 0, e0, e1)
-        w = closest_barycentric(e, a, b, c)
-        d = (_on_triangle(w, a, b, c) - e).norm()
-        if d < best:
-            best, best_w, best_z = d, w, e
-    for j in range(3):
-        p, q = _corner(j, a, b, c), _corner((j + 1) % 3, a, b, c)
-        uv = segment_parameters(p, q, e0, e1)
-        on_edge, on_segment = p + uv[0] * (q - p), e0 + uv[1] * (e1 - e0)
-        d = (on_edge - on_segment).norm()
-        if d < best:
-            best, best_z = d, on_segment
-            best_w = 0.0 * a
-            best_w[j] = 1.0 - uv[0]
-            best_w[(j + 1) % 3] = uv[0]
-    return best, best_w, best_z
-
-
-@ti.func
-def segment_crosses_triangle(e0, e1, a, b, c):
-    """Whether segment [e0, e1] passes through triangle (a, b, c) (its ends on either side of
-    the plane, the crossing inside)."""
-    normal = (b - a).cross(c - a)
-    h0, h1 = (e0 - a).dot(normal), (e1 - a).dot(normal)
-    crosses = False
-    if h0 * h1 < 0.0:
-        crosses = inside(e0 + h0 / (h0 - h1) * (e1 - e0), a, b, c)
-    return crosses
-
-
-@ti.func
-def box_separation(half, a, b, c, axes=13):
-    """A triangle (a, b, c) against the axis-aligned box of ``half`` extents about the origin,
-    by the separating axes of the two (the box's three axes, the face's normal, and the nine
-    crosses of their edges; Akenine-Moller 2001): (signed separation (m), the barycentric
-    weights of the face's nearest corners along it, the unit axis from the box to the face).
-
-    The separation is the largest gap between the two along any of those axes. Apart, that is
-    a lower bound on their distance (the plane across that gap keeps them apart, all a march
-    needs); overlapping, it is minus the shortest push along an axis that separates them.
-    ``axes`` < 13 tries only the first ones (4: the box's axes and the face's normal), a
-    cheaper and looser bound apart."""
-    best = 0.0 * a[0] - 1e30
-    axis_out = 0.0 * a
-    for axis in range(axes):  # a dynamic loop: one copy of the body, not thirteen
-        u = 0.0 * a
-        if axis < 3:
-            u[axis] = 1.0
-        elif axis == 3:
-            u = (b - a).cross(c - a)
-        else:
-            unit = 0.0 * a
-            unit[(axis - 4) // 3] = 1.0
-            j = (axis - 4) % 3
-            u = unit.cross(_corner((j + 1) % 3, a, b, c) - _corner(j, a, b, c))
-        length = u.norm()
-        if length > 1e-12 * (b - a).norm_sqr():
-            u /= length
-            lo = ti.min(a.dot(u), ti.min(b.dot(u), c.dot(u)))
-            hi = ti.max(a.dot(u), ti.max(b.dot(u), c.dot(u)))
-            reach = (half * ti.abs(u)).sum()
-            if lo - reach > best:
-                best, axis_out = lo - reach, u
-            if -reach - hi > best:
-                best, axis_out = -reach - hi, -u
-    # the corners nearest the box along the axis share the contact (a face lying on a box's
-    # side touches it with all three)
-    p = ti.Vector([a.dot(axis_out), b.dot(axis_out), c.dot(axis_out)])
-    near = ti.select(p <= p.min() + 1e-6 * (half.max() + ti.abs(p).max()), 1.0, 0.0)
-    return best, near / near.sum(), axis_out
 
 
 @ti.data_oriented
@@ -327,8 +231,8 @@ class FaceContact:
                 if start_depth >= self.left[k]:
                     break
             if d <= touch:
-                if _on_triangle(w, da, db, de).dot(n) < 0.0:  # touching counts when heading in
-                    depth = -(_on_triangle(w, a1, b1, e1) - z).dot(n)
+                if on_triangle(w, da, db, de).dot(n) < 0.0:  # touching counts when heading in
+                    depth = -(on_triangle(w, a1, b1, e1) - z).dot(n)
                     # a face resting on the surface may sink ``allowed`` before it is put back
                     # onto it (touching from the start, s = 0); one arriving is put back at once
                     if depth > touch + ti.select(s == 0.0, self.allowed[k], 0.0):
@@ -371,7 +275,7 @@ class FaceContact:
         # changes grow as 1 / their weight (a pin beside a moving object threw them at 1e6 m/s)
         if denom > 0.0 and free_weight >= MIN_FREE_WEIGHT:
             moved = depth
-            u = _on_triangle(w, y.v[tri[0]], y.v[tri[1]], y.v[tri[2]])
+            u = on_triangle(w, y.v[tri[0]], y.v[tri[1]], y.v[tri[2]])
             v_surface = self.surface_velocity(k, t, z_world - self.path.center(k, t))
             du = inelastic_friction(u, v_surface, n, self.friction[k]) - u
             self.face_count[None] += 1

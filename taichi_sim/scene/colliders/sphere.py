@@ -5,18 +5,35 @@ import numpy as np
 import taichi as ti
 
 from ... import field_io, runtime
+from ...collide.closest_points import closest_barycentric
 from ...collide.friction import inelastic_friction
 from ...geometry.primitives import unit_sphere
 from ...part import MovingSource, PartSpec, ScenePart, SolidMesh
-from .faces import FaceContact, sphere_to_triangle
+from .faces import FaceContact, on_triangle
 from .obstacle import Obstacle
 from .path import PathFields, SpherePath
-from .shapes import TOUCH_FRACTION
+from .shape import Shape, register_shape, rows
 from .step_start import StepStart
+from .translating import TOUCH_FRACTION
 
 
+@ti.func
+def sphere_to_triangle(radius, a, b, c):
+    """A sphere of ``radius`` (m) at the origin against triangle (a, b, c): (separation (m,
+    negative inside), barycentric weights of the triangle's nearest point, the unit normal from
+    the sphere to it, the sphere's surface point there)."""
+    w = closest_barycentric(0.0 * a, a, b, c)
+    p = on_triangle(w, a, b, c)
+    dist = p.norm()
+    n = (b - a).cross(c - a).normalized()  # at the centre itself: out through the face's normal
+    if dist > 0.0:
+        n = p / dist
+    return dist - radius, w, n, radius * n
+
+
+@register_shape
 @ti.data_oriented
-class SphereColliders(FaceContact, Obstacle, ScenePart):
+class SphereColliders(Shape, FaceContact, Obstacle, ScenePart):
     """Spheres that particles cannot enter, however fast they move.
 
     After each accepted step, in each sphere's frame a free particle goes from p0 - c(t - h) to
@@ -45,6 +62,8 @@ class SphereColliders(FaceContact, Obstacle, ScenePart):
 
     name, key = "spheres", "sphere"
     order = 10
+    noun, label = "sphere", "spheres"
+    size_keys = ("sphere_radius",)  # (K,); sphere_omega (K, 3) rad/s when one spins, not judged
 
     def __init__(self, paths: list[SpherePath], radii: list[float], frictions: list[float], free,
                  continuous: bool = True, mesh=None, system=None):
@@ -107,6 +126,15 @@ class SphereColliders(FaceContact, Obstacle, ScenePart):
         if any(p.spin for p in self.paths):
             out["sphere_omega"] = np.stack([p.angular_velocity() for p in self.paths])
         return out
+
+    @classmethod
+    def point_depths(cls, x, objects):
+        centers, radii = rows(objects["sphere_center"]), np.ravel(objects["sphere_radius"]).astype(np.float64)
+        return radii[None] - np.linalg.norm(x[:, None] - centers[None], axis=2)
+
+    @classmethod
+    def thinnest_sizes(cls, objects):
+        return np.ravel(objects["sphere_radius"]).astype(np.float64)
 
     def visuals(self) -> list:
         # a touch smaller than the collider: cloth vertices rest on its surface, and the flat
