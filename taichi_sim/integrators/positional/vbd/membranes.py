@@ -4,7 +4,8 @@ its membrane triangles and bending stencils at the iterate; :class:`~.solver.VBD
 import numpy as np
 import taichi as ti
 
-from .... import runtime
+from .... import field_io, runtime
+from ....forces.membrane.material import sym_matrix
 from ..colouring import element_pairs
 
 #: A triangle corner's share of a sweep against a spring's (its stress, 6x6 Hessian, the
@@ -46,16 +47,34 @@ class MembraneTerms:
         self.bending = bending
         self.has_membrane = membrane is not None
         self.has_bending = bending is not None
+        real, npr = runtime.real(), runtime.np_real()
+        if self.has_membrane:
+            offsets, others, rest = membrane.corner_layout()
+            self.corner_offsets = ti.field(ti.i32, shape=len(offsets))
+            self.corner_others = ti.Vector.field(2, ti.i32, shape=len(others))
+            self.corner_rest = ti.Vector.field(rest.shape[1], real, shape=len(rest))
+            field_io.write((self.corner_offsets, offsets), (self.corner_others, others),
+                           (self.corner_rest, rest.astype(npr)))
         if self.has_bending:
+            # L's rows without their diagonals, which are kept apart (the block D L_ii I and
+            # the force's D L_ii x_i need no test for j == i in the row's loop)
             offsets, columns, values = bending.operator()
+            self.bending_entries = len(columns)
+            row = np.repeat(np.arange(len(offsets) - 1), np.diff(offsets))
+            diagonal = np.zeros(len(offsets) - 1)
+            np.add.at(diagonal, row[columns == row], values[columns == row])
+            off = columns != row
+            counts = np.bincount(row[off], minlength=len(offsets) - 1)
+            offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int32)
+            columns, values = columns[off], values[off]
             self.bending_offsets = ti.field(ti.i32, shape=len(offsets))
             self.bending_columns = ti.field(ti.i32, shape=max(1, len(columns)))
-            self.bending_values = ti.field(runtime.real(), shape=max(1, len(values)))
-            self.bending_entries = len(columns)
-            self.bending_offsets.from_numpy(offsets)
+            self.bending_values = ti.field(real, shape=max(1, len(values)))
+            self.bending_diagonal = ti.field(real, shape=len(diagonal))
+            pairs = [(self.bending_offsets, offsets), (self.bending_diagonal, diagonal.astype(npr))]
             if len(columns):
-                self.bending_columns.from_numpy(columns)
-                self.bending_values.from_numpy(values.astype(runtime.np_real()))
+                pairs += [(self.bending_columns, columns), (self.bending_values, values.astype(npr))]
+            field_io.write(*pairs)
 
     def pairs(self) -> np.ndarray:
         """(P, 2) int64: the pairs of vertices that share a triangle or a bending stencil."""
@@ -78,23 +97,35 @@ class MembraneTerms:
         bending stencils at the state ``y`` (positions (m) and velocities (m/s): the iterate)."""
         f = ti.Vector.zero(y.x.dtype, 3)
         H = ti.Matrix.zero(y.x.dtype, 3, 3)
+        xi = y.x[i]
         if ti.static(self.has_membrane):
             membrane = self.membrane
             inv_dt = 1.0 / dt
-            for e in range(membrane.offsets[i], membrane.offsets[i + 1]):
-                force, block = membrane.corner_terms(membrane.incident[e], membrane.slot[e], y, inv_dt)
+            vi = y.v[i]
+            block = ti.Vector.zero(y.x.dtype, 6)  # the blocks' six entries (sym_entries)
+            for e in range(self.corner_offsets[i], self.corner_offsets[i + 1]):
+                others = self.corner_others[e]
+                rest = self.corner_rest[e]  # g_j, g_k, u (1/m), A (m^2): Membrane.corner_layout
+                ej = y.x[others[0]] - xi
+                ek = y.x[others[1]] - xi
+                f0 = rest[0] * ej + rest[2] * ek
+                f1 = rest[1] * ej + rest[3] * ek
+                d0, d1 = ti.Vector.zero(y.x.dtype, 3), ti.Vector.zero(y.x.dtype, 3)
+                if ti.static(membrane.damped):
+                    wj = y.v[others[0]] - vi
+                    wk = y.v[others[1]] - vi
+                    d0 = rest[0] * wj + rest[2] * wk
+                    d1 = rest[1] * wj + rest[3] * wk
+                force, corner = membrane.corner_terms(f0, f1, d0, d1, ti.Vector([rest[4], rest[5]]), rest[6], inv_dt)
                 f += force
-                H += block
+                block += corner
+            H = sym_matrix(block)
         if ti.static(self.has_bending):
             d = self.bending.stiffness[None]
-            lx = ti.Vector.zero(y.x.dtype, 3)
-            diagonal = ti.cast(0.0, y.x.dtype)
+            diagonal = self.bending_diagonal[i]
+            lx = diagonal * xi
             for e in range(self.bending_offsets[i], self.bending_offsets[i + 1]):
-                j = self.bending_columns[e]
-                value = self.bending_values[e]
-                lx += value * y.x[j]
-                if j == i:
-                    diagonal = value
+                lx += self.bending_values[e] * y.x[self.bending_columns[e]]
             f -= d * lx
             H += (d * diagonal) * ti.Matrix.identity(y.x.dtype, 3)
         return f, H
