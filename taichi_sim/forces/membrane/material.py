@@ -303,7 +303,7 @@ def viscous_corner(f0, f1, d0, d1, mu, lam, beta, u, scale, block_scale):
     Fdot = [d0 d1] (1/s): (``scale`` P_v u (3; scale the rest area (m^2): N, the corner's
     viscous force, negated), ``block_scale`` sum_cd u_c u_d dP_v/dFdot_cd (block_scale the
     area over dt: N/m), PSD: beta (mu |u|^2 F F^T + (mu + lam) (F u)(F u)^T) (:func:`_shear_pair`
-    at r = s = u), as :func:`sym_entries`)."""
+    at r = s = u), as :func:`sym_entries`, summed as beta (mu a a^T + (2 mu + lam) (F u)(F u)^T))."""
     e00 = f0.dot(d0)
     e11 = f1.dot(d1)
     e01 = 0.5 * (f0.dot(d1) + f1.dot(d0))
@@ -312,9 +312,10 @@ def viscous_corner(f0, f1, d0, d1, mu, lam, beta, u, scale, block_scale):
     s11 = beta * (2.0 * mu * e11 + lam * trace)
     s01 = beta * 2.0 * mu * e01
     stress = (scale * (s00 * u[0] + s01 * u[1])) * f0 + (scale * (s01 * u[0] + s11 * u[1])) * f1
-    shear = block_scale * beta * mu * u.dot(u)
-    block = sym_outer(f0, shear) + sym_outer(f1, shear) \
-        + sym_outer(u[0] * f0 + u[1] * f1, block_scale * beta * (mu + lam))
+    # |u|^2 F F^T = (F u)(F u)^T + a a^T, a = u1 f0 - u0 f1 (the rows of F in u's frame):
+    # two rank-one terms, and a is the Neo-Hookean corner's own
+    a = u[1] * f0 - u[0] * f1
+    block = sym_outer(a, block_scale * beta * mu) + sym_outer(u[0] * f0 + u[1] * f1, block_scale * beta * (2.0 * mu + lam))
     return stress, block
 
 
