@@ -8,9 +8,10 @@ from .... import field_io, runtime
 from ....forces.membrane.material import sym_matrix
 from ..colouring import element_pairs
 
-#: A triangle corner's share of a sweep against a spring's (its stress, 6x6 Hessian, the
-#: contraction to the vertex's block and, where needed, a 3x3 eigen-decomposition), for the
-#: rule that picks serial or parallel sweeps (kernels.SERIAL_WORK).
+#: A triangle corner's share of a sweep against a spring's, for the rule that picks serial or
+#: parallel sweeps (kernels.SERIAL_WORK). Serial sweeps measure less now (docs/materials.md: a
+#: grid vertex's 6 corners without damping cost what its 12 springs do, with the viscous stress
+#: about 1.5 times that); the parallel break-even, which this sets, was not measured again.
 CORNER_WORK = 8
 
 
@@ -145,7 +146,6 @@ class MembraneTerms:
         H = ti.Matrix.zero(y.x.dtype, 3, 3)
         xi = y.x[i]
         if ti.static(self.has_membrane):
-            membrane = self.membrane
             inv_dt = 1.0 / dt
             vi = y.v[i]
             block = ti.Vector.zero(y.x.dtype, 6)  # the blocks' six entries (sym_entries)
