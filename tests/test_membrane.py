@@ -467,3 +467,34 @@ def test_a_free_cantilever_strip_is_softer_than_euler_bernoulli_by_its_diagonal_
     beam = density * 9.81 * (length + h / 2) ** 4 / (8 * stiffness)
     assert tip / length < 0.05
     assert 1.15 < tip / beam < 1.25
+
+
+def test_the_corner_layout_gives_each_corner_its_triangles_deformation_gradient(f64, rng):
+    """Membrane.corner_layout (what vbd's vertex solve reads): every triangle appears once
+    under each of its vertices, and at any positions (x_j - x_i) g_j^T + (x_k - x_i) g_k^T is
+    the triangle's F = Ds Dm^-1, the corner's u is dF/dx_i and A its rest area."""
+    x = np.array([[0, 0, 0], [0.3, 0.05, 0], [0.3, 0.1, 0.3], [0, -0.05, 0.3], [0.15, 0.3, 0.15]])
+    tri = np.array([[0, 1, 4], [1, 2, 4], [2, 3, 4], [3, 0, 4]])
+    material = MembraneMaterial.from_parameters("neohookean", stretch_modulus=500.0, poisson_ratio=0.4)
+    membrane = Membrane(len(x), tri, x, material)
+    offsets, others, rest = membrane.corner_layout()
+    inverse, area = rest_frames(x, tri)
+    moved = x + 0.05 * rng.normal(size=x.shape)
+    seen = set()
+    for i in range(len(x)):
+        for e in range(offsets[i], offsets[i + 1]):
+            j, k = others[e]
+            (t,) = [t for t, corners in enumerate(tri) if set(corners) == {i, j, k}]
+            assert (t, i) not in seen
+            seen.add((t, i))
+            a, b, c = tri[t]
+            F = np.stack([moved[b] - moved[a], moved[c] - moved[a]], axis=1) @ inverse[t]
+            gj, gk, u = rest[e, 0:2], rest[e, 2:4], rest[e, 4:6]
+            np.testing.assert_allclose(np.outer(moved[j] - moved[i], gj) + np.outer(moved[k] - moved[i], gk), F,
+                                       atol=1e-12)
+            nudged = moved.copy()
+            nudged[i] += [1e-3, -2e-3, 0.5e-3]
+            G = np.stack([nudged[b] - nudged[a], nudged[c] - nudged[a]], axis=1) @ inverse[t]
+            np.testing.assert_allclose(G - F, np.outer([1e-3, -2e-3, 0.5e-3], u), atol=1e-12)
+            assert rest[e, 6] == pytest.approx(area[t])
+    assert len(seen) == 3 * len(tri)

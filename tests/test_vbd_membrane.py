@@ -12,6 +12,7 @@ from taichi_sim.convergence import ConvergenceMonitor
 from taichi_sim.forces.membrane import IsometricBending, Membrane, MembraneMaterial
 from taichi_sim.integrators import create_integrator
 from taichi_sim.integrators.positional.vbd.membranes import MembraneTerms
+from taichi_sim.reference import membrane_energy
 from taichi_sim.systems.particles import ParticleSystem
 
 SQUARE = np.array([[0.0, 0.0, 0.0], [0.2, 0.0, 0.0], [0.0, 0.0, 0.2], [0.2, 0.0, 0.2]])
@@ -114,6 +115,59 @@ def test_the_colouring_keeps_every_triangle_and_stencil_apart(f64):
         for a in range(corners.shape[1]):
             for b in range(a + 1, corners.shape[1]):
                 assert np.all(corners[:, a] != corners[:, b])
+
+
+@ti.kernel
+def _merit(terms: ti.template(), y: ti.template(), dt: float) -> float:
+    return terms.merit(y, dt)
+
+
+@pytest.mark.parametrize("model", ["stvk", "neohookean"])
+def test_the_start_tests_merit_is_the_membranes_and_bendings_energy_plus_dt_dissipation(f64, rng, model):
+    """MembraneTerms.merit, which the sweeps' start test sums element by element, is the
+    membrane's and the bending's energy (recomputed in numpy: taichi_sim.reference) plus dt times
+    the viscous dissipation, each triangle and stencil counted once."""
+    material = MembraneMaterial.from_parameters(model, stretch_modulus=50.0, poisson_ratio=0.3, damping=0.01)
+    vertex = Vertex(QUAD, material, bending=1e-3)
+    x = SQUARE * [1.3, 1.0, 0.8] + 0.02 * rng.standard_normal(SQUARE.shape)
+    v = rng.standard_normal(SQUARE.shape)
+    vertex.state.from_numpy(x, v)
+    dt = 0.02
+    data = {**vertex.membrane.arrays(), **vertex.bending.arrays()}
+    dissipation = vertex.membrane.dissipation(vertex.state)
+    assert dissipation > 0 and vertex.bending.energy(vertex.state) > 0
+    expected = membrane_energy(data, x) + dt * dissipation
+    assert _merit(vertex.terms, vertex.state, dt) == pytest.approx(expected, rel=1e-12)
+
+
+@ti.kernel
+def _solver_merit(vbd: ti.template(), dt: float) -> float:
+    return vbd._merit(dt)
+
+
+@ti.kernel
+def _merit_per_vertex(vbd: ti.template(), dt: float) -> float:
+    """1/2 |v - v0|_M^2 + U + dt R at vbd's iterate with every term attributed per vertex."""
+    total = 0.0
+    for i in range(vbd.system.particle_count):
+        u, r = vbd.system.potential_and_dissipation_at(i, vbd.point)
+        total += u + dt * r
+        if vbd.system.free[i]:
+            total += 0.5 * vbd.system.mass[i] * (vbd.point.v[i] - vbd.start_v[i]).norm_sqr()
+    return total
+
+
+def test_the_sweeps_start_test_sums_the_membrane_by_element_as_the_vertices_would(f64, rng):
+    """VBD._merit (backward Euler's incremental potential, the membrane's and bending's part
+    element by element, the rest per vertex) at a random iterate is the same sum with every term
+    attributed vertex by vertex (each triangle a third to each corner, each stencil a quarter)."""
+    scene = ts.build_scene("cloth-membrane", {"nx": 5, "ny": 5})
+    vbd = create_integrator("vbd", scene.system)
+    n = scene.system.particle_count
+    vbd.point.from_numpy(scene.state.to_numpy()[0] + 0.01 * rng.standard_normal((n, 3)), rng.standard_normal((n, 3)))
+    vbd.start_v.from_numpy(rng.standard_normal((n, 3)))
+    assert scene.system.term("membrane").dissipation(vbd.point) > 0
+    assert _solver_merit(vbd, 0.01) == pytest.approx(_merit_per_vertex(vbd, 0.01), rel=1e-12)
 
 
 SHEET = {"nx": 8, "ny": 8, "pin": "edge", "density": 1.0, "area_drag": 2.0, "stretch_modulus": 100.0,

@@ -197,18 +197,20 @@ class ImplicitAPI:
         return f, scale, rounding, potential, dissipation
 
     @ti.func
-    def potential_and_dissipation_at(self, i, y):
+    def potential_and_dissipation_at(self, i, y, skip: ti.template() = ()):
         """(the potential energy (J) and the Rayleigh dissipation (W) every term attributes to
         particle i at ``y``): summed over all particles, :meth:`potential_energy` and
-        :meth:`dissipation`, in one gather."""
+        :meth:`dissipation`, in one gather. The terms named in ``skip`` (a tuple of names) are
+        left out, for a caller that sums them element by element."""
         potential = ti.cast(0.0, y.x.dtype)
         dissipation = ti.cast(0.0, y.x.dtype)
         free_i = self.free[i]
         for term in ti.static(self.terms):
-            if ti.static(hasattr(term, "energy_at")):
-                potential += term.energy_at(i, y, free_i)
-            if ti.static(hasattr(term, "dissipation_at")):
-                dissipation += term.dissipation_at(i, y, free_i)
+            if ti.static(term.name not in skip):
+                if ti.static(hasattr(term, "energy_at")):
+                    potential += term.energy_at(i, y, free_i)
+                if ti.static(hasattr(term, "dissipation_at")):
+                    dissipation += term.dissipation_at(i, y, free_i)
         return potential, dissipation
 
     def assemble_system_matrix(self, y: State, a: float, b: float, t: float,

@@ -155,8 +155,13 @@ class IsometricBending(ForceTerm):
     def _energy(self, y: ti.template()) -> float:
         total = 0.0
         for b in range(self.edge_count):
-            total += 0.5 * self.stiffness[None] * self.edge_vector(b, y.x).norm_sqr()
+            total += self.edge_energy(b, y.x)
         return total
+
+    @ti.func
+    def edge_energy(self, b, x):
+        """(D/2) |sum_k w_k x_k|^2 of edge b (J)."""
+        return 0.5 * self.stiffness[None] * self.edge_vector(b, x).norm_sqr()
 
     # -- Jacobians: df_a/dx_c = -D sum_e w_a w_c I, constant; no velocity dependence ----------
 

@@ -57,6 +57,16 @@ def rest_frames(x, triangles) -> tuple[np.ndarray, np.ndarray]:
     return np.linalg.inv(dm), 0.5 * double_area
 
 
+def shape_gradients(inverse) -> np.ndarray:
+    """(T, 3, 2) each triangle's shape gradients g_a (1/m), vertex a's row: F = sum_a x_a g_a^T
+    for the rest frames' Dm^-1 ``inverse`` (T, 2, 2) of :func:`rest_frames`; g_0 = -g_1 - g_2."""
+    inverse = np.asarray(inverse, float)
+    g = np.empty((len(inverse), 3, 2))
+    g[:, 1], g[:, 2] = inverse[:, 0, :], inverse[:, 1, :]
+    g[:, 0] = -g[:, 1] - g[:, 2]
+    return g
+
+
 def lumped_masses(particle_count: int, triangles, area, density: float) -> np.ndarray:
     """(n,) mass (kg) of each vertex: a third of each of its triangles' ``area`` (m^2) times the
     area ``density`` (kg/m^2); they sum to density times the total area. A vertex in no
@@ -130,10 +140,7 @@ def omega_max_bound(mass, pinned, triangles, inverse, area, mu: float, lam: floa
     row = np.zeros(n)
     triangles = np.asarray(triangles, np.int64).reshape(-1, 3)
     if len(triangles):
-        g = np.empty((len(triangles), 3, 2))
-        g[:, 1], g[:, 2] = inverse[:, 0, :], inverse[:, 1, :]
-        g[:, 0] = -g[:, 1] - g[:, 2]
-        size = np.linalg.norm(g, axis=2)  # (T, 3)
+        size = np.linalg.norm(shape_gradients(inverse), axis=2)  # (T, 3)
         per = (np.asarray(area) * (2 * mu + abs(lam)))[:, None] * size * size.sum(axis=1, keepdims=True)
         row += np.bincount(triangles.ravel(), per.ravel(), minlength=n)
     if bending > 0 and stencil_vertices is not None and len(stencil_vertices):

@@ -5,7 +5,7 @@ assembles (the protocol of :class:`~taichi_sim.forces.ForceTerm`)."""
 import taichi as ti
 
 from ... import runtime
-from .material import project_psd, viscous_jacobian, viscous_pair
+from .material import project_psd, viscous_corner, viscous_jacobian
 
 
 @ti.func
@@ -67,26 +67,24 @@ class MembraneJacobians:
                 self.triangle_block[t, r, s] = -area * corner_pair_block(k, g[r, 0], g[r, 1], g[s, 0], g[s, 1])
 
     @ti.func
-    def corner_terms(self, t, corner, y, inv_dt):
-        """Triangle t's force on its vertex ``corner`` (0, 1, 2; N) at ``y`` (positions and
-        velocities) and that vertex's positive semi-definite block of the triangle's Hessian,
-        -(df/dx + inv_dt df/dv) (3x3, N/m): A proj(sum_cd u_c u_d d^2psi/dF_c dF_d) plus the
-        viscous part A inv_dt sum_cd u_c u_d dP_v/dFdot_cd, u the corner's shape gradient, with
-        ``proj`` on the 3x3 block (the material's ``*_corner``), not on the 6x6: the vertex
-        solve of vertex block descent reads this block alone, at the iterate, and the nearest
-        PSD matrix to it is the closest Newton model of the vertex's own energy. One triangle,
-        no precomputed pass."""
-        g = self.shape_gradients(t)
-        f0, f1 = self.columns(t, y.x, g)
-        energy, dissipation, p0, p1 = self.stress_at(t, y, g, f0, f1)
-        u = ti.Vector([ti.select(corner == 0, g[0, 0], ti.select(corner == 1, g[1, 0], g[2, 0])),
-                       ti.select(corner == 0, g[0, 1], ti.select(corner == 1, g[1, 1], g[2, 1]))])
-        area = self.area[t]
-        block = area * self.elastic_corner(f0, f1, u)
+    def corner_terms(self, f0, f1, d0, d1, u, area, inv_dt):
+        """A triangle's force on one of its corners (N) and that corner's positive
+        semi-definite block of -(df/dx + inv_dt df/dv) (N/m, its six entries xx, yy, zz, xy,
+        xz, yz), for the triangle's F = [f0 f1] and Fdot = [d0 d1] (1/s, read only with
+        damping), the corner's shape gradient u (2-vector, 1/m) and the rest area (m^2):
+        -A (P + P_v) u, and A proj(sum_cd u_c u_d d^2psi/dF_c dF_d) plus A inv_dt
+        sum_cd u_c u_d dP_v/dFdot_cd, with ``proj`` on the 3x3 block (the material's
+        ``*_corner``), not on the 6x6: the vertex solve of vertex block descent reads this
+        block alone, at the iterate, and the nearest PSD matrix to it is the closest Newton
+        model of the vertex's own energy. The stress and the block share the corner's work
+        (one normal, one strain rate)."""
+        stress, block = self.elastic_corner(f0, f1, u, area)
         if ti.static(self.damped):
             m = self.moduli[None]
-            block += (area * inv_dt) * viscous_pair(f0, f1, m[0], m[1], m[2], u, u)
-        return -(p0 * u[0] + p1 * u[1]), block
+            rate_stress, rate_block = viscous_corner(f0, f1, d0, d1, m[0], m[1], m[2], u, area, area * inv_dt)
+            stress += rate_stress
+            block += rate_block
+        return -stress, block
 
     @ti.func
     def jacobian_diagonal_block(self, i, y, a, b, t):

@@ -82,6 +82,26 @@ def _cross_matrix(a):
 
 
 @ti.func
+def sym_outer(a, scale):
+    """scale a a^T (3x3, symmetric) as its six entries (xx, yy, zz, xy, xz, yz): a corner's
+    block is a sum of such terms, which cost fewer products in six entries than in nine."""
+    b = scale * a
+    return ti.Vector([b[0] * a[0], b[1] * a[1], b[2] * a[2], b[0] * a[1], b[0] * a[2], b[1] * a[2]])
+
+
+@ti.func
+def sym_entries(h):
+    """The six entries (xx, yy, zz, xy, xz, yz) of the symmetric 3x3 ``h``."""
+    return ti.Vector([h[0, 0], h[1, 1], h[2, 2], h[0, 1], h[0, 2], h[1, 2]])
+
+
+@ti.func
+def sym_matrix(e):
+    """The symmetric 3x3 of six entries (xx, yy, zz, xy, xz, yz)."""
+    return ti.Matrix([[e[0], e[3], e[4]], [e[3], e[1], e[5]], [e[4], e[5], e[2]]])
+
+
+@ti.func
 def set_block(h: ti.template(), c: ti.template(), d: ti.template(), block):
     for r, s in ti.static(ti.ndrange(3, 3)):
         h[3 * c + r, 3 * d + s] = block[r, s]
@@ -156,10 +176,18 @@ def stvk_hessian(f0, f1, mu, lam):
 
 
 @ti.func
-def stvk_corner(f0, f1, mu, lam, u):
-    """:func:`stvk_pair` (u, u) projected to PSD (:func:`project_psd3`): a corner's own block
-    of the triangle's Hessian per unit area, for its shape gradient u (1/m)."""
-    return project_psd3(stvk_pair(f0, f1, mu, lam, u, u))
+def stvk_corner(f0, f1, mu, lam, u, scale):
+    """A corner's share of :func:`stvk` for its shape gradient u (2-vector, 1/m), times
+    ``scale`` (the rest area, m^2): (scale P u (3, N: the corner's force, negated), scale
+    :func:`stvk_pair` (u, u) projected to PSD (:func:`project_psd3`): its own block of the
+    triangle's Hessian (N/m), as :func:`sym_entries`)."""
+    e00, e11, e01 = _green(f0, f1)
+    trace = e00 + e11
+    s00 = 2.0 * mu * e00 + lam * trace
+    s11 = 2.0 * mu * e11 + lam * trace
+    s01 = 2.0 * mu * e01
+    stress = (scale * (s00 * u[0] + s01 * u[1])) * f0 + (scale * (s01 * u[0] + s11 * u[1])) * f1
+    return stress, scale * sym_entries(project_psd3(stvk_pair(f0, f1, mu, lam, u, u)))
 
 
 @ti.func
@@ -219,23 +247,32 @@ def neohookean_hessian(f0, f1, mu, lam):
 
 
 @ti.func
-def neohookean_corner(f0, f1, mu, lam, u):
-    """:func:`neohookean_pair` (u, u) projected to PSD, in closed form: a corner's own block of
-    the triangle's Hessian per unit area, for its shape gradient u (1/m). With r = s = u the
-    [n]x term cancels, a = b = u1 f0 - u0 f1 lies in the triangle's plane, so the curvature term
-    (coef / J) (|a|^2 I - a a^T - (n x a)(n x a)^T) is (coef / J) |a|^2 n n^T, and the rest,
-    mu |u|^2 I + l q_u q_u^T, is PSD with q_u in the plane: n is an eigenvector, of eigenvalue
-    mu |u|^2 + coef |a|^2 / J, which the projection raises to 0 where it is negative (a
-    triangle not stretched by mu / l in area), exactly as :func:`project_psd3` would
-    (tests/test_vbd_membrane.py checks it against the nearest PSD matrix to the block)."""
+def neohookean_corner(f0, f1, mu, lam, u, scale):
+    """A corner's share of :func:`neohookean` for its shape gradient u (2-vector, 1/m), times
+    ``scale`` (the rest area, m^2), the stress and the block from one normal: (scale P u (3,
+    N: the corner's force, negated), scale :func:`neohookean_pair` (u, u) projected to PSD,
+    in closed form: its own block of the triangle's Hessian (N/m), as :func:`sym_entries`).
+
+    With a = u1 f0 - u0 f1 (in the triangle's plane) the stress's q_u = u0 q0 + u1 q1 is
+    n x a, so P u = mu F u + coef (n x a). With r = s = u the [n]x term of the pair cancels
+    and the curvature term (coef / J) (|a|^2 I - a a^T - (n x a)(n x a)^T) is
+    (coef / J) |a|^2 n n^T; the rest, mu |u|^2 I + l q_u q_u^T, is PSD with q_u in the plane:
+    n is an eigenvector, of eigenvalue mu |u|^2 + coef |a|^2 / J, which the projection raises
+    to 0 where it is negative (a triangle not stretched by mu / l in area), exactly as
+    :func:`project_psd3` would (tests/test_vbd_membrane.py checks it against the nearest PSD
+    matrix to the block)."""
     lam = lam + mu
     jac, n, inv = _area_ratio(f0, f1)
     coef = lam * (jac - 1.0) - mu
-    q = u[0] * f1.cross(n) + u[1] * n.cross(f0)
     a = u[1] * f0 - u[0] * f1
+    q = n.cross(a)
     shear = mu * u.dot(u)
     normal = ti.max(shear + coef * inv * a.dot(a), 0.0) - shear
-    return shear * ti.Matrix.identity(float, 3) + lam * q.outer_product(q) + normal * n.outer_product(n)
+    along = scale * mu
+    stress = (along * u[0]) * f0 + (along * u[1]) * f1 + (scale * coef) * q
+    block = sym_outer(q, scale * lam) + sym_outer(n, scale * normal)
+    iso = scale * shear
+    return stress, block + ti.Vector([iso, iso, iso, 0.0, 0.0, 0.0])
 
 
 @ti.func
@@ -261,9 +298,25 @@ def viscous_jacobian(f0, f1, mu, lam, beta):
 
 
 @ti.func
-def viscous_pair(f0, f1, mu, lam, beta, r, s):
-    """sum_cd r_c s_d dP_v/dFdot_cd (3x3, N s/m) for weight 2-vectors r, s; PSD for r = s."""
-    return beta * _shear_pair(f0, f1, mu, lam, r, s)
+def viscous_corner(f0, f1, d0, d1, mu, lam, beta, u, scale, block_scale):
+    """A corner's share of :func:`viscous` for its shape gradient u (2-vector, 1/m), at
+    Fdot = [d0 d1] (1/s): (``scale`` P_v u (3; scale the rest area (m^2): N, the corner's
+    viscous force, negated), ``block_scale`` sum_cd u_c u_d dP_v/dFdot_cd (block_scale the
+    area over dt: N/m), PSD: beta (mu |u|^2 F F^T + (mu + lam) (F u)(F u)^T) (:func:`_shear_pair`
+    at r = s = u), as :func:`sym_entries`, summed as beta (mu a a^T + (2 mu + lam) (F u)(F u)^T))."""
+    e00 = f0.dot(d0)
+    e11 = f1.dot(d1)
+    e01 = 0.5 * (f0.dot(d1) + f1.dot(d0))
+    trace = e00 + e11
+    s00 = beta * (2.0 * mu * e00 + lam * trace)
+    s11 = beta * (2.0 * mu * e11 + lam * trace)
+    s01 = beta * 2.0 * mu * e01
+    stress = (scale * (s00 * u[0] + s01 * u[1])) * f0 + (scale * (s01 * u[0] + s11 * u[1])) * f1
+    # |u|^2 F F^T = (F u)(F u)^T + a a^T, a = u1 f0 - u0 f1 (the rows of F in u's frame):
+    # two rank-one terms, and a is the Neo-Hookean corner's own
+    a = u[1] * f0 - u[0] * f1
+    block = sym_outer(a, block_scale * beta * mu) + sym_outer(u[0] * f0 + u[1] * f1, block_scale * beta * (2.0 * mu + lam))
+    return stress, block
 
 
 @ti.func

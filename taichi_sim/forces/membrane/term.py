@@ -6,7 +6,7 @@ import taichi as ti
 from ... import runtime
 from ..base import ForceTerm
 from ..springs.topology import incidence_of
-from .geometry import rest_frames
+from .geometry import rest_frames, shape_gradients
 from .jacobian import MembraneJacobians
 from .material import (
     MembraneMaterial,
@@ -121,6 +121,21 @@ class Membrane(MembraneJacobians, ForceTerm):
         self.material = material
         self.moduli[None] = [material.mu, material.lam, material.damping]
 
+    def corner_layout(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The triangles' corners grouped by vertex, with what a corner's terms read of its
+        triangle's rest shape, so that a vertex's solve reads its corners contiguously
+        (:class:`~taichi_sim.integrators.positional.vbd.membranes.MembraneTerms`):
+        (offsets (n+1,) int32: vertex i's corners are ``offsets[i]:offsets[i+1]``; others
+        (E, 2) int32: the corner's triangle's two other vertices j, k; rest (E, 7) float64:
+        g_j, g_k, the corner's own shape gradient u (2-vectors, 1/m) and the rest area A (m^2)).
+        F = (x_j - x_i) g_j^T + (x_k - x_i) g_k^T, as the shape gradients sum to zero."""
+        offsets, element, slot = incidence_of(self.offsets.shape[0] - 1, self.triangles_np)
+        g = shape_gradients(self.inverse_np)
+        j, k = (slot + 1) % 3, (slot + 2) % 3
+        others = np.stack([self.triangles_np[element, j], self.triangles_np[element, k]], axis=1)
+        rest = np.concatenate([g[element, j], g[element, k], g[element, slot], self.area_np[element, None]], axis=1)
+        return offsets, others.astype(np.int32), rest
+
     def anchored_fields(self) -> tuple:
         return (self.offsets, self.incident, self.slot, self.triangle_force)
 
@@ -164,16 +179,18 @@ class Membrane(MembraneJacobians, ForceTerm):
         return h
 
     @ti.func
-    def elastic_corner(self, f0, f1, u):
-        """A corner's own block of d^2(psi)/dx^2 per unit area (3x3, N/m^3), projected to PSD,
-        for its shape gradient u (2-vector, 1/m) (the material's ``*_corner``)."""
+    def elastic_corner(self, f0, f1, u, scale):
+        """A corner's share of the term's material for its shape gradient u (2-vector, 1/m),
+        times ``scale`` (the rest area, m^2): (scale P u (3, N), its own block of the
+        triangle's Hessian projected to PSD (N/m), six entries (xx, yy, zz, xy, xz, yz)) (the
+        material's ``*_corner``)."""
         m = self.moduli[None]
-        h = ti.Matrix.zero(float, 3, 3)
+        stress, h = ti.Vector.zero(float, 3), ti.Vector.zero(float, 6)
         if ti.static(self.model == "stvk"):
-            h = stvk_corner(f0, f1, m[0], m[1], u)
+            stress, h = stvk_corner(f0, f1, m[0], m[1], u, scale)
         else:
-            h = neohookean_corner(f0, f1, m[0], m[1], u)
-        return h
+            stress, h = neohookean_corner(f0, f1, m[0], m[1], u, scale)
+        return stress, h
 
     @ti.func
     def triangle_stress(self, t, y, g):

@@ -190,6 +190,7 @@ class VBD(Integrator):
         self.membrane_terms = MembraneTerms(membrane, bending) if membrane is not None or bending is not None \
             else None
         self.has_membrane = self.membrane_terms is not None
+        self._merit_skip = MembraneTerms.names if self.has_membrane else ()  # _merit sums them per element
         own = {"springs", *(MembraneTerms.names if self.has_membrane else ())}
         self.others = [term for term in system.terms if term.name not in own]
         self.point = system.make_state()  # the iterate (x, v = (x - x0) / dt)
@@ -510,13 +511,17 @@ class VBD(Integrator):
     @ti.func
     def _merit(self, dt):
         """Backward Euler's incremental potential at the iterate, up to a constant (J):
-        1/2 |v - v0|_M^2 + U(x) + dt R(x, v); a top-level loop."""
+        1/2 |v - v0|_M^2 + U(x) + dt R(x, v); top-level loops (the membrane's and the bending's
+        terms triangle by triangle and stencil by stencil, each once: per vertex, each would be
+        evaluated at each of its corners)."""
         total = ti.cast(0.0, self.delta.dtype)
         for i in range(self.system.particle_count):
-            u, r = self.system.potential_and_dissipation_at(i, self.point)
+            u, r = self.system.potential_and_dissipation_at(i, self.point, ti.static(self._merit_skip))
             total += u + dt * r
             if self.system.free[i]:
                 total += 0.5 * self.system.mass[i] * (self.point.v[i] - self.start_v[i]).norm_sqr()
+        if ti.static(self.has_membrane):
+            total += self.membrane_terms.merit(self.point, dt)
         return total
 
     @ti.func
