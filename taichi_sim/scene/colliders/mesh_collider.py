@@ -40,7 +40,7 @@ from ...collide.friction import inelastic_friction
 from ...collide.objects import FAR
 from ...part import MovingSource, PartSpec, ScenePart, SolidMesh
 from .mesh_frames import FramePlayer
-from .mesh_grid import TriangleGrid
+from .mesh_grid import TriangleGrid, cell_id, cells
 from .path import PathFields, SpherePath
 from .step_start import StepStart
 
@@ -265,19 +265,12 @@ class MeshCollider(ScenePart):
     def _cells(self, lo, hi):
         """The grid's cell range (first, last, each an int vector) that the box [lo, hi] (mesh
         frame) reaches; first > last on some axis when it lies outside the grid."""
-        origin = ti.Vector(self.grid_origin)
-        dims = ti.Vector(self.dims)
-        first = ti.cast(ti.floor((lo - origin) / self.cell), ti.i32)
-        last = ti.cast(ti.floor((hi - origin) / self.cell), ti.i32)
-        return ti.max(first, 0), ti.min(last, dims - 1)
+        return cells(self.grid, lo, hi)
 
     @ti.func
     def _cell_id(self, first, span, k):
         """The grid index of the k-th cell of the block of ``span`` cells from ``first``."""
-        ix = first[0] + k // (span[1] * span[2])
-        iy = first[1] + (k // span[2]) % span[1]
-        iz = first[2] + k % span[2]
-        return (ix * self.dims[1] + iy) * self.dims[2] + iz
+        return cell_id(self.grid, first, span, k)
 
     @ti.func
     def _crossing(self, a, b, reach):

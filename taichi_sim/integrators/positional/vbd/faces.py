@@ -54,6 +54,7 @@ import numpy as np
 import taichi as ti
 
 from .... import runtime
+from .mesh_faces import MeshFaces, sharp_features
 
 # A nearest point with a corner's weight above this is at that corner: the vertex's own term.
 AT_CORNER = 1.0 - 1e-6
@@ -92,9 +93,11 @@ class ObjectFaces:
         mesh = scene.mesh
         # (collider, needed: (count,) i32, pairs: (triangles, count) struct) per face-testing kind
         self.face_pairs = []
+        self.mesh_faces = None  # the collider mesh's sharp features against the triangles (mesh_faces.py)
         if mesh is not None and enabled:
             rest = scene.rest_x if scene.rest_x is not None else scene.state.to_numpy()[0]
-            dip = FACE_STRETCH ** 2 * largest_circumradius(rest, mesh.triangles_np) ** 2 / 2.0
+            rho = largest_circumradius(rest, mesh.triangles_np)
+            dip = FACE_STRETCH ** 2 * rho ** 2 / 2.0
             real = runtime.real()
             vec = ti.types.vector(3, real)
             pair = ti.types.struct(state=ti.i32, plane_normal=vec, plane_offset=real, normal=vec, weights=vec,
@@ -110,7 +113,14 @@ class ObjectFaces:
                     flags.from_numpy(np.asarray(needed, np.int32))
                     pairs = pair.field(shape=(max(1, mesh.triangle_count), collider.count))
                     self.face_pairs.append((collider, flags, pairs))
-        self.has_object_faces = bool(self.face_pairs)
+            body = self.body
+            if body is not None:
+                features = sharp_features(body.player.frames, body.collider.triangles_np, body.orientation,
+                                          FACE_STRETCH * rho, body.skin)
+                if len(features):
+                    self.mesh_faces = body.faces = MeshFaces(body, features, mesh)
+        self.has_mesh_faces = self.mesh_faces is not None
+        self.has_object_faces = bool(self.face_pairs) or self.has_mesh_faces
         if not self.has_object_faces:
             return
         self.face_mesh = mesh
@@ -144,6 +154,8 @@ class ObjectFaces:
             for i in range(x.shape[0]):
                 self.face_anchor[i] = x[i]
                 self.face_room[i] = ti.math.inf
+            if ti.static(self.has_mesh_faces):
+                self.mesh_faces.query(x, reach, self.face_room)
             for collider, needed, pairs in ti.static(self.face_pairs):
                 for face, o in ti.ndrange(mesh.triangle_count, collider.count):
                     state = FAR
@@ -215,6 +227,8 @@ class ObjectFaces:
                                 slip = (w[0] * self.delta[tri[0]] + w[1] * self.delta[tri[1]]
                                         + w[2] * self.delta[tri[2]]) - dt * pairs[face, o].surface_velocity
                                 f, H = self._push(f, H, d, n, k, w[slot], slip, collider.friction[o], dt)
+            if ti.static(self.has_mesh_faces):
+                f, H = self.mesh_faces.terms(self, i, x, dt, k, f, H)
         return f, H
 
     @ti.func
@@ -233,6 +247,8 @@ class ObjectFaces:
                         if pairs[face, o].state & PLANE:
                             n = pairs[face, o].plane_normal
                             scale = ti.min(scale, self._approach_scale(p.dot(n) - pairs[face, o].plane_offset, n, step))
+            if ti.static(self.has_mesh_faces):
+                scale = self.mesh_faces.scale(self, i, p, step, scale)
             length = step.norm()
             left = self.fraction * self.face_room[i] - (p - self.face_anchor[i]).norm()
             if length > left:

@@ -385,7 +385,7 @@ class VBD(Integrator):
     def _sweep(self, kernels: dict, dt: float, t: float, omega: float, index: int) -> None:
         """One parallel sweep (sweep ``index``, Chebyshev weight ``omega``): the objects' contacts
         with the triangles, then each colour's vertices at once, colour after colour."""
-        if self.contact is None or not self.contact.obstacles:
+        if self.contact is None or not (self.contact.obstacles or self.contact.has_object_faces):
             kernels["sweep_unrolled"](dt, t, omega, index)
             return
         if self.contact.has_object_faces:
