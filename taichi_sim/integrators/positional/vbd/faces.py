@@ -120,7 +120,9 @@ class ObjectFaces:
                 if len(features):
                     self.mesh_faces = body.faces = MeshFaces(body, features, mesh)
         self.has_mesh_faces = self.mesh_faces is not None
-        self.has_object_faces = bool(self.face_pairs) or self.has_mesh_faces
+        # the analytic objects' pairs, queried before every sweep (the mesh's: once per piece)
+        self.queries_faces = bool(self.face_pairs)
+        self.has_object_faces = self.queries_faces or self.has_mesh_faces
         if not self.has_object_faces:
             return
         self.face_mesh = mesh
@@ -148,14 +150,12 @@ class ObjectFaces:
     def query_faces(self, x, t):
         """Each (triangle, object) pair's contact and plane at positions x (an (n,) field, m)
         and time t (s), for the vertex solves until the next query (a loop of the kernel)."""
-        if ti.static(self.has_object_faces):
+        if ti.static(self.queries_faces):
             mesh = self.face_mesh
             reach = self.face_reach[None]
             for i in range(x.shape[0]):
                 self.face_anchor[i] = x[i]
                 self.face_room[i] = ti.math.inf
-            if ti.static(self.has_mesh_faces):
-                self.mesh_faces.query(x, reach, self.face_room)
             for collider, needed, pairs in ti.static(self.face_pairs):
                 for face, o in ti.ndrange(mesh.triangle_count, collider.count):
                     state = FAR
@@ -184,6 +184,13 @@ class ObjectFaces:
                                     pairs[face, o].offset = (w[0] * a + w[1] * b + w[2] * c).dot(n) - d + n.dot(centre)
                                     pairs[face, o].surface_velocity = collider.surface_velocity(o, t, z)
                     pairs[face, o].state = state
+
+    @ti.func
+    def query_mesh_faces(self, x):
+        """The collider mesh's sharp features against the triangles at positions x (an (n,)
+        field, m), once per piece, at its start (mesh_faces.py; loops of the kernel)."""
+        if ti.static(self.has_mesh_faces):
+            self.mesh_faces.query(x, self.face_reach[None])
 
     @ti.func
     def _corners(self, tri, x, i, p):
@@ -247,10 +254,11 @@ class ObjectFaces:
                         if pairs[face, o].state & PLANE:
                             n = pairs[face, o].plane_normal
                             scale = ti.min(scale, self._approach_scale(p.dot(n) - pairs[face, o].plane_offset, n, step))
+            if ti.static(self.queries_faces):
+                length = step.norm()
+                left = self.fraction * self.face_room[i] - (p - self.face_anchor[i]).norm()
+                if length > left:
+                    scale = ti.min(scale, ti.max(left, 0.0) / length)
             if ti.static(self.has_mesh_faces):
                 scale = self.mesh_faces.scale(self, i, p, step, scale)
-            length = step.norm()
-            left = self.fraction * self.face_room[i] - (p - self.face_anchor[i]).norm()
-            if length > left:
-                scale = ti.min(scale, ti.max(left, 0.0) / length)
         return scale

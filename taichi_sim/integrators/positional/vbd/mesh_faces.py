@@ -23,8 +23,10 @@ boxes over the segment, grown by the skin; a cloth triangle looks at the cells i
 the query's reach, meets, and tests the features' boxes before their distance (none when the
 mesh is far: one box test).
 
-**The query**, with the objects' (faces.py), before the start guess is bounded and before every
-sweep: per cloth triangle the ``SLOTS`` nearest features within reach of the mesh posed at the
+**The query**, once per piece before its start guess is bounded, as the vertices' contact planes
+are found once per piece (the analytic objects' faces are queried before every sweep too: on
+the table below, querying the mesh's before every sweep made the solve 3.5 times slower): per
+cloth triangle the ``SLOTS`` nearest features within reach of the mesh posed at the
 piece's end t1 (where the vertices' contact planes are carried), each with what the vertex
 solves read:
 
@@ -58,9 +60,11 @@ from ....scene.colliders.mesh_grid import TriangleGrid, cell_id, cells
 # A mesh edge or vertex is a feature where a cloth triangle lying across it, corners on the
 # faces, could have it this share of the skin above its plane (module docstring).
 MESH_DIP = 0.5
-# features kept per cloth triangle and query (a box's corner: its vertex and three edges meet
-# one triangle); more within reach shorten the corners' room instead
-SLOTS = 4
+# features kept per cloth triangle and query; more within reach shorten the corners' room for the
+# whole piece, to bound_fraction of the nearest left out. Near a corner of a 2 cm plate a triangle
+# reaches five edges or more, and with 4 slots a vertex the plate pushed up could not follow it
+# (tests/test_vbd_mesh_contact.py, the thin plate)
+SLOTS = 8
 # A pair's state (faces.py's): out of reach (FAR), else the bits of the parts it holds.
 FAR, PLANE, ENERGY = 0, 1, 2
 # A nearest point with a corner's weight above this is at that corner: the vertex's own term.
@@ -165,6 +169,11 @@ class MeshFaces:
         self.pairs = pair.field(shape=(max(1, cloth.triangle_count), SLOTS))
         self.feature_of = ti.field(ti.i32, shape=(max(1, cloth.triangle_count), SLOTS))
         self.used = ti.field(ti.i32, shape=max(1, cloth.triangle_count))  # slots a triangle holds
+        n = body.system.particle_count
+        self.anchor = ti.Vector.field(3, runtime.real(), shape=n)  # each vertex at the query (m)
+        # how far from its anchor each vertex may move and keep its triangles off the features
+        # not in their slots (m)
+        self.room = ti.field(runtime.real(), shape=n)
 
     def _boxes(self, k: int) -> tuple[np.ndarray, np.ndarray]:
         """Each feature's box over frame segment k grown by the skin ((K, 3) m each, mesh frame)."""
@@ -223,16 +232,18 @@ class MeshFaces:
                     w = closest_barycentric(m, a, b, c)
         return best, s, w
 
-    # -- the query (faces.py's query_faces calls it) -----------------------------------------------
+    # -- the query (faces.py's query_mesh_faces calls it, from the piece's begin) --------------------
 
     @ti.func
-    def query(self, x, reach, room):
+    def query(self, x, reach):
         """Each cloth triangle's nearest features within ``reach`` (m, grown by what a corner
-        the body pushes may have to move) at positions ``x`` ((n,) vec3 field, m), the mesh
-        where it is at the piece's end: their contacts and planes for the vertex solves until
-        the next query; lowers ``room`` ((n,) field, m) of the corners of triangles with
-        features beyond the slots or none within reach (a loop of the kernel)."""
+        the body pushes may have to move) at positions ``x`` ((n,) vec3 field, m, the piece's
+        start), the mesh where it is at the piece's end: their contacts and planes for the
+        vertex solves of the piece, and each vertex's ``room`` (loops of the kernel)."""
         body, cloth = self.body, self.cloth
+        for i in range(x.shape[0]):
+            self.anchor[i] = x[i]
+            self.room[i] = ti.math.inf
         # a corner the body pushes moves with it, by up to its move and the skin: the reach (and
         # so the room of corners out of it) covers that too
         reach += (body.motion[None] + self.skin) / body.fraction
@@ -284,7 +295,7 @@ class MeshFaces:
                     for j in range(used):  # (not unrolled: one copy of the geometry to compile)
                         self._keep(face, j, kept[j], tri, a, b, c, c0, c1, span)
                 for j in ti.static(range(3)):
-                    ti.atomic_min(room[tri[j]], free)
+                    ti.atomic_min(self.room[tri[j]], free)
 
     @ti.func
     def _keep(self, face, slot, k, tri, a, b, c, c0, c1, span):
@@ -349,7 +360,8 @@ class MeshFaces:
     @ti.func
     def scale(self, solve, i, p, step, scale):
         """The share (<= ``scale``) of vertex i's ``step`` (m) from ``p`` that keeps it beyond
-        the planes of its triangles' feature pairs."""
+        the planes of its triangles' feature pairs and within ``bound_fraction`` of its room
+        from where the query found it."""
         cloth = self.cloth
         for s in range(cloth.offsets[i], cloth.offsets[i + 1]):
             face = cloth.incident[s]
@@ -357,4 +369,8 @@ class MeshFaces:
                 if self.pairs[face, j].state & PLANE:
                     n = self.pairs[face, j].plane_normal
                     scale = ti.min(scale, solve._approach_scale(p.dot(n) - self.pairs[face, j].plane_offset, n, step))
+        length = step.norm()
+        left = solve.fraction * self.room[i] - (p - self.anchor[i]).norm()
+        if length > left:
+            scale = ti.min(scale, ti.max(left, 0.0) / length)
         return scale

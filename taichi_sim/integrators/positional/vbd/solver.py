@@ -385,10 +385,10 @@ class VBD(Integrator):
     def _sweep(self, kernels: dict, dt: float, t: float, omega: float, index: int) -> None:
         """One parallel sweep (sweep ``index``, Chebyshev weight ``omega``): the objects' contacts
         with the triangles, then each colour's vertices at once, colour after colour."""
-        if self.contact is None or not (self.contact.obstacles or self.contact.has_object_faces):
+        if self.contact is None or not self.contact.obstacles:
             kernels["sweep_unrolled"](dt, t, omega, index)
             return
-        if self.contact.has_object_faces:
+        if self.contact.queries_faces:
             kernels["query"](t)
         for c in range(self.colour_count):
             kernels["colour"](dt, t, c)
@@ -430,6 +430,7 @@ class VBD(Integrator):
             # the triangles near the objects along the guess (faces.py), for its bounds
             self.contact.measure_face_reach(self.delta)
             self.contact.query_faces(self.start_x, t)
+            self.contact.query_mesh_faces(self.start_x)
             # The guess kept within the bounds, measured from the mean guess (a falling cloth
             # moves as a whole); from none where an object stops a vertex short of that.
             self.contact.fit_shift(self.delta, self.system.free)
