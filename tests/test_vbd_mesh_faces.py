@@ -57,6 +57,8 @@ def test_a_cloth_draped_over_a_mesh_box_has_no_face_inside_it(tmp_path, capsys, 
     assert "no triangles intersect" in report
     assert "no vertex inside the collider mesh in any frame" in report
     assert ("no face reaches into the collider mesh in any frame" in report) == faces, report
+    x = np.load(tmp_path / "drape.npz")["x_history"][-1]
+    assert x[:, 1].max() > 0.1 and x[:, 1].min() < 0.0  # over the box's top (y = 0.1), its sides hanging
 
 
 def test_a_box_has_its_twelve_edges_and_no_diagonal_for_features():
