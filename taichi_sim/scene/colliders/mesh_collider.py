@@ -27,7 +27,8 @@ The triangles are found through a uniform grid over every frame of the mesh in i
 frame segment, grown by ``skin``, reaches it, refilled with numpy when the segment changes (a
 rigid mesh: once). Cloth faces are not tested against the mesh's edges (the vertex test only):
 a mesh edge sharper than the cloth's spacing can cut between vertices (the sphere, capsule and
-box have :class:`FaceContact` for that).
+box have :class:`FaceContact` for that; vbd's solve, which replaces this pass, keeps the cloth's
+triangles off the mesh's sharp edges: integrators/positional/vbd/mesh_faces.py).
 """
 from dataclasses import dataclass, field
 

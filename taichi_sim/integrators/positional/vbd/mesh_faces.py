@@ -24,8 +24,8 @@ the query's reach, meets, and tests the features' boxes before their distance (n
 mesh is far: one box test).
 
 **The query**, once per piece before its start guess is bounded, as the vertices' contact planes
-are found once per piece (the analytic objects' faces are queried before every sweep too: on
-the table below, querying the mesh's before every sweep made the solve 3.5 times slower): per
+are found once per piece (the analytic objects' faces are queried before every sweep too; the
+mesh's, so queried, made the table example 3 to 5 times slower: docs/vbd-contact.md): per
 cloth triangle the ``SLOTS`` nearest features within reach of the mesh posed at the
 piece's end t1 (where the vertices' contact planes are carried), each with what the vertex
 solves read:
@@ -156,8 +156,9 @@ class MeshFaces:
         self.features = ti.Vector.field(2, ti.i32, shape=self.count)
         self.features.from_numpy(self.features_np.astype(np.int32))
         # the collider's kind of grid, listing the features, refilled per frame segment; cells of
-        # the features' median length (on the table, 1.9 times faster than cells of the cloth's
-        # spacing: a triangle's query box, grown by its reach, then meets hundreds of cells)
+        # the features' median length (with cells of the cloth's spacing a triangle's query box,
+        # grown by its reach, met hundreds of cells: the table ran 1.9 times slower, querying
+        # before every sweep)
         player = collider.player
         self.grid = TriangleGrid.covering(player.frames, self.features_np, self.skin)
         capacity = max(self.grid.entries(*self._boxes(k)) for k in range(player.segment_count))
