@@ -65,6 +65,8 @@ MESH_DIP = 0.5
 # reaches five edges or more, and with 4 slots a vertex the plate pushed up could not follow it
 # (tests/test_vbd_mesh_contact.py, the thin plate)
 SLOTS = 8
+# The features' grid cells, in rooms a vertex is given per piece (about the cloth's spacing)
+GRID_ROOMS = 4
 # A pair's state (faces.py's): out of reach (FAR), else the bits of the parts it holds.
 FAR, PLANE, ENERGY = 0, 1, 2
 # A nearest point with a corner's weight above this is at that corner: the vertex's own term.
@@ -155,12 +157,10 @@ class MeshFaces:
         self.count = len(self.features_np)
         self.features = ti.Vector.field(2, ti.i32, shape=self.count)
         self.features.from_numpy(self.features_np.astype(np.int32))
-        # the collider's kind of grid, listing the features, refilled per frame segment; cells of
-        # the features' median length (with cells of the cloth's spacing a triangle's query box,
-        # grown by its reach, met hundreds of cells: the table ran 1.9 times slower, querying
-        # before every sweep)
+        # the collider's kind of grid, listing the features, refilled per frame segment, its
+        # cells GRID_ROOMS rooms: a triangle's query box, grown by its reach, meets a few
         player = collider.player
-        self.grid = TriangleGrid.covering(player.frames, self.features_np, self.skin)
+        self.grid = TriangleGrid.covering(player.frames, self.features_np, self.skin, cell=GRID_ROOMS * body.room)
         capacity = max(self.grid.entries(*self._boxes(k)) for k in range(player.segment_count))
         self.cell_start = ti.field(ti.i32, shape=self.grid.cell_count + 1)
         self.cell_features = ti.field(ti.i32, shape=max(1, capacity))
@@ -168,7 +168,6 @@ class MeshFaces:
         pair = ti.types.struct(state=ti.i32, plane_normal=vec, plane_offset=real, normal=vec, weights=vec,
                                offset=real, surface_velocity=vec)
         self.pairs = pair.field(shape=(max(1, cloth.triangle_count), SLOTS))
-        self.feature_of = ti.field(ti.i32, shape=(max(1, cloth.triangle_count), SLOTS))
         self.used = ti.field(ti.i32, shape=max(1, cloth.triangle_count))  # slots a triangle holds
         n = body.system.particle_count
         self.anchor = ti.Vector.field(3, runtime.real(), shape=n)  # each vertex at the query (m)
@@ -269,15 +268,17 @@ class MeshFaces:
                         cell = cell_id(self.grid, first, span_cells, m)
                         for e in range(self.cell_start[cell], self.cell_start[cell + 1]):
                             k = self.cell_features[e]
-                            seen = False
-                            for j in ti.static(range(SLOTS)):
-                                if kept[j] == k:
-                                    seen = True
-                            if not seen:
-                                p, q = self._ends(k, body.after, c1)
-                                # (nested ifs: Taichi evaluates both sides of an ``and``)
+                            p, q = self._ends(k, body.after, c1)
+                            # the boxes first, then whether it is kept already (listed in another
+                            # cell), then the distance (nested ifs: Taichi evaluates both sides
+                            # of an ``and``)
+                            if all(ti.max(p, q) >= lo) and all(ti.min(p, q) <= hi):
+                                seen = False
+                                for j in ti.static(range(SLOTS)):
+                                    if kept[j] == k:
+                                        seen = True
                                 d = grow
-                                if all(ti.max(p, q) >= lo) and all(ti.min(p, q) <= hi):  # boxes first
+                                if not seen:
                                     d, _, _ = self._closest(p, q, a, b, c)
                                 if d < grow:
                                     # into the slots in order of distance; the one pushed out
@@ -335,7 +336,6 @@ class MeshFaces:
             self.pairs[face, slot].offset = n.dot(on_triangle) - (separation - self.skin)
             self.pairs[face, slot].surface_velocity = (on_feature - (p0 + s * (q0 - p0))) / span
         self.pairs[face, slot].state = state
-        self.feature_of[face, slot] = k
 
     # -- the vertex solves (faces.py's face_terms and face_scale call them) ------------------------
 
