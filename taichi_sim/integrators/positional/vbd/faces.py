@@ -87,7 +87,10 @@ class ObjectFaces:
     ``fraction``, ``delta``, ``stiffness``, ``penalty_dt`` and ``_push``): the query, triangle
     terms and bounds of the module's docstring, for the obstacles whose collider tests faces
     (the scene's ``object_faces`` setting, on by default for a cloth), unless vbd's
-    ``object_faces`` option is off."""
+    ``object_faces`` option is off; and, with the collider mesh in the solve (``body``), the
+    :class:`~.mesh_faces.MeshFaces` of its sharp edges and vertices (``mesh_faces``, queried
+    once per piece by :meth:`query_mesh_faces`; ``queries_faces``: the analytic objects'
+    pairs, queried before every sweep too)."""
 
     def _init_object_faces(self, scene, enabled: bool) -> None:
         mesh = scene.mesh

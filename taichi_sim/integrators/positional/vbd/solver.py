@@ -95,9 +95,10 @@ class VBD(Integrator):
             which holds back a collapsing cloth (docs/lab/vbd.md, "The fold's pace").
         object_faces: the cloth's triangles against the objects in the solve too
             (:mod:`.faces`; default True), where the scene's ``object_faces`` is on: a box's
-            edge or a thin object cannot come between the vertices into a face. Off, the
-            objects meet vertices only, which costs less where the cloth lies across a box's
-            edges (docs/vbd.md).
+            edge or a thin object cannot come between the vertices into a face; and against a
+            collider mesh's sharp edges and vertices (:mod:`.mesh_faces`). Off, the objects
+            meet vertices only, which costs less where the cloth lies across a box's edges
+            (docs/vbd.md).
         energy_cap: on a closed scene (no wind, turbulence, moving object, kinematic pin or
             emitter) without contact in the solve, shorten a substep that would end with more
             energy (J) than it started with toward its start until it does not
