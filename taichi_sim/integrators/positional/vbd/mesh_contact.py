@@ -138,7 +138,8 @@ class MeshContact:
         """How long (s, <= ``length``) a piece from t may be: it ends at the next frame's time
         when it would pass one (the motion is then linear over the piece), and the body's largest
         move within reach of the cloth (``x`` (n, 3) m) stays below ``MESH_PACE`` x
-        ``bound_fraction`` x the room (not below ``shortest`` s)."""
+        ``bound_fraction`` x the room, or x the skin and the contact radius where the mesh has
+        sharp features (mesh_faces.py; not below ``shortest`` s)."""
         player = self.player
         if player.animated and t * player.fps < player.count - 1:
             frame_end = (np.floor(t * player.fps * (1 + 1e-12) + 1e-9) + 1) / player.fps
@@ -146,6 +147,10 @@ class MeshContact:
                 length = frame_end - t
         speed = self.near_speed(x, t, length)
         allowed = MESH_PACE * self.fraction * self.room
+        if self.faces is not None:
+            # a sharp feature moves less than the distance a face keeps from it (the skin and
+            # the contact radius) in a piece: it cannot pass a face between two queries
+            allowed = min(allowed, MESH_PACE * self.fraction * (self.skin + self.radius))
         if speed * length > allowed:
             length = max(allowed / speed, min(shortest, length))
         return length
