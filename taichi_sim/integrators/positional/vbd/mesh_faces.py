@@ -281,7 +281,9 @@ class MeshFaces:
                                         seen = True
                                 d = grow
                                 if not seen:
-                                    d, _, _ = self._closest(p, q, a, b, c)
+                                    # (one name for each part: ``_`` bound to a scalar and then a
+                                    # vector aborts Taichi's compiler at opt_level 0)
+                                    d = self._closest(p, q, a, b, c)[0]
                                 if d < grow:
                                     # into the slots in order of distance; the one pushed out
                                     # shortens the room
