@@ -16,12 +16,13 @@ DT, STEPS, SPEED = 1e-2, 30, 3.0  # 0.03 m a step, more than the objects are thi
 BELOW = (START[0], -0.05, START[2])  # under the cloth, between its vertices (see test_object_faces)
 
 
-def falling_cloth(add_object):
-    """A free horizontal cloth falling at SPEED onto an object resting at BELOW; no gravity."""
+def falling_cloth(add_object, speed=SPEED):
+    """A free horizontal cloth falling at ``speed`` (m/s) onto an object resting at BELOW; no
+    gravity."""
     x = topo.grid_positions(N, N, SIZE, SIZE, origin=(-SIZE / 2, 0.0, -SIZE / 2),
                             u_axis=(1, 0, 0), v_axis=(0, 0, 1))
     b = SceneBuilder()
-    b.add_particles(x, 0.01, v=np.tile([0.0, -SPEED, 0.0], (len(x), 1)))
+    b.add_particles(x, 0.01, v=np.tile([0.0, -speed, 0.0], (len(x), 1)))
     ends, kind = topo.grid_springs(N, N)
     b.add_springs(ends, stiffness=50.0, damping=0.0, kind=kind)
     triangles = np.asarray(topo.grid_triangles(N, N)).reshape(-1, 3)

@@ -2,8 +2,8 @@
 judged through the CLI by `taichi-sim check` on every saved frame: a skirt with self-contact on
 a body whose right leg kicks forward 60 degrees in 1/3 s, and a paddle turning through a
 hanging sheet faster than the sheet's spacing a step; and, through the API, a thin plate on a
-fast rigid path lifting a free cloth. Only the vertices are judged: the cloth's
-triangles against the mesh's edges are not in the solve (a box's edge pokes between vertices).
+fast rigid path lifting a free cloth. The CLI tests judge the vertices and the faces (the
+coarse body's and the paddle's edges against the cloth's triangles: mesh_faces.py).
 The CLI tests fail with the mesh met after the step instead (its post-step pass), and all three
 without the contact planes carried to the piece's end."""
 import kicking_body as body
@@ -33,6 +33,7 @@ def test_a_skirt_with_self_contact_on_a_kicking_leg_is_not_passed_through(tmp_pa
         "--set", f"collider_mesh={pattern}", "--t-end", "0.45"], str(tmp_path / "kick.npz"))
     assert "no triangles intersect" in report
     assert "no vertex inside the collider mesh in any frame" in report
+    assert "no face reaches into the collider mesh in any frame" in report  # the coarse body's edges
     # the leg reached the cloth: it is pushed forward (+z) at the front
     x = np.load(tmp_path / "kick.npz")["x_history"]
     assert x[-1][:, 2].max() > x[0][:, 2].max() + 0.05
@@ -47,6 +48,7 @@ def test_a_fast_paddle_through_a_hanging_sheet_does_not_pass_it(tmp_path, capsys
         "mesh", "--set", f"file={sheet}", "--set", "pin=top:0.005", "--set", f"collider_mesh={pattern}",
         "--set", "collider_mesh_fps=60", "--t-end", "0.45"], str(tmp_path / "paddle.npz"))
     assert "no vertex inside the collider mesh in any frame" in report
+    assert "no face reaches into the collider mesh in any frame" in report  # the paddle's edges
     x = np.load(tmp_path / "paddle.npz")["x_history"]
     assert x[-1][:, 2].max() > 0.1  # the paddle swept the sheet's lower part forward
 

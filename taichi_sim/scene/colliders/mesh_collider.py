@@ -27,7 +27,8 @@ The triangles are found through a uniform grid over every frame of the mesh in i
 frame segment, grown by ``skin``, reaches it, refilled with numpy when the segment changes (a
 rigid mesh: once). Cloth faces are not tested against the mesh's edges (the vertex test only):
 a mesh edge sharper than the cloth's spacing can cut between vertices (the sphere, capsule and
-box have :class:`FaceContact` for that).
+box have :class:`FaceContact` for that; vbd's solve, which replaces this pass, keeps the cloth's
+triangles off the mesh's sharp edges: integrators/positional/vbd/mesh_faces.py).
 """
 from dataclasses import dataclass, field
 
@@ -40,7 +41,7 @@ from ...collide.friction import inelastic_friction
 from ...collide.objects import FAR
 from ...part import MovingSource, PartSpec, ScenePart, SolidMesh
 from .mesh_frames import FramePlayer
-from .mesh_grid import TriangleGrid
+from .mesh_grid import TriangleGrid, cell_id, cells
 from .path import PathFields, SpherePath
 from .step_start import StepStart
 
@@ -265,19 +266,12 @@ class MeshCollider(ScenePart):
     def _cells(self, lo, hi):
         """The grid's cell range (first, last, each an int vector) that the box [lo, hi] (mesh
         frame) reaches; first > last on some axis when it lies outside the grid."""
-        origin = ti.Vector(self.grid_origin)
-        dims = ti.Vector(self.dims)
-        first = ti.cast(ti.floor((lo - origin) / self.cell), ti.i32)
-        last = ti.cast(ti.floor((hi - origin) / self.cell), ti.i32)
-        return ti.max(first, 0), ti.min(last, dims - 1)
+        return cells(self.grid, lo, hi)
 
     @ti.func
     def _cell_id(self, first, span, k):
         """The grid index of the k-th cell of the block of ``span`` cells from ``first``."""
-        ix = first[0] + k // (span[1] * span[2])
-        iy = first[1] + (k // span[2]) % span[1]
-        iz = first[2] + k % span[2]
-        return (ix * self.dims[1] + iy) * self.dims[2] + iz
+        return cell_id(self.grid, first, span, k)
 
     @ti.func
     def _crossing(self, a, b, reach):

@@ -1,10 +1,13 @@
-"""The uniform grid through which the mesh collider finds its triangles (numpy, once per frame
-segment). Its geometry (origin, cell, dims) is fixed for the run, since the kernels take it as
-compile-time constants; its lists are refilled when a frame sequence moves to its next segment.
+"""The uniform grid through which the mesh collider finds its triangles (and vbd's solve the
+mesh's sharp features: integrators/positional/vbd/mesh_faces.py), listed with numpy once per
+frame segment. Its geometry (origin, cell, dims) is fixed for the run, since the kernels take
+it as compile-time constants (:func:`cells`, :func:`cell_id`); its lists are refilled when a
+frame sequence moves to its next segment.
 """
 from dataclasses import dataclass
 
 import numpy as np
+import taichi as ti
 
 # The grid's most cells: its cells are the mesh's median edge, or larger to stay below this.
 MAX_CELLS = 32**3
@@ -19,14 +22,17 @@ class TriangleGrid:
     dims: tuple[int, int, int]
 
     @classmethod
-    def covering(cls, frames: np.ndarray, triangles: np.ndarray, margin: float) -> "TriangleGrid":
+    def covering(cls, frames: np.ndarray, triangles: np.ndarray, margin: float,
+                 cell: float | None = None) -> "TriangleGrid":
         """The grid over every vertex of ``frames`` (F, V, 3) m grown by ``margin`` (m), its
-        cells about the first frame's median edge."""
+        cells ``cell`` (m) or, without it, about the first frame's median edge of ``triangles``
+        ((T, 3) ids), larger where more than ``MAX_CELLS`` would be needed."""
         lo = frames.min(axis=(0, 1)) - margin
         extent = frames.max(axis=(0, 1)) + margin - lo
-        corners = frames[0][triangles]
-        edges = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2)
-        cell = max(float(np.median(edges)), float(np.prod(extent) / MAX_CELLS) ** (1 / 3), 1e-6)
+        if cell is None:
+            corners = frames[0][triangles]
+            cell = float(np.median(np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2)))
+        cell = max(cell, float(np.prod(extent) / MAX_CELLS) ** (1 / 3), 1e-6)
         dims = np.maximum(1, np.ceil(extent / cell).astype(np.int64))
         while np.prod(dims) > MAX_CELLS:  # a flat mesh: the volume rule above allows too many
             cell *= 1.25
@@ -65,3 +71,24 @@ class TriangleGrid:
         start = np.zeros(self.cell_count + 1, np.int64)
         np.cumsum(np.bincount(cells, minlength=self.cell_count), out=start[1:])
         return start, owner[order]
+
+
+@ti.func
+def cells(grid: ti.template(), lo, hi):
+    """The cell range (first, last, each an int vector) of ``grid`` (a :class:`TriangleGrid`)
+    that the box [lo, hi] (m, the grid's frame) reaches; first > last on some axis when it lies
+    outside the grid."""
+    origin = ti.Vector(grid.origin)
+    dims = ti.Vector(grid.dims)
+    first = ti.cast(ti.floor((lo - origin) / grid.cell), ti.i32)
+    last = ti.cast(ti.floor((hi - origin) / grid.cell), ti.i32)
+    return ti.max(first, 0), ti.min(last, dims - 1)
+
+
+@ti.func
+def cell_id(grid: ti.template(), first, span, k):
+    """The index in ``grid`` of the k-th cell of the block of ``span`` cells from ``first``."""
+    ix = first[0] + k // (span[1] * span[2])
+    iy = first[1] + (k // span[2]) % span[1]
+    iz = first[2] + k % span[2]
+    return (ix * grid.dims[1] + iy) * grid.dims[2] + iz

@@ -53,7 +53,8 @@ class SolveContact(ObjectFaces):
             cloth mesh).
         delta: the integrator's (n,) displacement field x - x0 (m) (read for the slip).
         objects: put the scene's objects in the solve.
-        object_faces: with ``objects``, the cloth's triangles against them too (faces.py).
+        object_faces: with ``objects``, the cloth's triangles against them too (faces.py;
+            a collider mesh's sharp edges and vertices: mesh_faces.py).
         self_contact: put the cloth against itself in the solve (needs a mesh).
         radius: contact radius r (m).
     """

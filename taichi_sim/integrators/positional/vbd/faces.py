@@ -54,6 +54,7 @@ import numpy as np
 import taichi as ti
 
 from .... import runtime
+from .mesh_faces import MeshFaces, sharp_features
 
 # A nearest point with a corner's weight above this is at that corner: the vertex's own term.
 AT_CORNER = 1.0 - 1e-6
@@ -86,15 +87,20 @@ class ObjectFaces:
     ``fraction``, ``delta``, ``stiffness``, ``penalty_dt`` and ``_push``): the query, triangle
     terms and bounds of the module's docstring, for the obstacles whose collider tests faces
     (the scene's ``object_faces`` setting, on by default for a cloth), unless vbd's
-    ``object_faces`` option is off."""
+    ``object_faces`` option is off; and, with the collider mesh in the solve (``body``), the
+    :class:`~.mesh_faces.MeshFaces` of its sharp edges and vertices (``mesh_faces``, queried
+    once per piece by :meth:`query_mesh_faces`; ``queries_faces``: the analytic objects'
+    pairs, queried before every sweep too)."""
 
     def _init_object_faces(self, scene, enabled: bool) -> None:
         mesh = scene.mesh
         # (collider, needed: (count,) i32, pairs: (triangles, count) struct) per face-testing kind
         self.face_pairs = []
+        self.mesh_faces = None  # the collider mesh's sharp features against the triangles (mesh_faces.py)
         if mesh is not None and enabled:
             rest = scene.rest_x if scene.rest_x is not None else scene.state.to_numpy()[0]
-            dip = FACE_STRETCH ** 2 * largest_circumradius(rest, mesh.triangles_np) ** 2 / 2.0
+            rho = largest_circumradius(rest, mesh.triangles_np)
+            dip = FACE_STRETCH ** 2 * rho ** 2 / 2.0
             real = runtime.real()
             vec = ti.types.vector(3, real)
             pair = ti.types.struct(state=ti.i32, plane_normal=vec, plane_offset=real, normal=vec, weights=vec,
@@ -110,7 +116,16 @@ class ObjectFaces:
                     flags.from_numpy(np.asarray(needed, np.int32))
                     pairs = pair.field(shape=(max(1, mesh.triangle_count), collider.count))
                     self.face_pairs.append((collider, flags, pairs))
-        self.has_object_faces = bool(self.face_pairs)
+            body = self.body
+            if body is not None:
+                features = sharp_features(body.player.frames, body.collider.triangles_np, body.orientation,
+                                          FACE_STRETCH * rho, body.skin)
+                if len(features):
+                    self.mesh_faces = body.faces = MeshFaces(body, features, mesh)
+        self.has_mesh_faces = self.mesh_faces is not None
+        # the analytic objects' pairs, queried before every sweep (the mesh's: once per piece)
+        self.queries_faces = bool(self.face_pairs)
+        self.has_object_faces = self.queries_faces or self.has_mesh_faces
         if not self.has_object_faces:
             return
         self.face_mesh = mesh
@@ -138,7 +153,7 @@ class ObjectFaces:
     def query_faces(self, x, t):
         """Each (triangle, object) pair's contact and plane at positions x (an (n,) field, m)
         and time t (s), for the vertex solves until the next query (a loop of the kernel)."""
-        if ti.static(self.has_object_faces):
+        if ti.static(self.queries_faces):
             mesh = self.face_mesh
             reach = self.face_reach[None]
             for i in range(x.shape[0]):
@@ -172,6 +187,13 @@ class ObjectFaces:
                                     pairs[face, o].offset = (w[0] * a + w[1] * b + w[2] * c).dot(n) - d + n.dot(centre)
                                     pairs[face, o].surface_velocity = collider.surface_velocity(o, t, z)
                     pairs[face, o].state = state
+
+    @ti.func
+    def query_mesh_faces(self, x):
+        """The collider mesh's sharp features against the triangles at positions x (an (n,)
+        field, m), once per piece, at its start (mesh_faces.py; loops of the kernel)."""
+        if ti.static(self.has_mesh_faces):
+            self.mesh_faces.query(x, self.face_reach[None])
 
     @ti.func
     def _corners(self, tri, x, i, p):
@@ -215,6 +237,8 @@ class ObjectFaces:
                                 slip = (w[0] * self.delta[tri[0]] + w[1] * self.delta[tri[1]]
                                         + w[2] * self.delta[tri[2]]) - dt * pairs[face, o].surface_velocity
                                 f, H = self._push(f, H, d, n, k, w[slot], slip, collider.friction[o], dt)
+            if ti.static(self.has_mesh_faces):
+                f, H = self.mesh_faces.terms(self, i, x, dt, k, f, H)
         return f, H
 
     @ti.func
@@ -233,8 +257,11 @@ class ObjectFaces:
                         if pairs[face, o].state & PLANE:
                             n = pairs[face, o].plane_normal
                             scale = ti.min(scale, self._approach_scale(p.dot(n) - pairs[face, o].plane_offset, n, step))
-            length = step.norm()
-            left = self.fraction * self.face_room[i] - (p - self.face_anchor[i]).norm()
-            if length > left:
-                scale = ti.min(scale, ti.max(left, 0.0) / length)
+            if ti.static(self.queries_faces):
+                length = step.norm()
+                left = self.fraction * self.face_room[i] - (p - self.face_anchor[i]).norm()
+                if length > left:
+                    scale = ti.min(scale, ti.max(left, 0.0) / length)
+            if ti.static(self.has_mesh_faces):
+                scale = self.mesh_faces.scale(self, i, p, step, scale)
         return scale

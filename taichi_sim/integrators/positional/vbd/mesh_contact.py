@@ -34,9 +34,8 @@ vertex the body's motion put behind the plane at t1 (by at most the body's move 
 goes no deeper than it was. So in front of the plane and within the ball, the vertex meets no
 triangle at t1, whatever the body's shape.
 
-Not here: the cloth's triangles against the mesh's vertices and edges (a bump of the body
-sharper than the cloth's spacing can poke between cloth vertices), which the analytic shapes
-have (faces.py).
+The cloth's triangles against the mesh's sharp edges and vertices (a bump of the body sharper
+than the cloth's spacing, which could poke between cloth vertices) are mesh_faces.py's.
 """
 import numpy as np
 import taichi as ti
@@ -120,6 +119,10 @@ class MeshContact:
         self.floor = ti.field(real, shape=n)
         self.anchor = ti.Vector.field(3, real, shape=n)  # x0 (m)
         self.ball = ti.field(real, shape=n)  # how far from x0 the vertex may move this piece (m)
+        self.centre = ti.Vector.field(3, real, shape=2)  # the mesh's origin at the piece's start, end (m)
+        self.span = ti.field(real, shape=())  # the piece's length (s)
+        self.motion = ti.field(real, shape=())  # the body's largest move near the cloth over the piece (m)
+        self.faces = None  # the cloth's triangles against the sharp features (mesh_faces.py), if any
         self.detections = 0
         self.last_t = None
         self._speeds = (-1, None)
@@ -135,7 +138,8 @@ class MeshContact:
         """How long (s, <= ``length``) a piece from t may be: it ends at the next frame's time
         when it would pass one (the motion is then linear over the piece), and the body's largest
         move within reach of the cloth (``x`` (n, 3) m) stays below ``MESH_PACE`` x
-        ``bound_fraction`` x the room (not below ``shortest`` s)."""
+        ``bound_fraction`` x the room, or x the skin and the contact radius where the mesh has
+        sharp features (mesh_faces.py; not below ``shortest`` s)."""
         player = self.player
         if player.animated and t * player.fps < player.count - 1:
             frame_end = (np.floor(t * player.fps * (1 + 1e-12) + 1e-9) + 1) / player.fps
@@ -143,6 +147,10 @@ class MeshContact:
                 length = frame_end - t
         speed = self.near_speed(x, t, length)
         allowed = MESH_PACE * self.fraction * self.room
+        if self.faces is not None:
+            # a sharp feature moves less than the distance a face keeps from it (the skin and
+            # the contact radius) in a piece: it cannot pass a face between two queries
+            allowed = min(allowed, MESH_PACE * self.fraction * (self.skin + self.radius))
         if speed * length > allowed:
             length = max(allowed / speed, min(shortest, length))
         return length
@@ -178,7 +186,10 @@ class MeshContact:
         numpy): the module docstring. ``largest_move``: the most a cloth vertex is expected to
         move in the piece (m), which the reach grows by so that a vertex's guess fits its bound."""
         collider, player = self.collider, self.player
-        collider.list_segment(player.segment(0.5 * (t0 + t1))[0])
+        segment = player.segment(0.5 * (t0 + t1))[0]
+        collider.list_segment(segment)
+        if self.faces is not None:
+            self.faces.list_segment(segment)
         npr = runtime.np_real()
         start = player.vertices(t0)
         self.before.from_numpy(start.astype(npr))
@@ -194,7 +205,7 @@ class MeshContact:
             # to two grid cells around it (the query's cost; a vertex beyond gets what reach leaves)
             room = max(room, min(largest_move / self.fraction, 2.0 * collider.cell))
         reach = self.skin + self.radius + motion + room
-        self._detect(x, ti.Vector(list(c0)), ti.Vector(list(c1)), reach, motion)
+        self._detect(x, ti.Vector(list(c0)), ti.Vector(list(c1)), reach, motion, t1 - t0)
         self.detections += 1
         self.last_t = t1
 
@@ -255,8 +266,11 @@ class MeshContact:
 
     @ti.kernel
     def _detect(self, x: ti.template(), c0: ti.types.vector(3, float), c1: ti.types.vector(3, float),
-                reach: float, motion: float):
+                reach: float, motion: float, span: float):
         lo, hi = ti.Vector(self.box_lo), ti.Vector(self.box_hi)
+        self.centre[0], self.centre[1] = c0, c1
+        self.span[None] = span
+        self.motion[None] = motion
         for i in range(self.system.particle_count):
             self.state[i] = 0
             self.anchor[i] = x[i]

@@ -95,9 +95,10 @@ class VBD(Integrator):
             which holds back a collapsing cloth (docs/lab/vbd.md, "The fold's pace").
         object_faces: the cloth's triangles against the objects in the solve too
             (:mod:`.faces`; default True), where the scene's ``object_faces`` is on: a box's
-            edge or a thin object cannot come between the vertices into a face. Off, the
-            objects meet vertices only, which costs less where the cloth lies across a box's
-            edges (docs/vbd.md).
+            edge or a thin object cannot come between the vertices into a face; and against a
+            collider mesh's sharp edges and vertices (:mod:`.mesh_faces`). Off, the objects
+            meet vertices only, which costs less where the cloth lies across a box's edges
+            (docs/vbd.md).
         energy_cap: on a closed scene (no wind, turbulence, moving object, kinematic pin or
             emitter) without contact in the solve, shorten a substep that would end with more
             energy (J) than it started with toward its start until it does not
@@ -389,7 +390,7 @@ class VBD(Integrator):
         if self.contact is None or not self.contact.obstacles:
             kernels["sweep_unrolled"](dt, t, omega, index)
             return
-        if self.contact.has_object_faces:
+        if self.contact.queries_faces:
             kernels["query"](t)
         for c in range(self.colour_count):
             kernels["colour"](dt, t, c)
@@ -431,6 +432,7 @@ class VBD(Integrator):
             # the triangles near the objects along the guess (faces.py), for its bounds
             self.contact.measure_face_reach(self.delta)
             self.contact.query_faces(self.start_x, t)
+            self.contact.query_mesh_faces(self.start_x)
             # The guess kept within the bounds, measured from the mean guess (a falling cloth
             # moves as a whole); from none where an object stops a vertex short of that.
             self.contact.fit_shift(self.delta, self.system.free)
