@@ -60,7 +60,16 @@ def test_ctrl_c_ends_simulate_with_one_line_and_status_130(tmp_path, seconds):
     assert not out.exists()
 
 
-def test_a_ctrl_c_while_loading_is_held_until_the_load_is_done(monkeypatch):
+@pytest.fixture
+def ctrl_c_as_at_a_terminal():
+    """SIGINT at Python's default for the test: a suite started in the background of a script
+    inherits it ignored, and :func:`interrupt.install` then rightly leaves it alone."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)
+
+
+def test_a_ctrl_c_while_loading_is_held_until_the_load_is_done(ctrl_c_as_at_a_terminal):
     restore = interrupt.install()
     try:
         with pytest.raises(KeyboardInterrupt):
@@ -74,7 +83,7 @@ def test_a_ctrl_c_while_loading_is_held_until_the_load_is_done(monkeypatch):
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
 
 
-def test_a_ctrl_c_that_taichi_swallows_is_raised_again():
+def test_a_ctrl_c_that_taichi_swallows_is_raised_again(ctrl_c_as_at_a_terminal):
     restore = interrupt.install()
     try:
         try:  # what Taichi's kernel decorator does with any exception
