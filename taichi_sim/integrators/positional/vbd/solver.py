@@ -95,10 +95,9 @@ class VBD(Integrator):
             which holds back a collapsing cloth (docs/lab/vbd.md, "The fold's pace").
         object_faces: the cloth's triangles against the objects in the solve too
             (:mod:`.faces`; default True), where the scene's ``object_faces`` is on: a box's
-            edge or a thin object cannot come between the vertices into a face; and against a
-            collider mesh's sharp edges and vertices (:mod:`.mesh_faces`). Off, the objects
-            meet vertices only, which costs less where the cloth lies across a box's edges
-            (docs/vbd.md).
+            edge, a thin object or a collider mesh's sharp edges (:mod:`.mesh_faces`) cannot
+            come between the vertices into a face. Off, the objects meet vertices only, which
+            costs less where the cloth lies across a box's edges (docs/vbd.md).
         energy_cap: on a closed scene (no wind, turbulence, moving object, kinematic pin or
             emitter) without contact in the solve, shorten a substep that would end with more
             energy (J) than it started with toward its start until it does not
@@ -188,11 +187,10 @@ class VBD(Integrator):
         self.gravity = system.term("gravity")
         self.has_gravity = self.gravity is not None
         membrane, bending = system.term("membrane"), system.term("bending")
-        self.membrane_terms = MembraneTerms(membrane, bending) if membrane is not None or bending is not None \
-            else None
-        self.has_membrane = self.membrane_terms is not None
+        self.has_membrane = membrane is not None or bending is not None
+        self.membrane_terms = MembraneTerms(membrane, bending) if self.has_membrane else None
         self._merit_skip = MembraneTerms.names if self.has_membrane else ()  # _merit sums them per element
-        own = {"springs", *(MembraneTerms.names if self.has_membrane else ())}
+        own = {"springs", *self._merit_skip}
         self.others = [term for term in system.terms if term.name not in own]
         self.point = system.make_state()  # the iterate (x, v = (x - x0) / dt)
         self.start_x = ti.Vector.field(3, real, shape=n)  # x0 (m)
@@ -513,9 +511,8 @@ class VBD(Integrator):
     @ti.func
     def _merit(self, dt):
         """Backward Euler's incremental potential at the iterate, up to a constant (J):
-        1/2 |v - v0|_M^2 + U(x) + dt R(x, v); top-level loops (the membrane's and the bending's
-        terms triangle by triangle and stencil by stencil, each once: per vertex, each would be
-        evaluated at each of its corners)."""
+        1/2 |v - v0|_M^2 + U(x) + dt R(x, v); top-level loops (the membrane and bending by
+        element, once each, not at each of their corners)."""
         total = ti.cast(0.0, self.delta.dtype)
         for i in range(self.system.particle_count):
             u, r = self.system.potential_and_dissipation_at(i, self.point, ti.static(self._merit_skip))
