@@ -176,6 +176,26 @@ def test_work_that_does_not_help_is_not_kept(f64):
     assert len(result.warnings) >= 1 and "iterations 10 -> 20 moved the estimate only" in result.warnings[0]
 
 
+def test_past_a_work_option_that_does_not_help_the_next_one_is_raised(f64):
+    # A method offers two kinds of work in turn (vbd with self-contact: its pace share, then its
+    # substeps). The first does nothing here: the Stepper puts it back and moves on to the
+    # second, which brings the stiff cloth within the tolerance, so the run does not warn.
+    from taichi_sim.integrators.positional.xpbd import XPBD
+
+    class Idle(XPBD):
+        idle = 1  # doubled by the tolerance, read by nothing
+
+        @property
+        def work_options(self):
+            return (("idle", 8), ("substeps", 320))
+
+    scene = stiff_cloth(size=8, k=1e6)
+    integrator = Idle(scene.system)
+    result = ts.run(scene, integrator, dt=1 / 60, steps=6, tolerance=1e-5)
+    assert integrator.idle == 1 and integrator.substeps > 20
+    assert not result.warnings and result.worst_error_estimate <= 1e-5
+
+
 def test_vbd_meets_a_tolerance_on_stiff_cloth_by_taking_substeps(f64):
     # Where its sweeps stall (k = 1e6 N/m), substeps of dt / 2^k bring each substep to its
     # solution: the run takes them and ends within the tolerance, without a warning.

@@ -99,8 +99,9 @@ def tolerance_help(classes) -> str:
         spec = option_specs(cls)[option]
         name = spec.flag or f"--option {option}"
         count = spec.kinds[0] is int  # a count doubles, a tolerance shrinks tenfold (Stepper._raise_work)
-        raised.setdefault(f"{name} doubled up to {cls.work_cap:g}" if count
-                          else f"{name} divided by ten down to {cls.work_cap:g}", []).append(cls.name)
+        does = f"{name} doubled up to {cls.work_cap:g}" if count else f"{name} divided by ten down to {cls.work_cap:g}"
+        note = getattr(cls, "work_note", "")
+        raised.setdefault(f"{does} ({note})" if note else does, []).append(cls.name)
         promise = getattr(getattr(cls, "equation", None), "promise", "")
         (fail if promise == EXACT else warn).append(cls.name)
     if not raised:

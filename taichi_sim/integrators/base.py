@@ -131,6 +131,12 @@ class Integrator(ABC):
     work_cap: float = 0
     """The furthest ``work_option`` may go under a tolerance (the largest count, the smallest
     tolerance)."""
+
+    @property
+    def work_options(self) -> tuple:
+        """(option, cap) pairs a tolerance raises in turn: the next once one is at its cap or
+        stops helping (the Stepper); by default ``work_option`` alone."""
+        return ((self.work_option, self.work_cap),) if self.work_option else ()
     work_weight: float = 1.0
     """What a unit of the method's reported work costs, relative to a sweep over springs (the
     convergence monitor's cost model: how often a run can pay for a sample)."""

@@ -10,6 +10,16 @@ from ..integrators import Integrator, Status, StepReport, integrator_class
 from .binding import bind_integrator, check_dt
 from .failure import Failure, failure_advice
 
+
+def work_options(integrator) -> tuple:
+    """The (option, cap) pairs a tolerance raises, in order (the integrator's ``work_options``,
+    else its one ``work_option`` and ``work_cap``)."""
+    options = getattr(integrator, "work_options", None)
+    if options is not None:
+        return tuple(options)
+    option = getattr(integrator, "work_option", "")
+    return ((option, integrator.work_cap),) if option else ()
+
 #: Work that brings a step's estimated error down by less than this factor has stalled (the
 #: Stepper stops raising it, :meth:`Stepper._converged`).
 STALLED = 0.7
@@ -132,9 +142,10 @@ class Stepper:
         self.h = self.dt
         # The option whose work --tolerance may raise: the method's, unless the caller set it
         # (``--iterations N`` means exactly N).
-        option = getattr(integrator, "work_option", "")
-        self.work_option = (option if self.raise_work and self.monitor.active and option
-                            and option not in getattr(integrator, "given_options", ()) else "")
+        given = getattr(integrator, "given_options", ())
+        self._work_options = tuple((name, cap) for name, cap in work_options(integrator) if name not in given) \
+            if self.raise_work and self.monitor.active else ()
+        self.work_option = self._work_options[0][0] if self._work_options else ""
         if self.work_option and self._step_start is None:
             self._step_start = self.scene.system.make_state()
 
@@ -352,6 +363,9 @@ class Stepper:
             if not self._raise_work():
                 if self.work_option:
                     stopped = f"stopped at the cap of {self.work_option} = {before}"
+                    if self._next_work_option():
+                        stopped = ""
+                        continue
                 break
             if self._attempt is None:
                 self._attempt = self.scene.system.make_state()
@@ -379,7 +393,9 @@ class Stepper:
                     self.scene.state.copy_from(self._attempt)
                     monitor.forget_last()
                     monitor.record(self.t, earlier_value, earlier)
-                    distance = earlier
+                    distance, value = earlier, earlier_value
+                if self._next_work_option():  # the method's next kind of work may help
+                    stopped = ""
         if not monitor.exceeds(distance):
             return True
         if monitor.promises_exact:
@@ -400,6 +416,16 @@ class Stepper:
         energy = self.scene.system.health(self.scene.state, guard.center).energy
         return energy is not None and not energy <= guard.energy_bound(self.t)[0]
 
+    def _next_work_option(self) -> bool:
+        """Move on to the method's next work option (:func:`work_options`) for this and later
+        steps; False when there is none."""
+        names = [name for name, _ in self._work_options]
+        following = names.index(self.work_option) + 1 if self.work_option in names else len(names)
+        if following >= len(names):
+            return False
+        self.work_option = names[following]
+        return True
+
     def _raise_work(self) -> bool:
         """Double the method's work count, or divide its relative tolerance by ten, up to its
         cap; False when it is there."""
@@ -407,7 +433,7 @@ class Stepper:
         if not option:
             return False
         value = getattr(self.integrator, option)
-        cap = self.integrator.work_cap
+        cap = dict(self._work_options)[option]
         if isinstance(value, int):
             if value >= cap:
                 return False

@@ -14,7 +14,7 @@ from ....errors import ConfigError
 from .faces import ObjectFaces
 from .mesh_contact import FOUND, MeshContact, median_edge
 
-CONTACTS_PER_VERTEX = 64  # contact pairs a vertex keeps between refreshes; more are counted, not kept
+CONTACTS_PER_VERTEX = 128  # contact pairs a vertex keeps between refreshes; more are counted, not kept
 PAIRS_PER_VERTEX = 16  # room in the pair list per vertex
 OVERSHOOT_BINS, OVERSHOOT_BINS_PER_OCTAVE = 64, 8  # the histogram of how far guesses leave the bounds
 SELF_CONTACT = 1  # flag of a vertex in a self-contact pair (SolveContact.mark_contacts)

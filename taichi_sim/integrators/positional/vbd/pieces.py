@@ -9,9 +9,10 @@ substep is therefore cut short where
 
 * the scene's scripted pins would move further than their bounds (:mod:`.pins`; always);
 * the start guess would leave the bounds, with ``contact_pieces`` > 1: the piece is begun
-  again, shortened once to where the guesses of all but ``PACE_SHARE`` of the free vertices
+  again, shortened once to where the guesses of all but ``pace_share`` of the free vertices
   would fit (a few vertices jiggling in a settled pile do not cut every step into pieces;
-  theirs are cut as before), at most ``contact_pieces`` pieces a substep for this (the pins'
+  theirs are cut as before: a cut vertex stops short of the step's solution, so under a
+  ``--tolerance`` the share is what vbd's work follows, down to none), at most ``contact_pieces`` pieces a substep for this (the pins'
   pieces come on top, up to ``MAX_PIECES``).
 
 Each piece is a backward Euler step of its own length, where the motion needs it, and a
@@ -24,7 +25,7 @@ import numpy as np
 
 MAX_PIECES = 256  # pieces of one substep before the step is given up (pins the cloth cannot let by)
 PACE_FIT = 0.9  # a piece shortened for the pace aims its guess at this share of the bounds
-PACE_SHARE = 0.005  # ... for all but this share of the free vertices (a few jiggling in a pile)
+PACE_SHARE = 0.005  # ... for all but this share of the free vertices (a few jiggling in a pile): the default
 MESH_RETRIES = 3  # shortenings of a piece where a moving collider mesh pushes a vertex past its bounds
 # what a substep returns instead of its non-finite particle count when it cannot go on
 LOST_PAIRS = -1  # a detection could miss pairs (positions non-finite or beyond its hash)
@@ -43,10 +44,13 @@ class PieceSchedule:
     Args:
         most: the most pieces (``contact_pieces``) a substep may be cut into for the start
             guess to fit the bounds (the scripted pins' pieces come on top).
+        pace_share: the share of the free vertices whose start guess may still leave its bound
+            (then cut to it) without a shorter piece (vbd's ``pace_share``, read at each substep).
     """
 
-    def __init__(self, most: int):
+    def __init__(self, most: int, pace_share: float = PACE_SHARE):
         self.most = most
+        self.pace_share = pace_share
         self.pieces = 0  # pieces run since construction
         self.last_length = 0.0  # the last piece's length (s): the next one's previous_dt
         self.refreshes = 1  # self-contact detections a piece
@@ -131,7 +135,7 @@ class PieceSchedule:
                 body.detect(state.x, t, t + piece, speed * piece, x)
         kernels["begin"](piece, use_acceleration, previous_dt, t + piece, 0)
         if pieces_left > 1 and contact.self_contact:
-            over = contact.overshoot_above(PACE_SHARE)
+            over = contact.overshoot_above(self.pace_share)
             if over > 1.0:
                 shorter = max(piece * PACE_FIT / over, remaining / pieces_left)
                 if shorter < piece:

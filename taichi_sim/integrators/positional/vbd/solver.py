@@ -18,7 +18,7 @@ from .contact_model import solve_forces
 from .energy import EnergyCap, closed_scene
 from .kernels import bind_kernels, serial_sweeps
 from .membranes import MembraneTerms
-from .pieces import FAILURES, PieceSchedule
+from .pieces import FAILURES, PACE_SHARE, PieceSchedule
 from .scene import ContactSetup, contact_setup
 from .springs import SpringTerms
 
@@ -55,11 +55,9 @@ class VBD(Integrator):
     ``chebyshev_rho`` > 0 over-relaxes each sweep with Chebyshev weights (Wang 2015; the paper's
     acceleration) for that estimated spectral radius.
 
-    What it converges to: with enough sweeps, the exact backward Euler step of dt (the fixed
-    point of the sweeps is r = 0 for every vertex: the same equation the Newton methods solve,
-    dashpots included). With few sweeps a stiff cloth is left unsolved: a vertex step cannot
-    carry the motion of the cloth as a whole, which lags behind the exact step's (docs/vbd.md). The work per step is fixed (``iterations`` sweeps, no tolerance), and
-    the residual the run measures (:mod:`taichi_sim.convergence`) says how far a step is.
+    What it converges to: with enough sweeps, the exact backward Euler step of dt (r = 0 for
+    every vertex, dashpots included). With few a stiff cloth lags behind it (docs/vbd.md); the
+    work is as set unless a run's tolerance raises it (:attr:`work_options`).
 
     Args:
         system: a particle system (second order).
@@ -89,10 +87,9 @@ class VBD(Integrator):
         contact_refresh: sweeps between self-contact detections; 0 (default): once per piece of
             a substep (:mod:`.pieces`).
         contact_pieces: with self-contact, the most pieces (default 16) a substep may be cut
-            into so that its start guess stays within the contact bounds for all but 0.5 % of
-            the vertices (each piece a detection and its sweeps; :mod:`.pieces`; a scene's
-            scripted pins may need more, up to 256); 1: one piece, the guess cut to the bounds,
-            which holds back a collapsing cloth (docs/lab/vbd.md, "The fold's pace").
+            into so that the start guesses of all but ``pace_share`` (default 0.005) of the
+            free vertices stay within their bounds, the others cut to them (:mod:`.pieces`; the
+            scripted pins may need more, up to 256); 1: one piece, every guess cut.
         object_faces: the cloth's triangles against the objects in the solve too
             (:mod:`.faces`; default True), where the scene's ``object_faces`` is on: a box's
             edge, a thin object or a collider mesh's sharp edges (:mod:`.mesh_faces`) cannot
@@ -117,6 +114,7 @@ class VBD(Integrator):
     # the stiffness ratio k dt^2 / m, where more sweeps stall on stiff cloth (16 x 16, k = 1e6:
     # 20 -> 40 sweeps 3.6 -> 2.9 mm, 1 -> 8 substeps 2.9 mm -> 0.23 mm; docs/integrators.md).
     work_option, work_cap = "substeps", 64
+    work_note = "with self-contact in its solve, first --option pace_share divided by ten to none"
     tracks_solved_start = True
     # No step-size limit: each sweep lowers the incremental potential at any step. An unconverged
     # step may still gain energy, which the energy cap takes back on closed scenes (energy.py).
@@ -158,6 +156,8 @@ class VBD(Integrator):
                                                    at_least=0)] = 0,
             contact_pieces: Annotated[int, Option("most pieces a substep with self-contact is cut into",
                                                   at_least=1)] = 16,
+            pace_share: Annotated[float, Option("share of the vertices a piece may cut to their contact bounds",
+                                                at_least=0, below=1)] = PACE_SHARE,
             object_faces: Annotated[bool, Option("the cloth's triangles against the objects too")] = True,
             energy_cap: Annotated[bool, Option("cap a closed scene's energy per substep")] = True):
         super().__init__(system)
@@ -180,7 +180,7 @@ class VBD(Integrator):
         self._attached = None  # the scene attached (attach_scene)
         self.cap = EnergyCap(system)
         self.cap_active = False  # set by attach_scene on a closed scene (read by the kernels)
-        self.schedule = PieceSchedule(self.contact_pieces)
+        self.schedule = PieceSchedule(self.contact_pieces, float(pace_share))
         real, n = runtime.real(), system.particle_count
         self.springs = system.term("springs")
         self.has_springs = self.springs is not None
@@ -237,6 +237,18 @@ class VBD(Integrator):
     work_weight = property(lambda self: self.setup.work_weight)
     capped = property(lambda self: self.cap.capped, doc="Substeps the energy cap shortened (0-d i32 field).")
     pieces = property(lambda self: self.schedule.pieces, doc="Pieces of substeps run with contact (pieces.py).")
+    pace_share = property(lambda self: self.schedule.pace_share,
+                          lambda self, share: setattr(self.schedule, "pace_share", float(share)))
+
+    @property
+    def work_options(self) -> tuple:
+        """With self-contact, a tolerance first lowers the share of vertices a piece cuts to
+        their bounds (to none: below half a vertex), which holds a step back most, then doubles
+        the substeps."""
+        substeps = ((self.work_option, self.work_cap),)
+        if not self.has_self_contact:
+            return substeps
+        return (("pace_share", 0.5 / max(self.contact.free_count, 1)),) + substeps
 
     def attach_scene(self, scene) -> None:
         """Put the scene's objects (and, with ``self_contact``, its mesh) in the solve
