@@ -9,8 +9,8 @@ from ... import runtime
 from ..base import ForceTerm
 from ..springs.topology import incidence_of
 from .bending import check_bending_stiffness
-from .hinges import check_bending_model, check_poisson, dihedral_moduli, hinge_angles, hinge_topology, \
-    shape_operator_moduli
+from .hinges import check_bending_model, check_poisson, dihedral_moduli, element_stencils, hinge_angles, \
+    hinge_topology, shape_operator_moduli
 
 
 def hinge_elements(triangles, rest_x, stiffness: float, model: str, poisson: float = 0.0) -> dict:
@@ -33,24 +33,6 @@ def hinge_elements(triangles, rest_x, stiffness: float, model: str, poisson: flo
         elements, moduli = elements[keep], moduli[keep]
     return {"hinge_vertices": vertices, "hinge_rest_angle": rest, "bending_elements": elements,
             "bending_moduli": moduli}
-
-
-def element_stencils(vertices, elements, width: int) -> tuple[np.ndarray, np.ndarray]:
-    """Each element's distinct vertices, padded with -1 to ``width``: (E, width) int64, and where
-    each of its hinges' four vertices sits among them, (E, 3, 4) int64 (0 for a missing hinge)."""
-    stencil = np.full((len(elements), width), -1, np.int64)
-    local = np.zeros((len(elements), 3, 4), np.int64)
-    for e, hinges in enumerate(elements):
-        seen: list[int] = []
-        for k, h in enumerate(hinges):
-            if h < 0:
-                continue
-            for r, v in enumerate(vertices[h]):
-                if v not in seen:
-                    seen.append(int(v))
-                local[e, k, r] = seen.index(int(v))
-        stencil[e, :len(seen)] = seen
-    return stencil, local
 
 
 @ti.data_oriented
@@ -136,6 +118,7 @@ class HingeBending(ForceTerm):
         self.hinge_incident = ti.field(ti.i32, shape=4 * H)
         self.hinge_slot = ti.field(ti.i32, shape=4 * H)
         self.element_block = ti.Matrix.field(3, 3, real, shape=(E, W, W))
+        self.slot_grad = ti.Vector.field(3, real, shape=(E, self.per, W))  # d theta_k / d x_s
         self.entry_block = None  # the Jacobian cache, allocated by bind_jacobian_cache
         i32, npr = np.int32, runtime.np_real()
         self._upload(vertices.astype(i32), self.arrays_np["hinge_rest_angle"].astype(npr), elements.astype(i32),
@@ -218,33 +201,29 @@ class HingeBending(ForceTerm):
         return d, ti.Matrix.rows([g0, g1, g2, g3])
 
     @ti.func
-    def element_angles(self, e, x):
-        """The element's d (3-vector, 0 for a missing hinge) and its hinges' gradients (4x3 each)."""
+    def element_state(self, e, s, x):
+        """Element e's d (3-vector: its hinges' theta - theta_rest, 0 for a missing one) and, as
+        the rows of a 3x3 matrix, d theta_k / d x of its vertex slot ``s`` (1/m; zero for s < 0).
+        A loop over the hinges, not unrolled: one hinge's code to compile per caller."""
         d = ti.Vector.zero(x.dtype, 3)
-        grads = [ti.Matrix.zero(x.dtype, 4, 3) for _ in ti.static(range(3))]
+        g = ti.Matrix.zero(x.dtype, 3, 3)
         hinges = self.elements[e]
-        for k in ti.static(range(self.per)):
-            # a missing hinge (a boundary edge) measured as hinge 0 and masked: no branch
-            theta, grad = self.hinge(ti.max(hinges[k], 0), x)
-            present = ti.cast(hinges[k] >= 0, x.dtype)
-            d[k] = present * theta
-            grads[k] = present * grad
-        return d, grads
-
-    @ti.func
-    def slot_gradient(self, e, k, s, grad):
-        """d theta_k / d (element e's vertex slot s) (3-vector, 1/m) from hinge k's gradient."""
-        g = ti.Vector.zero(float, 3)
-        local = self.local[e, k]
-        for r in ti.static(range(4)):
-            if local[r] == s:
-                g += ti.Vector([grad[r, 0], grad[r, 1], grad[r, 2]])
-        return g
+        for k in range(self.per):
+            h = hinges[k]
+            if h >= 0:
+                theta, grad = self.hinge(h, x)
+                d[k] = theta
+                local = self.local[e, k]
+                for r in ti.static(range(4)):
+                    if local[r] == s:
+                        for c in ti.static(range(3)):
+                            g[k, c] += grad[r, c]
+        return d, g
 
     @ti.func
     def element_energy(self, e, x):
         """(1/2) d^T Q d of element e (J)."""
-        d, grads = self.element_angles(e, x)
+        d, g = self.element_state(e, -1, x)
         return 0.5 * d.dot(self.moduli[e] @ d)
 
     @ti.func
@@ -255,26 +234,26 @@ class HingeBending(ForceTerm):
         block = ti.Matrix.zero(x.dtype, 3, 3)
         for j in range(self.offsets[i], self.offsets[i + 1]):
             e = self.incident[j]
-            s = self.slot[j]
-            d, grads = self.element_angles(e, x)
+            d, g = self.element_state(e, self.slot[j], x)
             q = self.moduli[e]
-            m = q @ d
-            g = [self.slot_gradient(e, k, s, grads[k]) for k in ti.static(range(3))]
-            for k in ti.static(range(self.per)):
-                f -= m[k] * g[k]
-                for c in ti.static(range(self.per)):
-                    block += q[k, c] * g[k].outer_product(g[c])
+            f -= g.transpose() @ (q @ d)
+            block += g.transpose() @ q @ g
         return f, block
 
     # -- forces and energy -----------------------------------------------------------------
 
     @ti.func
-    def precompute(self, y):
+    def hinge_pass(self, y):
+        """Each hinge's theta - theta_rest and gradient at ``y`` into ``theta``, ``gradient``."""
         ti.loop_config(serialize=self.serial_loops)
         for h in range(self.hinge_count):
             theta, grad = self.hinge(h, y.x)
             self.theta[h] = theta
             self.gradient[h] = grad
+
+    @ti.func
+    def precompute(self, y):
+        self.hinge_pass(y)
         ti.loop_config(serialize=self.serial_loops)
         for e in range(self.element_count):
             d = ti.Vector.zero(y.x.dtype, 3)
@@ -336,21 +315,31 @@ class HingeBending(ForceTerm):
     @ti.func
     def precompute_jacobian(self, y, a, b):
         """Each element's blocks b df_r/dx_s = -b sum_kl Q_kl g_kr g_ls^T into ``element_block``
-        (no velocity dependence). A top-level loop over the elements."""
+        (no velocity dependence): top-level loops over the hinges (their gradients), the
+        elements' slots (g_ks) and the slots' pairs, so that the kernels that read the blocks
+        compile one small body each (unrolled over the pairs, compiling took minutes)."""
+        self.hinge_pass(y)
         ti.loop_config(serialize=self.serial_loops)
-        for e in range(self.element_count):
-            d, grads = self.element_angles(e, y.x)
+        for e, k, s in ti.ndrange(self.element_count, self.per, self.width):
+            h = self.elements[e][k]
+            g = ti.Vector.zero(y.x.dtype, 3)
+            if h >= 0:
+                grad = self.gradient[h]
+                local = self.local[e, k]
+                for r in ti.static(range(4)):
+                    if local[r] == s:
+                        g += ti.Vector([grad[r, 0], grad[r, 1], grad[r, 2]])
+            self.slot_grad[e, k, s] = g
+        ti.loop_config(serialize=self.serial_loops)
+        for e, r, s in ti.ndrange(self.element_count, self.width, self.width):
             q = self.moduli[e]
-            for s in ti.static(range(self.width)):
-                g = [self.slot_gradient(e, k, s, grads[k]) for k in ti.static(range(3))]
-                qg = [ti.Vector.zero(y.x.dtype, 3) for _ in ti.static(range(3))]  # sum_l Q_kl g_ls
-                for k, c in ti.static(ti.ndrange(self.per, self.per)):
-                    qg[k] += q[k, c] * g[c]
-                for r in ti.static(range(self.width)):
-                    block = ti.Matrix.zero(y.x.dtype, 3, 3)
-                    for k in ti.static(range(self.per)):
-                        block += self.slot_gradient(e, k, r, grads[k]).outer_product(qg[k])
-                    self.element_block[e, r, s] = -b * block
+            block = ti.Matrix.zero(y.x.dtype, 3, 3)
+            for k in ti.static(range(self.per)):
+                qg = ti.Vector.zero(y.x.dtype, 3)  # sum_l Q_kl g_ls
+                for c in ti.static(range(self.per)):
+                    qg += q[k, c] * self.slot_grad[e, c, s]
+                block += self.slot_grad[e, k, r].outer_product(qg)
+            self.element_block[e, r, s] = -b * block
 
     @ti.func
     def jacobian_diagonal_block(self, i, y, a, b, t):

@@ -148,6 +148,42 @@ def shape_operator_moduli(x, triangles, vertices, face_hinges, stiffness: float,
     return q
 
 
+def element_stencils(vertices, elements, width: int) -> tuple[np.ndarray, np.ndarray]:
+    """Each element's distinct vertices, padded with -1 to ``width``: (E, width) int64, and where
+    each of its hinges' four vertices sits among them, (E, 3, 4) int64 (0 for a missing hinge)."""
+    stencil = np.full((len(elements), width), -1, np.int64)
+    local = np.zeros((len(elements), 3, 4), np.int64)
+    for e, hinges in enumerate(elements):
+        seen: list[int] = []
+        for k, h in enumerate(hinges):
+            if h < 0:
+                continue
+            for r, v in enumerate(vertices[h]):
+                if v not in seen:
+                    seen.append(int(v))
+                local[e, k, r] = seen.index(int(v))
+        stencil[e, :len(seen)] = seen
+    return stencil, local
+
+
+def bound_weights(x, vertices, elements, moduli, width: int, stiffness: float) -> tuple[np.ndarray, np.ndarray]:
+    """(stencils (E, width) int64, weights (E, width) 1/m) with |K_rs| <= D w_r w_s for each
+    element's rest Hessian K = sum_kl Q_kl g_kr g_ls^T (Cauchy-Schwarz: w_r = sqrt(|Q|_2 / D)
+    times the norm over k of |g_kr|), the form :func:`~taichi_sim.forces.membrane.omega_max_bound`
+    bounds a frequency with; a padded slot is the element's first vertex with weight 0."""
+    stencil, local = element_stencils(vertices, elements, width)
+    _, gradient = hinge_angles(x, vertices)
+    size = np.linalg.norm(gradient, axis=2)  # (H, 4)
+    per_slot = np.zeros((len(elements), 3, width))
+    for k in range(3):
+        rows = np.flatnonzero(elements[:, k] >= 0)
+        for r in range(4):
+            np.add.at(per_slot, (rows, k, local[rows, k, r]), size[elements[rows, k], r])
+    norm = np.linalg.norm(moduli, ord=2, axis=(1, 2))
+    weights = np.sqrt(norm / max(stiffness, 1e-300))[:, None] * np.linalg.norm(per_slot, axis=1)
+    return np.where(stencil >= 0, stencil, stencil[:, :1]), weights
+
+
 def check_poisson(value) -> float:
     """A bending Poisson's ratio in [0, 0.5), else ConfigError naming it."""
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not (0.0 <= value < 0.5):
