@@ -180,29 +180,19 @@ def strip_tip_over_beam(model, h, length=0.2, width=0.05, stiffness=0.1, density
     """The free cantilever strip of tests/test_membrane.py (two clamped rows of vertices, its
     own weight): the small-deflection tip (the mean over the tip's vertices) over
     Euler-Bernoulli's q L^4 / (8 D b), and the tip's twist (the spread of its deflection, m),
-    from the equilibrium of the model's rest Hessian sum_e J_e^T Q_e J_e (exact there: every d
-    is 0) in the normal deflections, from the arrays and hinge gradients the term uses."""
-    from scipy.sparse import csr_matrix
+    from the equilibrium of the model's rest Hessian in the normal deflections
+    (:func:`~taichi_sim.forces.membrane.hinges.normal_stiffness`)."""
     from scipy.sparse.linalg import spsolve
     from test_membrane import cantilever_strip
 
     from taichi_sim.forces.membrane import lumped_masses, rest_frames
     from taichi_sim.forces.membrane.hinge_term import hinge_elements
+    from taichi_sim.forces.membrane.hinges import normal_stiffness
 
     x, triangles, clamped = cantilever_strip(length, width, h)
-    n = len(x)
-    mass = lumped_masses(n, triangles, rest_frames(x, triangles)[1], density)
-    arrays = hinge_elements(triangles, x, stiffness, model)
-    vertices, elements, moduli = arrays["hinge_vertices"], arrays["bending_elements"], arrays["bending_moduli"]
-    _, gradient = hinge_angles(x, vertices)
-    H = len(vertices)
-    normal = csr_matrix((gradient[:, :, 1].ravel(), (np.repeat(np.arange(H), 4), vertices.ravel())), shape=(H, n))
-    k, c = np.meshgrid(np.arange(3), np.arange(3), indexing="ij")
-    rows, cols = elements[:, k.ravel()], elements[:, c.ravel()]
-    ok = (rows >= 0) & (cols >= 0)
-    coupling = csr_matrix((moduli.reshape(-1, 9)[ok], (rows[ok], cols[ok])), shape=(H, H))
-    matrix = (normal.T @ coupling @ normal)[~clamped][:, ~clamped]
-    w = np.zeros(n)
+    mass = lumped_masses(len(x), triangles, rest_frames(x, triangles)[1], density)
+    matrix = normal_stiffness(x, hinge_elements(triangles, x, stiffness, model))[~clamped][:, ~clamped]
+    w = np.zeros(len(x))
     w[~clamped] = spsolve(matrix.tocsc(), (mass * g)[~clamped])
     tip = w[np.isclose(x[:, 0], x[:, 0].max())]
     return tip.mean() / (density * g * (length + h / 2) ** 4 / (8 * stiffness)), np.ptp(tip)

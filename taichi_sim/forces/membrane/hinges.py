@@ -189,3 +189,23 @@ def check_poisson(value) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not (0.0 <= value < 0.5):
         raise ConfigError(f"parameter bending_poisson_ratio: must be in [0, 0.5), got {value!r}")
     return float(value)
+
+
+def normal_stiffness(x, arrays, axis: int = 1):
+    """The hinge bending's rest Hessian in the deflections along coordinate ``axis`` of a flat
+    rest shape normal to it: sum_e J_e^T Q_e J_e (scipy CSR, n x n, N/m), J_e its hinges'
+    gradients' ``axis`` components, for the ``arrays`` of
+    :func:`~taichi_sim.forces.membrane.hinge_term.hinge_elements`. Exact at rest (every d is 0),
+    so it gives the small-deflection equilibrium K w = load (docs/materials.md, "Bending against
+    a beam"). Uses scipy."""
+    from scipy.sparse import csr_matrix
+
+    vertices, elements, moduli = arrays["hinge_vertices"], arrays["bending_elements"], arrays["bending_moduli"]
+    _, gradient = hinge_angles(x, vertices)
+    H, n = len(vertices), len(x)
+    normal = csr_matrix((gradient[:, :, axis].ravel(), (np.repeat(np.arange(H), 4), vertices.ravel())), shape=(H, n))
+    k, c = np.meshgrid(np.arange(3), np.arange(3), indexing="ij")
+    rows, cols = elements[:, k.ravel()], elements[:, c.ravel()]
+    present = (rows >= 0) & (cols >= 0)
+    coupling = csr_matrix((moduli.reshape(-1, 9)[present], (rows[present], cols[present])), shape=(H, H))
+    return (normal.T @ coupling @ normal).tocsr()
