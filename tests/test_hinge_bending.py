@@ -4,13 +4,12 @@ against finite differences, a rolled sheet's energy, a curved rest shape at rest
 import numpy as np
 import pytest
 import taichi as ti
+from test_membrane import _per_particle_forces, forces_at, jacobian_matrix, sheet
 
 from taichi_sim.errors import ConfigError
 from taichi_sim.forces.membrane import HingeBending, IsometricBending
 from taichi_sim.forces.membrane.hinges import hinge_angles, hinge_topology
 from taichi_sim.systems.particles import ParticleSystem
-
-from test_membrane import _per_particle_forces, forces_at, jacobian_matrix, sheet
 
 HINGED = ("dihedral", "shape_operator")
 

@@ -53,8 +53,9 @@ def test_vbd_colours_a_shape_operators_six_vertices_apart(f64):
 def test_the_explicit_steps_bound_holds_the_bendings_rest_stiffness(model, width):
     """|K_rs| <= D w_r w_s for every element's rest Hessian (the Gershgorin bound the explicit
     step is cut by) on a curved mesh."""
-    from taichi_sim.forces.membrane.hinge_term import hinge_elements
     from test_hinge_bending import cylinder_patch
+
+    from taichi_sim.forces.membrane.hinge_term import hinge_elements
 
     x, tri = cylinder_patch(6)
     stiffness = 0.03

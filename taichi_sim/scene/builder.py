@@ -10,8 +10,14 @@ import numpy as np
 
 from ..errors import InputNote
 from ..forces import Drag, GrabSpring, Gravity, Springs, Turbulence, Wind
-from ..forces.membrane import HingeBending, IsometricBending, Membrane, MembraneMaterial, bending_stencils, \
-    check_bending_model
+from ..forces.membrane import (
+    HingeBending,
+    IsometricBending,
+    Membrane,
+    MembraneMaterial,
+    bending_stencils,
+    check_bending_model,
+)
 from ..forces.springs.grid import GridSprings, grid_layout
 from ..mesh import TriangleMesh
 from ..part import PartContext, PartSpec

@@ -6,8 +6,14 @@ from typing import Any
 import numpy as np
 
 from ..errors import ConfigError
-from ..forces.membrane import BENDING_MODELS, MembraneMaterial, bending_stencils, lumped_masses, omega_max_bound, \
-    rest_frames
+from ..forces.membrane import (
+    BENDING_MODELS,
+    MembraneMaterial,
+    bending_stencils,
+    lumped_masses,
+    omega_max_bound,
+    rest_frames,
+)
 from ..forces.membrane.hinges import bound_weights, check_poisson
 from ..forces.springs.spectrum import _round_down, symplectic_euler_limit
 from .builder import SceneBuilder

@@ -12,8 +12,7 @@ from . import cloth as topo
 from .builder import SceneBuilder
 from .cloth_scenes import EXPLICIT_STEP_SHARE, EXTRA_PARAM_NAMES, add_cloth_extras, cloth_params
 from .kinematic import TranslatePath
-from .materials import MATERIAL_PARAMS, finish_membrane_scene, membrane_bending, membrane_material, \
-    refuse_springs_only
+from .materials import MATERIAL_PARAMS, finish_membrane_scene, membrane_bending, membrane_material, refuse_springs_only
 from .mesh_import import ClothMesh
 from .params import Param
 from .preset import common_params, with_defaults

@@ -9,8 +9,15 @@ from ... import runtime
 from ..base import ForceTerm
 from ..springs.topology import incidence_of
 from .bending import check_bending_stiffness
-from .hinges import check_bending_model, check_poisson, dihedral_moduli, element_stencils, hinge_angles, \
-    hinge_topology, shape_operator_moduli
+from .hinges import (
+    check_bending_model,
+    check_poisson,
+    dihedral_moduli,
+    element_stencils,
+    hinge_angles,
+    hinge_topology,
+    shape_operator_moduli,
+)
 
 
 def hinge_elements(triangles, rest_x, stiffness: float, model: str, poisson: float = 0.0) -> dict:
