@@ -108,9 +108,9 @@ def shape_operator_moduli(x, triangles, vertices, face_hinges, stiffness: float,
     projection on the plane; the hinges' rest gradients turn that into their angles' change,
     L (3x3, d = L k for k = (K_xx, K_yy, K_xy)), and M's components are L^-1 d. A boundary
     edge is given a mirror neighbour for the fit (the opposite vertex reflected through the
-    edge's midpoint),
-    so a triangle's L is always the full 3x3; with its angle held at 0 the free edge carries no
-    bending moment across it (nu = 0)."""
+    edge's midpoint), so a triangle's L is always the full 3x3; with its angle held at 0 the
+    free edge carries no bending moment across it (nu = 0). Raises ConfigError naming the first
+    triangle whose hinges do not determine a curvature (L singular: a neighbour folded onto it)."""
     x = np.asarray(x, float)
     triangles = np.asarray(triangles, np.int64).reshape(-1, 3)
     T = len(triangles)
@@ -139,6 +139,12 @@ def shape_operator_moduli(x, triangles, vertices, face_hinges, stiffness: float,
     along = np.einsum("tkvi,ti->tkv", gradient, normal)  # d theta_k / d (normal offset of v)
     fields = np.stack([0.5 * pu * pu, 0.5 * pw * pw, pu * pw], axis=-1)  # (T, 3, 4, 3): z of K_xx, K_yy, K_xy
     lift = np.einsum("tkv,tkvj->tkj", along, fields)  # (T, 3 hinges, 3 curvatures)
+    scale = np.abs(lift).max(axis=(1, 2))
+    singular = ~(np.abs(np.linalg.det(lift)) > 1e-9 * scale ** 3)
+    if singular.any():
+        t = int(np.flatnonzero(singular)[0])
+        raise ConfigError(f"parameter bending_model: shape_operator cannot fit triangle {t} (vertices "
+                          f"{triangles[t].tolist()}): its three hinges do not determine a curvature")
     inverse = np.linalg.inv(lift)
     q = 0.5 * double_area[:, None, None] * stiffness * np.einsum(
         "tji,jk,tkl->til", inverse, plate_weights(poisson), inverse)
