@@ -163,11 +163,30 @@ def membrane_energy(data: Mapping[str, np.ndarray], x: np.ndarray) -> float:
             jac = np.linalg.norm(np.cross(f[:, :, 0], f[:, :, 1]), axis=1)
             psi = 0.5 * mu * (np.sum(f**2, axis=(1, 2)) - 2.0) - mu * (jac - 1.0) + 0.5 * (lam + mu) * (jac - 1.0) ** 2
         energy += float(np.sum(np.asarray(data["membrane_rest_area"], float) * psi))
+    if "hinge_vertices" in data:
+        energy += hinge_energy(data, x)
     if "bending_stencils" in data:
         curvature = np.einsum("bk,bkj->bj", np.asarray(data["bending_weights"], float),
                               x[np.asarray(data["bending_stencils"], int)])
         energy += 0.5 * float(data["bending_stiffness"]) * float(np.sum(curvature**2))
     return energy
+
+
+def hinge_energy(data: Mapping[str, np.ndarray], x: np.ndarray) -> float:
+    """The hinge bending's energy (J) at positions x (n, 3): hinge_vertices (H, 4) (the edge x0
+    x1, the opposite vertices x2 x3), hinge_rest_angle (H,) (rad), bending_elements (E, 3) hinge
+    ids (-1: none), bending_moduli (E, 3, 3) (N m). Each hinge's theta is the angle from the
+    normal of (x0, x1, x2) to that of (x0, x3, x1) about x1 - x0; an element stores
+    (1/2) d^T Q d, d its hinges' theta - theta_rest wrapped into (-pi, pi]."""
+    p = x[np.asarray(data["hinge_vertices"], int)]
+    e = p[:, 1] - p[:, 0]
+    n1 = np.cross(e, p[:, 2] - p[:, 0])
+    n2 = np.cross(p[:, 3] - p[:, 0], e)
+    sine = np.einsum("hi,hi->h", np.cross(n1, n2), e) / np.linalg.norm(e, axis=1)
+    d = np.arctan2(sine, np.einsum("hi,hi->h", n1, n2)) - np.asarray(data["hinge_rest_angle"], float)
+    d = np.append((d + np.pi) % (2 * np.pi) - np.pi, 0.0)  # a last 0 for the missing hinges (-1)
+    per = d[np.asarray(data["bending_elements"], int)]
+    return 0.5 * float(np.einsum("ei,eij,ej->", per, np.asarray(data["bending_moduli"], float), per))
 
 
 def solve_reference(data: Mapping[str, np.ndarray], t_end: float, *, rtol: float = 1e-12,

@@ -5,7 +5,8 @@ The matrix: integrators x spring stiffness (cloth: shear k/2, flex k/5) x step s
 ``spring``, a 10-particle ``pendulum``, a small ``cloth``, and the small cloth as a membrane,
 ``membrane-stvk`` and ``membrane-neohookean`` with Poisson's ratio 0.49, whose "stiffness" is the
 stretch modulus E t: 1 N/m is a 1 um sheet of E = 1 MPa, 1e8 N/m one of 1e11 Pa at 1 mm, both
-with bending across the interior edges; docs/materials.md), each run ``steps`` accepted steps
+with bending across the interior edges, and ``membrane-shells``, the StVK one with the
+shape-operator bending; docs/materials.md), each run ``steps`` accepted steps
 from the scene's start (an adaptive method starts at the step size given). Every run is judged
 twice: by its status, and by an *audit* that shares no code with the blow-up guard
 (:mod:`taichi_sim.guard`): the numpy force model of :mod:`taichi_sim.reference` recomputes the
@@ -49,6 +50,8 @@ SCENES = {
     "membrane-stvk": ("cloth", {"nx": 6, "ny": 6, **fixed_particle_cloth(6, 6), "material": "stvk"}),
     "membrane-neohookean": ("cloth", {"nx": 6, "ny": 6, **fixed_particle_cloth(6, 6), "material": "neohookean",
                                       "poisson_ratio": 0.49}),
+    "membrane-shells": ("cloth", {"nx": 6, "ny": 6, **fixed_particle_cloth(6, 6), "material": "stvk",
+                                  "bending_model": "shape_operator"}),
 }
 QUICK_SCENES = {
     "spring": ("spring", {}),

@@ -305,7 +305,7 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     st.add_argument("--max-steps", type=_positive_int, help="most steps of one trial (default 20000)")
     ex = bench_parsers["extremes"]
     ex.add_argument("--scenes", metavar="A,B,...",
-                    help="of spring,pendulum,cloth,membrane-stvk,membrane-neohookean, and clothN for an N x N "
+                    help="of spring,pendulum,cloth,membrane-stvk,membrane-neohookean,membrane-shells, and clothN for an N x N "
                     "cloth (default: all but clothN)")
     ex.add_argument("--stiffnesses", metavar="K,K,...", help="spring stiffness, or a membrane's E t, in N/m (default 1,1e4,1e8)")
     ex.add_argument("--step-sizes", metavar="H,H,...", help="steps in s, fractions allowed (default 1e-6,1/60,1)")

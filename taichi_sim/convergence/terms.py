@@ -3,7 +3,7 @@ as forces of the equation a step solves: the numpy force model of :mod:`.residua
 springs, so these come from the terms themselves at the state measured, as a
 :class:`~taichi_sim.integrators.equation.SolveForces` (forces, and the PSD-projected stiffness
 the implicit methods solve with: the membrane's per-triangle blocks, the bending's constant
-stencil blocks D w_a w_b I)."""
+stencil blocks D w_a w_b I, or the hinge models' Gauss-Newton blocks per element)."""
 
 import numpy as np
 import scipy.sparse as sp
@@ -46,6 +46,10 @@ def term_forces(system, terms, y, tau: float, t: float) -> SolveForces:
             _membrane_blocks(term, y, 1.0 / tau, 1.0)
             blocks = -term.triangle_block.to_numpy().astype(np.float64)  # (T, 3, 3, 3, 3)
             corners = term.triangles_np
+        elif getattr(term, "precomputes_jacobian", False):  # hinge bending: (E, W, W, 3, 3)
+            _membrane_blocks(term, y, 1.0 / tau, 1.0)
+            blocks = -term.element_block.to_numpy().astype(np.float64)
+            corners = term.vertices_np
         else:
             w = term.weights_np.astype(np.float64)
             blocks = (term.stiffness_value * w[:, :, None, None, None] * w[:, None, :, None, None]

@@ -10,7 +10,14 @@ import numpy as np
 
 from ..errors import InputNote
 from ..forces import Drag, GrabSpring, Gravity, Springs, Turbulence, Wind
-from ..forces.membrane import IsometricBending, Membrane, MembraneMaterial, bending_stencils
+from ..forces.membrane import (
+    HingeBending,
+    IsometricBending,
+    Membrane,
+    MembraneMaterial,
+    bending_stencils,
+    check_bending_model,
+)
 from ..forces.springs.grid import GridSprings, grid_layout
 from ..mesh import TriangleMesh
 from ..part import PartContext, PartSpec
@@ -200,13 +207,17 @@ class SceneBuilder:
         triangles = np.asarray(triangles, np.int64).reshape(-1, 3)
         self._triangles.append(triangles)
 
-    def set_membrane(self, material: MembraneMaterial, *, bending: float = 0.0) -> None:
+    def set_membrane(self, material: MembraneMaterial, *, bending: float = 0.0, bending_model: str = "isometric",
+                     bending_poisson: float = 0.0) -> None:
         """Make the triangles (:meth:`add_triangles`) a membrane of ``material`` (see
         :class:`~taichi_sim.forces.membrane.Membrane`), with ``bending`` stiffness (N m, >= 0;
-        0 for none) across their interior edges
-        (:class:`~taichi_sim.forces.membrane.IsometricBending`). Both rest in the particles'
-        positions as added (before :meth:`displace`), each triangle flattened to its own frame."""
-        self._membrane = (material, float(bending))
+        0 for none) across their interior edges: ``bending_model`` ``isometric``
+        (:class:`~taichi_sim.forces.membrane.IsometricBending`, flat at rest), ``dihedral`` or
+        ``shape_operator`` (:class:`~taichi_sim.forces.membrane.HingeBending`, resting in the
+        shape as added; ``bending_poisson``, the plate's Poisson's ratio, for the latter). Both
+        rest in the particles' positions as added (before :meth:`displace`), each triangle
+        flattened to its own frame."""
+        self._membrane = (material, float(bending), check_bending_model(bending_model), float(bending_poisson))
 
     def set_gravity(self, g) -> None:
         """Gravity: a magnitude (m/s^2, pointing -y) or a 3-vector."""
@@ -379,14 +390,16 @@ class SceneBuilder:
         if self._membrane is not None:
             if not self._triangles:
                 raise ValueError("a membrane acts on triangles: add_triangles first")
-            material, bending = self._membrane
+            material, bending, bending_model, bending_poisson = self._membrane
             triangles, rest = np.concatenate(self._triangles), np.concatenate(self._rest_x)
             membrane = Membrane(self._count, triangles, rest, material)
             system.add_term(membrane)
             arrays.update(membrane.arrays())
             features.update(membrane=material.model, bending=False)
             if bending > 0 and len(bending_stencils(rest, triangles)[0]):
-                bending_term = IsometricBending(self._count, triangles, rest, bending)
+                bending_term = IsometricBending(self._count, triangles, rest, bending) \
+                    if bending_model == "isometric" else \
+                    HingeBending(self._count, triangles, rest, bending, bending_model, bending_poisson)
                 system.add_term(bending_term)
                 arrays.update(bending_term.arrays())
                 features["bending"] = True

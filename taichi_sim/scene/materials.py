@@ -6,7 +6,15 @@ from typing import Any
 import numpy as np
 
 from ..errors import ConfigError
-from ..forces.membrane import MembraneMaterial, bending_stencils, lumped_masses, omega_max_bound, rest_frames
+from ..forces.membrane import (
+    BENDING_MODELS,
+    MembraneMaterial,
+    bending_stencils,
+    lumped_masses,
+    omega_max_bound,
+    rest_frames,
+)
+from ..forces.membrane.hinges import bound_weights, check_poisson
 from ..forces.springs.spectrum import _round_down, symplectic_euler_limit
 from .builder import SceneBuilder
 from .params import Param
@@ -29,8 +37,14 @@ MATERIAL_PARAMS: tuple[Param, ...] = (
     Param("material_thickness", 1e-3, "m", "membrane thickness t (the contact distance is the parameter "
           "thickness)", minimum=0.0, exclusive=True),
     Param("poisson_ratio", 0.3, "", "membrane Poisson's ratio nu, in (-1, 0.5)"),
-    Param("bending_stiffness", 1e-4, "N m", "membrane bending stiffness D across the interior edges "
-          "(quadratic isometric bending; rest shape flat); 0: none", minimum=0.0),
+    Param("bending_stiffness", 1e-4, "N m", "membrane bending stiffness D across the interior edges; 0: none",
+          minimum=0.0),
+    Param("bending_model", "isometric", "", "membrane bending: isometric (quadratic, rest shape flat, "
+          "fastest), dihedral (discrete shells: the rest shape as loaded) or shape_operator (a curvature "
+          "tensor per triangle from its three hinges: the rest shape as loaded, the same in every "
+          "direction on any mesh)", choices=BENDING_MODELS),
+    Param("bending_poisson_ratio", 0.0, "", "the shape_operator plate's bending Poisson's ratio, in [0, 0.5)",
+          minimum=0.0),
     Param("membrane_damping", 1e-3, "s", "membrane viscous damping time: the strain rate's stress is this "
           "times the elastic stress of the same strain", minimum=0.0),
 )
@@ -44,6 +58,13 @@ def membrane_material(p: dict[str, Any]) -> MembraneMaterial | None:
     return MembraneMaterial.from_parameters(
         p["material"], stretch_modulus=stretch, youngs_modulus=p["youngs_modulus"],
         thickness=p["material_thickness"], poisson_ratio=p["poisson_ratio"], damping=p["membrane_damping"])
+
+
+def membrane_bending(p: dict[str, Any], bending: float | None = None) -> dict[str, Any]:
+    """The bending keywords of :meth:`SceneBuilder.set_membrane` from the cloth parameters ``p``
+    (``bending``, N m: instead of ``p["bending_stiffness"]``)."""
+    return {"bending": p["bending_stiffness"] if bending is None else bending,
+            "bending_model": p["bending_model"], "bending_poisson": check_poisson(p["bending_poisson_ratio"])}
 
 
 def refuse_springs_only(p: dict[str, Any]) -> None:
@@ -64,7 +85,7 @@ def add_membrane_cloth(b: SceneBuilder, p: dict[str, Any], x: np.ndarray, triang
         raise ConfigError(f"membrane: vertex {int(np.flatnonzero(~(mass > 0))[0])} is in no triangle (no mass)")
     b.add_particles(x, mass, pinned=pinned)
     b.add_triangles(triangles)
-    b.set_membrane(material, bending=p["bending_stiffness"])
+    b.set_membrane(material, **membrane_bending(p))
     return mass
 
 
@@ -78,7 +99,13 @@ def membrane_explicit_step(scene: Scene, material: MembraneMaterial, bending: fl
     mass, pinned = np.asarray(arrays["mass"], float), np.asarray(arrays["pinned"], bool)
     triangles = arrays["membrane_triangles"]
     inverse, area = rest_frames(scene.rest_x, triangles)
-    stencils = bending_stencils(scene.rest_x, triangles) if bending > 0 else (None, None)
+    stencils = (None, None)
+    if bending > 0 and "hinge_vertices" in arrays:
+        width = 4 if str(arrays["bending_model"]) == "dihedral" else 6
+        stencils = bound_weights(scene.rest_x, arrays["hinge_vertices"], arrays["bending_elements"],
+                                 arrays["bending_moduli"], width, bending)
+    elif bending > 0:
+        stencils = bending_stencils(scene.rest_x, triangles)
     omega = omega_max_bound(mass, pinned, triangles, inverse, area, material.mu, material.lam, *stencils,
                             bending=bending)
     if omega <= 0:

@@ -12,7 +12,7 @@ from . import cloth as topo
 from .builder import SceneBuilder
 from .cloth_scenes import EXPLICIT_STEP_SHARE, EXTRA_PARAM_NAMES, add_cloth_extras, cloth_params
 from .kinematic import TranslatePath
-from .materials import MATERIAL_PARAMS, finish_membrane_scene, membrane_material, refuse_springs_only
+from .materials import MATERIAL_PARAMS, finish_membrane_scene, membrane_bending, membrane_material, refuse_springs_only
 from .mesh_import import ClothMesh
 from .params import Param
 from .preset import common_params, with_defaults
@@ -165,7 +165,7 @@ def add_mesh_cloth(b: SceneBuilder, p: dict[str, Any], seed: int, mesh: ClothMes
         pinned = select_pins(p["pin"], mesh)
     material = membrane_material(p)
     if material is not None:  # a membrane resting in the mesh as loaded, each triangle flattened
-        b.set_membrane(material, bending=p["bending_stiffness"] if p["bending"] else 0.0)
+        b.set_membrane(material, **membrane_bending(p, None if p["bending"] else 0.0))
         refuse_springs_only(p)
         ends = ()
         b.add_particles(mesh.x, mass, pinned=pinned)

@@ -26,7 +26,9 @@ class MembraneTerms:
     spring's dashpot c / dt enters), and from the bending stencils it is in their force
     -D (L x)_i and block D L_ii I, L the bending's constant Hessian over D
     (:meth:`IsometricBending.operator <taichi_sim.forces.membrane.IsometricBending.operator>`:
-    its rows sum the stencils, so a vertex reads each neighbour once, not once per stencil).
+    its rows sum the stencils, so a vertex reads each neighbour once, not once per stencil);
+    or, with hinge bending, its elements' force and Gauss-Newton block at the iterate
+    (:meth:`HingeBending.vertex_terms <taichi_sim.forces.membrane.HingeBending.vertex_terms>`).
     The stress, the Hessians and L are the terms' own, written once in
     :mod:`taichi_sim.forces.membrane`.
 
@@ -40,11 +42,12 @@ class MembraneTerms:
 
     The sweep is Gauss-Seidel over a vertex colouring: the vertices of one triangle or one
     stencil must lie in different colours (:meth:`pairs`), so that a colour's vertices, solved
-    at once, never read each other's positions.
+    at once, never read each other's positions (a shape-operator element's six vertices too).
 
     Args:
         membrane: the system's :class:`~taichi_sim.forces.membrane.Membrane` term, or None.
-        bending: the system's :class:`~taichi_sim.forces.membrane.IsometricBending` term, or None.
+        bending: the system's :class:`~taichi_sim.forces.membrane.IsometricBending` or
+            :class:`~taichi_sim.forces.membrane.HingeBending` term, or None.
     """
 
     names = ("membrane", "bending")  # the system's terms these stand for (solver: not in its others)
@@ -56,6 +59,7 @@ class MembraneTerms:
         self.bending = bending
         self.has_membrane = membrane is not None
         self.has_bending = bending is not None
+        self.hinged = self.has_bending and not hasattr(bending, "operator")  # no constant Hessian
         real, npr = runtime.real(), runtime.np_real()
         if self.has_membrane:
             offsets, others, rest = membrane.corner_layout()
@@ -64,7 +68,7 @@ class MembraneTerms:
             self.corner_rest = ti.field(real, shape=(rest.shape[1], len(rest)))
             field_io.write((self.corner_offsets, offsets), (self.corner_others, others.T),
                            (self.corner_rest, rest.T.astype(npr)))
-        if self.has_bending:
+        if self.has_bending and not self.hinged:
             # L's rows without their diagonals, which are kept apart (the block D L_ii I and
             # the force's D L_ii x_i need no test for j == i in the row's loop)
             offsets, columns, values = bending.operator()
@@ -97,7 +101,9 @@ class MembraneTerms:
         """A sweep's work in springs' worth (:data:`CORNER_WORK` per triangle corner, one per
         entry of the bending's rows)."""
         corners = 3 * self.membrane.triangle_count if self.has_membrane else 0
-        reach = self.bending_entries if self.has_bending else 0
+        reach = self.bending_entries if self.has_bending and not self.hinged else 0
+        if self.hinged:  # a hinge angle and its gradient: about a corner's work
+            reach = CORNER_WORK * self.bending.per * self.bending.incident.shape[0]
         return CORNER_WORK * corners + reach
 
     @ti.func
@@ -113,7 +119,10 @@ class MembraneTerms:
             for t in range(membrane.triangle_count):
                 energy, dissipation, p0, p1 = membrane.triangle_stress(t, y, membrane.shape_gradients(t))
                 total += energy + dt * dissipation
-        if ti.static(self.has_bending):
+        if ti.static(self.hinged):
+            for e in range(self.bending.element_count):
+                total += self.bending.element_energy(e, y.x)
+        elif ti.static(self.has_bending):
             for b in range(self.bending.edge_count):
                 total += self.bending.edge_energy(b, y.x)
         return total
@@ -164,7 +173,11 @@ class MembraneTerms:
                 f += force
                 block += corner
             H = sym_matrix(block)
-        if ti.static(self.has_bending):
+        if ti.static(self.hinged):
+            force, block = self.bending.vertex_terms(i, y.x)
+            f += force
+            H += block
+        elif ti.static(self.has_bending):
             d = self.bending.stiffness[None]
             diagonal = self.bending_diagonal[i]
             lx = diagonal * xi
