@@ -7,6 +7,7 @@ from ..convergence import ConvergenceMonitor, format_metres
 from ..errors import ConfigError
 from ..guard import Guard, GuardLimits
 from ..integrators import Integrator, Status, StepReport, integrator_class
+from ..scene.handoff import NOTHING_TAKEN
 from .binding import bind_integrator, check_dt
 from .failure import Failure, failure_advice
 
@@ -129,8 +130,10 @@ class Stepper:
         if self.dt is None and not integrator.adaptive:
             raise ConfigError("dt is required for a fixed-step integrator")
         # The handoff (scene/handoff.py): the scene offers its contact, the method answers what
-        # its solve took over, and the scene leaves that out of its post-step events.
-        self.scene.hand_over(integrator.bind_contact(self.scene.contact_inputs()))
+        # its solve took over, and the scene leaves that out of its post-step events (an object
+        # stepping like an integrator without deriving from one takes nothing).
+        bind = getattr(integrator, "bind_contact", None)
+        self.scene.hand_over(NOTHING_TAKEN if bind is None else bind(self.scene.contact_inputs()))
         self.integrator = integrator
         # read once: an attribute of a Taichi data-oriented object costs about a microsecond
         self._integrate = integrator.step
