@@ -52,6 +52,11 @@ Checklist for a method of your own (what this file does, and what the tools read
    (``out.x`` = velocity, ``out.v`` = acceleration; pinned particles get zero); never step
    the scene's state through anything else.
 8. ``reset()`` forgets whatever is carried between steps (this method carries nothing).
+9. ``bind_contact(inputs)``, only for a method whose solve meets the scene's contact itself:
+   read it from ``inputs`` (``taichi_sim.scene.handoff.ContactInputs``) and return a
+   ``ContactTakeover`` naming the parts whose post-step work the solve does (the scene leaves
+   their events out). This method takes nothing (the default): the scene's colliders and
+   self-collision stage run after each of its steps.
 """
 import taichi as ti
 

@@ -166,7 +166,7 @@ def test_a_method_without_contacts_says_so_and_nothing_is_gathered_while_off(ses
     # vbd on a scene with nothing to touch (no ground, no objects) and self_contact off
     cloth = ts.build_scene("cloth", {"nx": 4, "ny": 4})
     vbd = create_integrator("vbd", cloth.system)
-    vbd.attach_scene(cloth)
+    vbd.bind_contact(cloth.contact_inputs())
     assert vbd.contact is None
     assert "vbd has no contact in its solve here" in unavailable(vbd)
     assert "self_contact=1" in unavailable(vbd)

@@ -73,7 +73,7 @@ def test_a_vertex_and_an_edge_shot_at_the_mesh_never_pass_it(f64, serial, pieces
 def test_a_non_finite_state_is_a_diverged_step_with_contact(f64):
     scene = shot_scene()
     vbd = create_integrator("vbd", scene.system, self_contact=True, contact_radius=0.01)
-    vbd.attach_scene(scene)
+    vbd.bind_contact(scene.contact_inputs())
     x, v = scene.state.to_numpy()
     x[4] = np.nan
     scene.state.from_numpy(x, v)
@@ -109,7 +109,7 @@ def test_the_edge_query_finds_every_pair_of_edges_within_the_radius_once(f64):
 
     scene = fold(12)
     vbd = create_integrator("vbd", scene.system, self_contact=True, contact_radius=0.02)
-    vbd.attach_scene(scene)
+    vbd.bind_contact(scene.contact_inputs())
     x, v = scene.state.to_numpy()
     i, j = np.divmod(np.arange(len(x)), 12)  # grid_index: particle i * ny + j
     rng = np.random.default_rng(5)  # rows pressed 14 mm apart, bent and jittered
@@ -159,7 +159,7 @@ def test_with_self_contact_in_the_solve_a_smaller_cloth_sweeps_in_parallel(f32, 
     alone = create_integrator("vbd", scene.system, self_contact=False)
     contact = create_integrator("vbd", scene.system, self_contact=True)
     for vbd in (alone, contact):
-        vbd.attach_scene(scene)
+        vbd.bind_contact(scene.contact_inputs())
     assert alone.serial and contact.serial  # 144 particles: below either break-even
     monkeypatch.setattr(vbd_schedule, "SERIAL_CONTACT_PARTICLES", 144 * spare)
     assert alone.serial and not contact.serial
@@ -241,7 +241,7 @@ def test_a_twisted_cloth_whose_pins_vbd_moves_never_intersects(f32):
     vbd = create_integrator("vbd", scene.system, contact_pieces=1)  # pieces for the pins only
     pinned = scene.kinematic.ids_np
     _, stepper = step_clean(scene, vbd, 90)
-    assert vbd.replaces_parts == {"self_collision", "kinematic"}
+    assert vbd.takeover.parts == {"self_collision", "kinematic"}
     assert vbd.pieces > 90  # the pins needed more than one piece a step somewhere
     where, speed = scene.kinematic.path.at(stepper.t)
     x, v = scene.state.to_numpy()
@@ -252,7 +252,7 @@ def test_a_twisted_cloth_whose_pins_vbd_moves_never_intersects(f32):
 def test_pins_that_cannot_move_within_their_bounds_end_the_run_as_diverged(f32):
     scene = ts.build_scene("cloth-twist", {"nx": 8, "ny": 8})
     vbd = create_integrator("vbd", scene.system)
-    vbd.attach_scene(scene)
+    vbd.bind_contact(scene.contact_inputs())
     vbd.pins.plan = lambda x, t, length: 0.0  # as for a pin pressed into the cloth
     result = ts.run(scene, vbd, dt=H, steps=3)
     assert result.status.value == "diverged"
@@ -316,7 +316,7 @@ def test_a_vertex_shot_at_a_thin_box_stops_on_its_near_side(f64):
     b.add_box(SpherePath((0.0, 0.0, 0.0)), (0.2, 0.01, 0.2))
     scene = b.finalize(name="box-shot", params={}, default_dt=H, default_integrator="vbd")
     vbd = create_integrator("vbd", scene.system, contact_radius=0.005)
-    vbd.attach_scene(scene)
+    vbd.bind_contact(scene.contact_inputs())
     for k in range(6):
         assert vbd.step(scene.state, k * H, H).status.value == "ok"
         assert scene.state.to_numpy()[0][0, 1] > 0.01
@@ -333,7 +333,7 @@ def test_friction_holds_a_vertex_on_a_slope_and_lets_it_slide_past_its_angle(f64
     b.set_plane((0.0, 0.0, 0.0), normal, restitution=0.0, friction=0.5)
     scene = b.finalize(name="slope", params={}, default_dt=H, default_integrator="vbd")
     vbd = create_integrator("vbd", scene.system, contact_radius=0.01)
-    vbd.attach_scene(scene)
+    vbd.bind_contact(scene.contact_inputs())
     for mu, expected in ((0.5, None), (0.1, 0.5 * 9.81 * (math.sin(theta) - 0.1 * math.cos(theta)))):
         scene.plane.friction[None] = mu
         scene.reset()
@@ -366,14 +366,14 @@ def test_a_contact_radius_the_mesh_cannot_take_and_a_tangled_start_are_refused(f
     scene = fold(n=8)  # spacing 1/7 m: non-adjacent parts 0.1 m apart at rest
     vbd = create_integrator("vbd", scene.system, self_contact=True, contact_radius=0.2)
     with pytest.raises(ConfigError, match="contact_radius"):
-        vbd.attach_scene(scene)
+        vbd.bind_contact(scene.contact_inputs())
     scene = shot_scene()
     x, v = scene.state.to_numpy()
     x[3:6, 1] -= 0.5  # T2's lower edge through T1
     scene.state.from_numpy(x, v)
     tangled = create_integrator("vbd", scene.system, self_contact=True, contact_radius=0.01)
     with pytest.raises(ConfigError, match="starts passing through itself"):
-        tangled.attach_scene(scene)
+        tangled.bind_contact(scene.contact_inputs())
 
 
 @pytest.mark.parametrize("option, problem", [

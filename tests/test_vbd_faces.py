@@ -51,7 +51,7 @@ def _over(a, b, c, point) -> bool:
 
 def fall(scene, check, serial=None, **options):
     vbd = create_integrator("vbd", scene.system, **options)
-    vbd.attach_scene(scene)
+    vbd.bind_contact(scene.contact_inputs())
     if serial is not None:
         vbd.serial = serial
     assert vbd.contact.has_object_faces == options.get("object_faces", True)
@@ -102,11 +102,11 @@ def test_a_sphere_round_enough_for_the_cloth_is_left_to_the_vertices(f64, radius
     quarter), under half the 5 mm contact radius; a 0.05 m sphere 6.4 mm (10 mm)."""
     scene, _ = falling_cloth(lambda b, path: b.add_sphere(path, radius))
     vbd = create_integrator("vbd", scene.system)
-    vbd.attach_scene(scene)
+    vbd.bind_contact(scene.contact_inputs())
     assert vbd.contact.radius == 0.005 and vbd.contact.has_object_faces == needed
     scene, _ = falling_cloth(lambda b, path: b.add_box(path, (radius, radius, radius)))
     vbd = create_integrator("vbd", scene.system)
-    vbd.attach_scene(scene)
+    vbd.bind_contact(scene.contact_inputs())
     assert vbd.contact.has_object_faces  # a box has edges, however large
 
 
@@ -118,7 +118,7 @@ def test_a_vertex_out_of_reach_moves_at_most_the_bound_fraction_of_its_room(f64)
 
     scene, tris = falling_cloth(OBJECTS["sphere"][0])
     vbd = create_integrator("vbd", scene.system)
-    vbd.attach_scene(scene)
+    vbd.bind_contact(scene.contact_inputs())
     contact = vbd.contact
     assert contact.has_object_faces and 0 < contact.fraction < 1
     x = scene.state.x

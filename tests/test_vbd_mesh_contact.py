@@ -70,7 +70,7 @@ def test_a_thin_plate_on_a_fast_path_lifts_a_cloth_in_the_solve(f64):
     scene = b.finalize(name="lift", params={}, default_dt=1 / 60, default_integrator="vbd")
     vbd = create_integrator("vbd", scene.system)
     stepper = Stepper(scene, vbd, dt=1 / 60)
-    assert "collider_mesh" in vbd.replaces_parts
+    assert "collider_mesh" in vbd.takeover.parts
     for _ in range(15):  # the plate from 0.3 m to 1.05 m
         stepper.step()
         x = scene.state.to_numpy()[0]

@@ -1,5 +1,5 @@
 """vbd and the scene's post-step self-collision stage: by default its self-contact follows the
-scene, in the solve, and the Stepper skips the stage it replaces (``replaces_parts``)."""
+scene, in the solve, and the scene leaves out the stage the solve took over (``takeover``)."""
 import pytest
 
 import taichi_sim as ts
@@ -58,12 +58,12 @@ def test_without_a_stage_or_on_a_tearing_cloth_vbd_leaves_the_stage_be(f32):
     plain = ts.build_scene("cloth", {"nx": 6, "ny": 6})
     method = ts.create_integrator("vbd", plain.system, iterations=2)
     ts.Stepper(plain, method, 1 / 60)
-    assert not method.has_self_contact and not method.replaces_parts
+    assert not method.has_self_contact and not method.takeover.parts
     # the solve cannot take a cloth that tears; following the scene, the stage keeps it
     torn = ts.build_scene("cloth", {"nx": 6, "ny": 6, "tear": True, "self_collision": True})
     method = ts.create_integrator("vbd", torn.system, iterations=2)
     stepper = ts.Stepper(torn, method, 1 / 60)
-    assert not method.has_self_contact and not method.replaces_parts
+    assert not method.has_self_contact and not method.takeover.parts
     stepper.step()
     assert stepper.failure is None and torn.part("self_collision").t_end is not None
 
@@ -78,4 +78,4 @@ def test_a_refused_attach_leaves_nothing_half_bound(f32):
     for _ in range(2):
         with pytest.raises(ConfigError, match="tearing"):
             ts.Stepper(torn, method, 1 / 60)
-    assert method.contact is None and not method.replaces_parts
+    assert method.contact is None and not method.takeover.parts

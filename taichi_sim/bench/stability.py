@@ -114,35 +114,57 @@ class Trial:
     reason: str
 
 
+class EnergyJudge:
+    """The observer that judges a trial's energy after its steps (module docstring): it
+    samples every step over the first tenth of the ``steps`` (at least 20), then at least 1000
+    times, and stops the Stepper at the first sample that is not finite or has grown past its
+    bounds (``reason``, at ``step``)."""
+
+    def __init__(self, scene, steps: int):
+        self.scene, self.steps = scene, steps
+        self.window = max(20, steps // 10)
+        self.stride = max(1, steps // 1000)
+        self.start = self.reference = scene.energy()
+        self.reason, self.step = "", 0
+
+    def after_step(self, stepper, report) -> None:
+        s = stepper.steps
+        if not (s <= self.window or s % self.stride == 0 or s == self.steps):
+            return
+        energy = self.scene.energy()
+        if not math.isfinite(energy):
+            reason = f"energy not finite at step {s}"
+        elif energy > GROWTH_CAP * self.start:
+            reason = f"energy {energy / self.start:.3g}x its start at step {s}"
+        elif s <= self.window:
+            self.reference = max(self.reference, energy)
+            return
+        elif energy > 2.0 * self.reference:
+            reason = f"energy {energy / self.reference:.3g}x its early maximum at step {s}"
+        else:
+            return
+        self.reason, self.step = reason, s
+        stepper.stop()
+
+
 def is_stable(scene, integrator, h: float, horizon: float, *, min_steps: int = MIN_STEPS) -> Trial:
     """Run ``scene`` from its initial state for ``horizon`` s (at least ``min_steps`` steps) with
-    step ``h`` and judge stability (module docstring)."""
-    from ..integrators import Status
+    step ``h`` and judge stability (module docstring). The steps are a bare
+    :class:`~taichi_sim.stepper.Stepper`'s: the method as it is, no guard, no convergence
+    sampling."""
+    from ..stepper import Stepper
 
     scene.reset()
-    integrator.reset()
     n = max(min_steps, math.ceil(horizon / h - 1e-9))
-    window = max(20, n // 10)
-    stride = max(1, n // 1000)
-    start = scene.energy()
-    reference = start
-    state, t = scene.state, 0.0
-    for s in range(1, n + 1):
-        report = integrator.step(state, t, h)
-        if report.status is not Status.OK or not report.accepted:
-            detail = f" ({report.message})" if report.message else ""
-            return Trial(h, False, s, f"{report.status.value} at step {s}{detail}")
-        t = s * h
-        if s <= window or s % stride == 0 or s == n:
-            energy = scene.energy()
-            if not math.isfinite(energy):
-                return Trial(h, False, s, f"energy not finite at step {s}")
-            if energy > GROWTH_CAP * start:
-                return Trial(h, False, s, f"energy {energy / start:.3g}x its start at step {s}")
-            if s <= window:
-                reference = max(reference, energy)
-            elif energy > 2.0 * reference:
-                return Trial(h, False, s, f"energy {energy / reference:.3g}x its early maximum at step {s}")
+    judge = EnergyJudge(scene, n)
+    stepper = Stepper(scene, integrator, h, observers=(judge,), bare=True)  # (resets the integrator)
+    stepper.run_until(steps=n)
+    failure = stepper.failure
+    if failure is not None:
+        detail = f" ({failure.detail})" if failure.detail else ""
+        return Trial(h, False, failure.step, f"{failure.status.value} at step {failure.step}{detail}")
+    if judge.reason:
+        return Trial(h, False, judge.step, judge.reason)
     return Trial(h, True, n, "")
 
 

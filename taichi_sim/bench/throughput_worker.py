@@ -149,26 +149,27 @@ def _error(exc: Exception) -> str:
 
 def profile(scene, names: list[str], *, dt: float, steps: int) -> list[dict]:
     """Per-kernel times of ``steps`` steps of each integrator (the runtime was initialised with
-    the kernel profiler)."""
+    the kernel profiler), taken by a bare :class:`~taichi_sim.stepper.Stepper`: the method's own
+    kernels and the scene's events, without the guard's or the convergence samples'."""
     import taichi as ti
 
     import taichi_sim as ts
+    from taichi_sim.stepper import Stepper
 
     records = []
     for name in names:
-        integrator = ts.create_integrator(name, scene.system)
         scene.reset()
-        for _ in range(3):  # compile
-            integrator.step(scene.state, 0.0, dt)
+        stepper = Stepper(scene, ts.create_integrator(name, scene.system), dt, bare=True)
+        stepper.run_until(max_calls=3)  # compiles
         ti.sync()
         ti.profiler.clear_kernel_profiler_info()
         start = time.perf_counter()
-        for _ in range(steps):
-            integrator.step(scene.state, 0.0, dt)
+        calls = stepper.run_until(max_calls=steps)  # fewer when a step failed (its status says)
         ti.sync()
-        wall = (time.perf_counter() - start) / steps
+        wall = (time.perf_counter() - start) / max(calls, 1)
         for r in _kernel_totals():
-            records.append({"kind": "kernel", "integrator": name, "wall_step_s": wall, "steps": steps, **r})
+            records.append({"kind": "kernel", "integrator": name, "wall_step_s": wall, "steps": calls,
+                            "status": stepper.status.value, **r})
     return records
 
 

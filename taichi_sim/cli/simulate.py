@@ -105,7 +105,7 @@ def cmd_simulate(args) -> int:
         print(f"taichi-sim: {result.message}", file=sys.stderr)
     for warning in result.warnings:
         print(f"taichi-sim: warning: {warning}", file=sys.stderr)
-    replaced = getattr(integrator, "replaces_parts", ())  # parts whose work the method did in its solve
+    replaced = scene.takeover.parts  # parts whose work the method did in its solve
     for part in scene.parts:
         if part.name not in replaced and part.warning():
             print(f"taichi-sim: warning: {part.warning()}", file=sys.stderr)

@@ -73,6 +73,9 @@ class ConvergenceMonitor:
     """Samples one integrator's steps on one scene: how far each sampled step is from the
     equation the method solves (module docstring).
 
+    ``unmeasured``: why the caller measures nothing ("" to measure what the method and scene
+    allow); the monitor is then inactive and allocates nothing.
+
     Call :meth:`before_step` before every step (it keeps the step's start: one device copy,
     unless the method keeps the start of its last solved piece itself), :meth:`spend` after
     each with the step's work, and :meth:`measure` after a step that :meth:`due` (or the
@@ -90,13 +93,16 @@ class ConvergenceMonitor:
         seconds: wall time the samples took (s).
     """
 
-    def __init__(self, scene, integrator, max_residual: float | None = None, tolerance: float | None = None):
+    def __init__(self, scene, integrator, max_residual: float | None = None, tolerance: float | None = None,
+                 unmeasured: str = ""):
         self.max_residual = check_max_residual(max_residual)
         self.tolerance = check_tolerance(getattr(scene, "default_tolerance", None) if tolerance is None else tolerance)
         self.integrator = integrator
         self.equation: Equation | None = getattr(integrator, "equation", None)
         self.reason = ""
-        if self.equation is None:
+        if unmeasured:  # the caller measures nothing (a bare Stepper)
+            self.reason = unmeasured
+        elif self.equation is None:
             self.reason = f"{integrator.name} solves no system per step"
         elif not scene.system.second_order:
             self.reason = "a first-order system"

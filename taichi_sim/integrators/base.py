@@ -7,6 +7,7 @@ from dataclasses import dataclass
 from enum import Enum
 
 from ..errors import ConfigError
+from ..scene.handoff import NOTHING_TAKEN, ContactInputs, ContactTakeover
 from ..state import State
 from ..systems.base import System
 from .options import check_values, option_specs
@@ -145,15 +146,6 @@ class Integrator(ABC):
     its name (:func:`~taichi_sim.integrators.colour_of`)."""
     given_options: frozenset = frozenset()
     """The options the caller set (:func:`~taichi_sim.integrators.create_integrator`)."""
-    replaces_parts: frozenset = frozenset()
-    """Names of the scene's post-step parts (``ScenePart.name``) whose work the method does
-    inside its own solve once bound to a scene (``attach_scene``), e.g. ``vbd``'s self-contact
-    taking over ``self_collision``: the Stepper does not run them after its steps."""
-    pauses_object_faces = False
-    """Whether, once bound to a scene, the method's solve keeps the cloth off itself with
-    bounds on each vertex's move (``vbd`` with self-contact): the object colliders' face pass,
-    which would move vertices past those bounds after the step, then does not run (their
-    vertex pass does). A box's edge under a fold moved by it tangled the fold (docs/vbd-contact.md)."""
     tracks_solved_start = False
     """Whether the method, when ``solved_start`` is set to a State, copies into it the start of
     the last piece of a step it solved (a substep, a halving) and sets ``solved_h`` (s)."""
@@ -221,6 +213,18 @@ class Integrator(ABC):
     def reset(self) -> None:
         """Forget anything carried between steps (call after the system itself changed: a
         spring torn, a parameter moved). Stateless methods do nothing."""
+
+    def bind_contact(self, inputs: ContactInputs) -> ContactTakeover:
+        """Take what the method's solve holds of a scene's contact from ``inputs`` (the
+        scene's ground, shapes, collider mesh, self-collision stage, scripted pins, thickness:
+        :meth:`Scene.contact_inputs <taichi_sim.scene.scene.Scene.contact_inputs>`) and answer
+        what it took over (which parts' post-step work its solve does, whether the objects'
+        face pass must wait), which the scene applies (:meth:`Scene.hand_over
+        <taichi_sim.scene.scene.Scene.hand_over>`). The Stepper calls it when it binds the
+        method to a scene; it may raise ConfigError (a contact the solve cannot take) and must
+        then leave the method as it was. The default takes nothing: the scene's parts do all
+        their work after each step."""
+        return NOTHING_TAKEN
 
     def run_warning(self, accuracy_judged: bool = False) -> str:
         """What may be wrong with the steps taken since the method was bound that no step's

@@ -4,8 +4,14 @@ from typing import Any
 
 import numpy as np
 
+from ..collide.self_contact import SelfCollision
+from ..errors import ConfigError
 from ..state import State
 from ..systems.base import System
+from .colliders.faces import FaceContact
+from .colliders.mesh_collider import MeshCollider
+from .handoff import DEFAULT_THICKNESS, NOTHING_TAKEN, ContactInputs, ContactTakeover, closed_scene
+from .kinematic import KinematicPins
 
 
 @dataclass
@@ -41,6 +47,9 @@ class Scene:
             caller may wrap one here to watch it).
         springs, mesh, grabber, constraints: what the forces and the integrators read, or None.
         rest_x: (n, 3) float64 positions the springs rest in (before a seeded jitter), or None.
+        takeover: what the integrator stepping the scene took over from it
+            (:class:`~taichi_sim.scene.handoff.ContactTakeover`, set by :meth:`hand_over`):
+            :meth:`after_step` leaves its parts' events out.
     """
 
     name: str
@@ -64,6 +73,7 @@ class Scene:
     explicit_dt: float | None = None
     integrator_options: dict[str, dict[str, Any]] = field(default_factory=dict)
     default_tolerance: float | None = None
+    takeover: ContactTakeover = NOTHING_TAKEN
 
     @property
     def explicit_step(self) -> float:
@@ -157,13 +167,44 @@ class Scene:
         """Total energy (J) of the current state, or None when the system defines none."""
         return self.system.energy(self.state)
 
-    def after_step(self, t: float, h: float, skip: frozenset = frozenset()) -> bool:
+    def contact_inputs(self) -> ContactInputs:
+        """What the scene offers an integrator that takes contact into its solve (its ground,
+        shapes, collider mesh, self-collision stage, scripted pins, thickness and friction:
+        :class:`~taichi_sim.scene.handoff.ContactInputs`), as the scene is now."""
+        return ContactInputs(
+            system=self.system, state=self.state, cloth=self.mesh, rest_x=self.rest_x, plane=self.plane,
+            shapes=tuple(p for p in self.parts if getattr(p, "shape_functions", False)),
+            collider_mesh=self.part(MeshCollider.name), self_collision=self.part(SelfCollision.name),
+            pins=self.part(KinematicPins.name),
+            thickness=float(self.params.get("thickness", DEFAULT_THICKNESS)),
+            self_friction=float(self.params.get("self_friction", 0.0)),
+            closed=closed_scene(self.system, self.parts))
+
+    def hand_over(self, takeover: ContactTakeover) -> None:
+        """Apply what the integrator bound to :meth:`contact_inputs` answered it took over:
+        from the next step on :meth:`after_step` leaves out the events of ``takeover.parts``,
+        and the object colliders' face pass waits while ``takeover.pauses_object_faces``
+        (each later call replaces the one before: a method switched to hands back what the
+        last one took). ConfigError for a part the scene does not have."""
+        if not isinstance(takeover, ContactTakeover):
+            raise ConfigError(f"an integrator's bind_contact must answer a ContactTakeover, got {takeover!r}")
+        unknown = takeover.parts - {part.name for part in self.parts}
+        if unknown:
+            raise ConfigError(f"the integrator takes over {', '.join(sorted(unknown))}, which scene "
+                              f"{self.name} does not have")
+        for part in self.parts:
+            if isinstance(part, FaceContact):
+                part.faces_paused = takeover.pauses_object_faces
+        self.takeover = takeover
+
+    def after_step(self, t: float, h: float) -> bool:
         """Apply post-step events (collisions, tearing, emission) after an accepted step that
-        ended at time ``t`` (s) and was ``h`` (s) long, except the parts named in ``skip``
-        (whose work the integrator did in its solve). Returns whether an event changed the
-        system itself (not just the state), so integrators that carry data between steps must
-        be reset."""
+        ended at time ``t`` (s) and was ``h`` (s) long, except those of the parts the
+        integrator took over (:meth:`hand_over`: it did their work in its solve). Returns
+        whether an event changed the system itself (not just the state), so integrators that
+        carry data between steps must be reset."""
         changed = False
+        skip = self.takeover.parts
         for event in self.post_step:
             if skip and getattr(event, "name", None) in skip:
                 continue

@@ -3,8 +3,8 @@ the house order, and the one loop that advances time.
 
 Every path that steps a scene goes through :class:`Stepper`: :func:`taichi_sim.run` (and
 through it ``simulate``, ``advise``, the benchmarks), the launcher's and the recorder's
-:class:`~taichi_sim.app.runner.Runner`, the throughput workers and the tests that step a scene
-by hand. One call of :meth:`Stepper.step` is one integrator call and everything after it:
+:class:`~taichi_sim.app.runner.Runner`, the throughput workers, the stability bench (a bare
+Stepper) and the tests that step a scene by hand. One call of :meth:`Stepper.step` is one integrator call and everything after it:
 
 1. the curves set the parameters for the step's start (a force change resets the integrator
    and re-bases the guard: energy put in from outside is not a blow-up);
@@ -12,8 +12,8 @@ by hand. One call of :meth:`Stepper.step` is one integrator call and everything 
 3. ``integrator.step``;
 4. a failed step ends the run here (:meth:`Stepper._step_failed`);
 5. an accepted step: the time, the scene's post-step events (``scene.after_step``, less the
-   parts the integrator ``replaces_parts`` in its own solve; the integrator forgets what it
-   carries when they changed the system), the guard's work count
+   parts the integrator took over in its own solve; the integrator forgets what it carries
+   when they changed the system), the guard's work count
    and, when due or asked for, its check (a failed check ends the run on the last good state);
 6. observers' ``after_step``.
 
@@ -21,6 +21,15 @@ by hand. One call of :meth:`Stepper.step` is one integrator call and everything 
 the only loop that advances time. A caller's work at each step (a run's energy trace, saved
 frames and progress bar: :mod:`taichi_sim.run_observers`; the launcher's HUD; a benchmark's
 clock) is an observer's, not a loop of its own.
+
+Binding a method to the scene is one handoff each way (:mod:`taichi_sim.scene.handoff`):
+``scene.hand_over(integrator.bind_contact(scene.contact_inputs()))``: the scene offers its
+contact (ground, shapes, collider mesh, self-collision stage, scripted pins, thickness), the
+method answers what its solve took over, and the scene applies that to its own parts.
+
+A bare Stepper (``bare=True``) steps the method as it is, for the benchmarks that measure
+its bare step (its stable step, its kernels' times): no guard, no convergence sampling, no
+raising of work; the same loop, events and observers.
 
 A run that fails is frozen: :attr:`Stepper.failure` says what, where and what to do, in one
 place (:class:`Failure`), and the scene holds the last state that passed the guard whenever

@@ -7,6 +7,7 @@ from ..convergence import ConvergenceMonitor, format_metres
 from ..errors import ConfigError
 from ..guard import Guard, GuardLimits
 from ..integrators import Integrator, Status, StepReport, integrator_class
+from ..scene.handoff import NOTHING_TAKEN
 from .binding import bind_integrator, check_dt
 from .failure import Failure, failure_advice
 
@@ -24,6 +25,11 @@ def work_options(integrator) -> tuple:
 #: Stepper stops raising it, :meth:`Stepper._converged`).
 STALLED = 0.7
 OK = Status.OK  # a module global: read at every step
+
+
+def _never_due(work: float) -> bool:
+    """A bare Stepper's guard schedule: no check is ever due."""
+    return False
 
 
 class Stepper:
@@ -55,11 +61,18 @@ class Stepper:
             warns once and goes on.
         raise_work: False keeps the method's work as it was set (benchmarks that measure a
             method at its settings); past the tolerance it then only warns or fails.
+        bare: step the method as it is, for the benchmarks that measure its bare step (its
+            stable step, its kernels' times): no guard (nothing is checked, so ``check`` and
+            :meth:`check` are refused, and a failed run leaves the state where the failed step
+            left it), no convergence sampling, no raising of work, no refusal for precision.
+            Everything else is as in every run: the method bound to the scene's contact, the
+            curves, the post-step events, the observers, :meth:`run_until`.
 
     Attributes:
         t: simulated time (s); steps: accepted steps; rejected: steps an adaptive method retried.
         h: the next step (s): ``dt``, or the adaptive method's proposal.
         f_evals, linear_iterations: work in total; linear_residual: that of the last solve.
+        guard: the :class:`~taichi_sim.guard.Guard` (None when ``bare``).
         checked: whether the guard checked (and passed) the state after the last accepted step.
         failure: a :class:`Failure` once the run stopped, else None; ``status`` its status (OK
             while running).
@@ -67,21 +80,24 @@ class Stepper:
 
     def __init__(self, scene, integrator: Integrator | str, dt: float | None, *,
                  limits: GuardLimits | None = None, curves: dict | None = None, observers=(),
-                 max_residual: float | None = None, tolerance: float | None = None, raise_work: bool = True):
+                 max_residual: float | None = None, tolerance: float | None = None, raise_work: bool = True,
+                 bare: bool = False):
         if isinstance(integrator, str):  # a bad dt is refused before anything is bound
             check_dt(dt, adaptive=integrator_class(integrator).adaptive)
             integrator = bind_integrator(scene, integrator)
         self.scene = scene
         self.dt = check_dt(dt, adaptive=integrator.adaptive)
-        self.guard = Guard(scene, limits)
+        self.bare = bool(bare)
+        self.guard = None if self.bare else Guard(scene, limits)
         self.max_residual = max_residual
         self.tolerance = tolerance
-        self.raise_work = raise_work
+        self.raise_work = raise_work and not self.bare
         self._stopping = False  # an observer asked run_until to end (stop)
         self._step_start = None  # the whole step's start, kept while the work may be raised
         self._attempt = None  # a step's result before it was solved again with more work
         # bound once: each attribute lookup is paid at every step
-        self._events, self._spend = scene.after_step, self.guard.spend
+        self._events = scene.after_step
+        self._spend = _never_due if self.bare else self.guard.spend
         self.driver = None
         self._before, self._after, self._on_check = (), (), ()  # tuples: a hook may remove itself
         self._monitors: dict[int, tuple] = {}  # id(integrator) -> (integrator, its monitor)
@@ -113,15 +129,12 @@ class Stepper:
         """Step with ``integrator`` (bound to the scene's system) from the current state on."""
         if self.dt is None and not integrator.adaptive:
             raise ConfigError("dt is required for a fixed-step integrator")
-        attach = getattr(integrator, "attach_scene", None)
-        if attach is not None:  # a method that takes the scene's contact into its solve (vbd)
-            attach(self.scene)
+        # The handoff (scene/handoff.py): the scene offers its contact, the method answers what
+        # its solve took over, and the scene leaves that out of its post-step events (an object
+        # stepping like an integrator without deriving from one takes nothing).
+        bind = getattr(integrator, "bind_contact", None)
+        self.scene.hand_over(NOTHING_TAKEN if bind is None else bind(self.scene.contact_inputs()))
         self.integrator = integrator
-        self._skip = frozenset(getattr(integrator, "replaces_parts", ()))  # parts its solve does itself
-        paused = bool(getattr(integrator, "pauses_object_faces", False))
-        for part in self.scene.parts:  # the objects' face pass (scene/colliders/faces.py)
-            if hasattr(part, "faces_paused"):
-                part.faces_paused = paused
         # read once: an attribute of a Taichi data-oriented object costs about a microsecond
         self._integrate = integrator.step
         self.adaptive, self.implicit = integrator.adaptive, integrator.implicit
@@ -133,7 +146,8 @@ class Stepper:
         entry = self._monitors.get(id(integrator))
         if entry is None or entry[0] is not integrator:
             entry = self._monitors[id(integrator)] = (integrator, ConvergenceMonitor(
-                self.scene, integrator, self.max_residual, self.tolerance))
+                self.scene, integrator, self.max_residual, self.tolerance,
+                unmeasured="a bare Stepper measures nothing" if self.bare else ""))
         self.monitor = entry[1]
         self.monitor.clear()
         self.refusal = self.monitor.check_precision(self.scene.state, runtime.precision(),
@@ -173,7 +187,7 @@ class Stepper:
         target): the integrator forgets what it carries between steps, and the guard takes the
         current state as its new reference (energy put in from outside is not a blow-up)."""
         self.integrator.reset()
-        if self.failure is None:
+        if self.failure is None and self.guard is not None:
             self.guard.rebase(self.t, self.steps)
 
     def restart(self) -> None:
@@ -189,7 +203,8 @@ class Stepper:
             self.driver.restart()
             self.driver.apply(0.0)
         self.integrator.reset()  # the state jumped: a cached f is stale
-        self.guard.rebase(0.0, 0)
+        if self.guard is not None:
+            self.guard.rebase(0.0, 0)
         self.monitor.clear()
         self.warnings = []
 
@@ -253,7 +268,7 @@ class Stepper:
             sample = check or monitor.due() or (due and self.work_option and self._energy_past_bound())
             if sample and not self._converged(t, report.h):
                 return report
-        if self._events(self.t, report.h, self._skip):
+        if self._events(self.t, report.h):
             self.integrator.reset()  # an event changed the system (e.g. tore springs)
         if due:
             self.check(report.h)
@@ -323,7 +338,7 @@ class Stepper:
         """:meth:`run_until` ``t_end`` (s); then the state is checked when work was done since
         the last check. Returns the calls made."""
         calls = self.run_until(t_end=t_end, whole_steps=whole_steps, max_calls=max_calls)
-        if self.failure is None and self.guard.work:
+        if self.failure is None and self.guard is not None and self.guard.work:
             self.check()
         return calls
 
@@ -334,7 +349,10 @@ class Stepper:
     def check(self, h: float | None = None) -> bool:
         """Check the current state now (the guard, then observers' ``after_check``); a state
         that fails ends the run DIVERGED on the last good one. ``h``: the step named in the
-        failure (default :attr:`h`). True when it passed."""
+        failure (default :attr:`h`). True when it passed. ConfigError on a bare Stepper (it has
+        no guard)."""
+        if self.guard is None:
+            raise ConfigError("a bare Stepper has no guard: it checks nothing")
         hooks = self._on_check
         breach = self.guard.check(self.t, self.steps, keep=not hooks)
         detail = None if breach is None else breach.detail
@@ -448,7 +466,7 @@ class Stepper:
         """End the run with ``status`` at ``step`` (time ``t`` s, step size ``h`` s); with
         ``restore`` put the last state that passed the guard back into the scene."""
         good_step = good_t = None
-        if restore:
+        if restore and self.guard is not None:
             self.guard.restore()
             good_step, good_t = self.guard.good_step, self.guard.good_t
             self.t, self.steps = good_t, good_step
@@ -460,7 +478,7 @@ class Stepper:
     def _step_failed(self, report: StepReport, h: float) -> None:
         status, detail = report.status, report.message
         failed_step, failed_t = self.steps + 1, (self.t + h if report.accepted else self.t)
-        if status is not Status.DIVERGED and self.guard.work:
+        if status is not Status.DIVERGED and self.guard is not None and self.guard.work:
             # The failed attempt left the state at t: check what the steps since the last check
             # made of it (it may have blown up before the method gave up).
             breach = self.guard.check(self.t, self.steps)

@@ -48,9 +48,8 @@ class SolveContact(ObjectFaces):
     refreshes, whatever the order the vertices are solved in.
 
     Args:
-        scene: the :class:`~taichi_sim.scene.Scene` (its plane, the parts with the
-            ``Obstacle`` shape functions: spheres, capsules, boxes; its collider mesh; its
-            cloth mesh).
+        inputs: what the scene offers (:class:`~taichi_sim.scene.handoff.ContactInputs`: its
+            plane, its shapes (spheres, capsules, boxes), its collider mesh, its cloth).
         delta: the integrator's (n,) displacement field x - x0 (m) (read for the slip).
         objects: put the scene's objects in the solve.
         object_faces: with ``objects``, the cloth's triangles against them too (faces.py;
@@ -59,21 +58,21 @@ class SolveContact(ObjectFaces):
         radius: contact radius r (m).
     """
 
-    def __init__(self, scene, delta, *, objects: bool, object_faces: bool, self_contact: bool, radius: float,
+    def __init__(self, inputs, delta, *, objects: bool, object_faces: bool, self_contact: bool, radius: float,
                  stiffness: float,
                  bound_fraction: float, friction_epsilon: float, self_friction: float, refresh: int):
-        system = scene.system
+        system = inputs.system
         real, n = runtime.real(), system.particle_count
         self.system, self.delta = system, delta
-        self.plane = scene.plane if objects else None
-        self.obstacles = [p for p in scene.parts if getattr(p, "shape_functions", False)] if objects else []
+        self.plane = inputs.plane if objects else None
+        self.obstacles = list(inputs.shapes) if objects else []
         self.has_plane = self.plane is not None
         # the scene's collider mesh (a body), its post-step pass skipped (mesh_contact.py)
-        collider = scene.part("collider_mesh") if objects else None
+        collider = inputs.collider_mesh if objects else None
         self.body = None
         if collider is not None:
             self.body = MeshContact(collider, system, radius=radius, fraction=bound_fraction,
-                                    spacing=0.75 * median_edge(scene))
+                                    spacing=0.75 * median_edge(inputs))
         self.has_body = self.body is not None
         self.has_objects = self.has_plane or bool(self.obstacles) or self.has_body
         self.self_contact = bool(self_contact)
@@ -84,17 +83,17 @@ class SolveContact(ObjectFaces):
         self.refreshes = 0  # detections run since construction
         # the step the penalty's stiffness is scaled by (s): the whole substep's, also in its pieces
         self.penalty_dt = ti.field(runtime.real(), shape=())
-        self._init_object_faces(scene, object_faces)  # the cloth's triangles against the objects (faces.py)
+        self._init_object_faces(inputs, object_faces)  # the cloth's triangles against the objects (faces.py)
         if not self.self_contact:
             return
-        mesh = scene.mesh
+        mesh = inputs.cloth
         if mesh is None:
             raise ConfigError("vbd option self_contact needs a scene with a triangle mesh (a cloth)")
         if mesh.tearable:
             raise ConfigError("vbd option self_contact: a tearing cloth is not supported (its triangles change)")
-        x0 = scene.state.to_numpy()[0]
+        x0 = inputs.positions()
         tris = mesh.triangles_np.astype(np.int64)
-        rest = scene.rest_x if scene.rest_x is not None else x0
+        rest = inputs.rest_x if inputs.rest_x is not None else x0
         # refuses a start that already passes through itself: contact cannot untangle it
         check_contact_mesh(x0, tris, radius, rest=rest, name="vbd option contact_radius")
         self.mesh = mesh

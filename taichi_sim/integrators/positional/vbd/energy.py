@@ -11,26 +11,17 @@ shortening.
 
 A scene is closed when nothing in it can add energy within a substep: no wind, no turbulence,
 no part that launches particles and no part that moves at a speed above zero (a moving
-collider, kinematic pins), as the guard counts them. Elsewhere the cap is off; so it is with
+collider, kinematic pins), as the guard counts them (the scene says so:
+:attr:`~taichi_sim.scene.handoff.ContactInputs.closed`). Elsewhere the cap is off; so it is with
 contact in the solve (the contact penalty's energy is not in E: a vertex pushed out of a
 contact would read as a gain) and with ``energy_cap=False``.
 """
 import taichi as ti
 
 from .... import runtime
-from ....part import MovingSource
 
 CAP_BISECTIONS = 8  # the shortened substep's a is within 2^-8 of a point where E = E0
 CAP_TOLERANCE = 1e3  # machine epsilons of the energy's scale (sum of |U_i| and K_i): round-off
-
-
-def closed_scene(scene) -> bool:
-    """Whether nothing in ``scene`` can add energy within a step (module docstring)."""
-    system = scene.system
-    if any(system.term(name) is not None for name in ("wind", "turbulence")):
-        return False
-    sources = [source for part in scene.parts for source in part.energy_sources()]
-    return all(isinstance(source, MovingSource) and not source.speed > 0 for source in sources)
 
 
 @ti.data_oriented

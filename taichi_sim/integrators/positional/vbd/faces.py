@@ -3,7 +3,7 @@
 A vertex term keeps each vertex off an object, but a box's edge or corner, or a sphere or
 capsule thinner than the cloth's spacing, can pass through a triangle whose corners all stay
 out. With the objects' face pass after the step waiting (it would move vertices past the
-self-contact bounds, :attr:`~.scene.ContactSetup.pauses_object_faces`), box edges
+self-contact bounds, :attr:`~taichi_sim.scene.handoff.ContactTakeover.pauses_object_faces`), box edges
 poked 8-14 mm into a fold's faces. Here each intact triangle is an object's contact partner
 too, inside the solve, as a vertex is.
 
@@ -92,13 +92,13 @@ class ObjectFaces:
     once per piece by :meth:`query_mesh_faces`; ``queries_faces``: the analytic objects'
     pairs, queried before every sweep too)."""
 
-    def _init_object_faces(self, scene, enabled: bool) -> None:
-        mesh = scene.mesh
+    def _init_object_faces(self, inputs, enabled: bool) -> None:
+        mesh = inputs.cloth
         # (collider, needed: (count,) i32, pairs: (triangles, count) struct) per face-testing kind
         self.face_pairs = []
         self.mesh_faces = None  # the collider mesh's sharp features against the triangles (mesh_faces.py)
         if mesh is not None and enabled:
-            rest = scene.rest_x if scene.rest_x is not None else scene.state.to_numpy()[0]
+            rest = inputs.rest()
             rho = largest_circumradius(rest, mesh.triangles_np)
             dip = FACE_STRETCH ** 2 * rho ** 2 / 2.0
             real = runtime.real()
@@ -130,13 +130,13 @@ class ObjectFaces:
             return
         self.face_mesh = mesh
         self.face_reach = ti.field(runtime.real(), shape=())  # the query's reach this step (m)
-        n = scene.system.particle_count
+        n = inputs.system.particle_count
         self.face_anchor = ti.Vector.field(3, runtime.real(), shape=n)  # each vertex at the last query (m)
         # how far from its anchor each vertex may move and keep its triangles out of reach at the
         # last query off the objects (m)
         self.face_room = ti.field(runtime.real(), shape=n)
-        free = scene.system.free.to_numpy().astype(bool)
-        mass = scene.system.mass.to_numpy()
+        free = inputs.system.free.to_numpy().astype(bool)
+        mass = inputs.system.mass.to_numpy()
         self.face_mass = float(mass[free].mean()) if free.any() else 1.0
 
     @ti.func

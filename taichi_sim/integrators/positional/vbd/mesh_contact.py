@@ -67,12 +67,13 @@ def _orientation(vertices: np.ndarray, triangles: np.ndarray) -> int:
     return 1 if volume > 0 else -1 if volume < 0 else 0
 
 
-def median_edge(scene) -> float:
-    """The median edge (m) of the scene's cloth at rest (0 without a mesh)."""
-    mesh = scene.mesh
+def median_edge(inputs) -> float:
+    """The median edge (m) of a scene's cloth at rest (its
+    :class:`~taichi_sim.scene.handoff.ContactInputs`; 0 without a cloth)."""
+    mesh = inputs.cloth
     if mesh is None or mesh.triangle_count == 0:
         return 0.0
-    rest = scene.rest_x if scene.rest_x is not None else scene.state.to_numpy()[0]
+    rest = inputs.rest()
     tris = mesh.triangles_np.astype(np.int64)
     return float(np.median(np.linalg.norm(rest[tris] - rest[np.roll(tris, 1, axis=1)], axis=2)))
 

@@ -7,7 +7,7 @@ keep each vertex within ``bound_fraction`` of its distance to its nearest contac
 between two detections, and a pin that jumps further can carry its triangles through the cloth
 piled round it (the 32 x 32 `cloth-twist` at 1/60 s intersected in 76 of 121 frames).
 
-So vbd takes the pins over (the Stepper skips their post-step event, ``replaces_parts``): in
+So vbd takes the pins over (the scene leaves their post-step event out, ``takeover``): in
 each piece of a substep the pins move from where they are to where the script puts them at the
 piece's end, in the solve, where the other vertices see them, and a piece is made short enough
 that no pin moves further than its bound (the script's path is not linear in time, so the

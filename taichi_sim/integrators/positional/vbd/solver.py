@@ -8,6 +8,7 @@ import numpy as np
 import taichi as ti
 
 from .... import field_io, runtime
+from ....scene.handoff import ContactInputs, ContactTakeover
 from ....state import finite
 from ....systems.base import System
 from ...base import Integrator, Status, StepReport
@@ -15,11 +16,11 @@ from ...equation import FIXED_WORK, Equation
 from ...options import Option
 from ..colouring import colour_vertices
 from .contact_model import solve_forces
-from .energy import EnergyCap, closed_scene
+from .energy import EnergyCap
 from .kernels import bind_kernels, serial_sweeps
 from .membranes import MembraneTerms
 from .pieces import FAILURES, PACE_SHARE, PieceSchedule
-from .scene import ContactSetup, contact_setup
+from .setup import ContactSetup, contact_setup
 from .springs import SpringTerms
 
 
@@ -70,11 +71,11 @@ class VBD(Integrator):
         penalty: the augmented form's penalty rho at the start of each substep (N/m, > 0).
         penalty_growth: its ramp: rho grows by this times |C| after each sweep (N/m^2, >= 0).
         contact: the scene's objects (plane, spheres, capsules, boxes) in the solve as contact
-            energies (:class:`~.contact.SolveContact`), once :meth:`attach_scene` has
-            been given the scene (the Stepper does); default True.
+            energies (:class:`~.contact.SolveContact`), once :meth:`bind_contact` has
+            been given the scene's inputs (the Stepper does); default True.
         self_contact: the cloth against itself in the solve. None (default): when the scene
             has a post-step self-collision stage (``self_collision=1``), which the solve then
-            replaces (the Stepper skips the stage: :attr:`replaces_parts`). True: in the solve
+            replaces (the scene leaves the stage out: :attr:`takeover`). True: in the solve
             on any scene, the scene's stage (if any) still runs after each step as a fail-safe.
             False: not in the solve (the scene's stage, if any, runs after each step).
         contact_radius: contact radius (m, > 0); None: the scene's ``thickness`` (0.005 m
@@ -174,12 +175,12 @@ class VBD(Integrator):
                                     stiffness=float(contact_stiffness), bound_fraction=float(bound_fraction),
                                     friction_epsilon=float(friction_epsilon), refresh=int(contact_refresh))
         # The parts the solve is made of, each given what it reads (see their modules):
-        # the scene's contact (attach_scene), the energy cap, the pieces of a substep with
+        # the scene's contact (bind_contact), the energy cap, the pieces of a substep with
         # contact and, below, the springs' terms and a membrane's.
-        self.setup = ContactSetup()  # what the attached scene put in the solve: nothing yet
-        self._attached = None  # the scene attached (attach_scene)
+        self.setup = ContactSetup()  # what the bound scene put in the solve: nothing yet
+        self._inputs = None  # the scene's ContactInputs bound (bind_contact)
         self.cap = EnergyCap(system)
-        self.cap_active = False  # set by attach_scene on a closed scene (read by the kernels)
+        self.cap_active = False  # set by bind_contact on a closed scene (read by the kernels)
         self.schedule = PieceSchedule(self.contact_pieces, float(pace_share))
         real, n = runtime.real(), system.particle_count
         self.springs = system.term("springs")
@@ -223,8 +224,8 @@ class VBD(Integrator):
         self._last_dt = 0.0
         self.sweeps = 0  # sweeps run since construction (all substeps)
 
-    # -- what the attached scene put in the solve (ContactSetup), read by the Stepper, the run,
-    # the convergence monitor and the kernels (ti.static) ----------------------------------------
+    # -- what the bound scene put in the solve (ContactSetup), read by the run, the convergence
+    # monitor and the kernels (ti.static) ----------------------------------------------------------
 
     contact = property(lambda self: self.setup.contact,
                        doc="The contact terms in the solve (SolveContact), None where the scene gives it none.")
@@ -232,8 +233,7 @@ class VBD(Integrator):
     has_self_contact = property(lambda self: self.setup.has_self_contact)
     pins = property(lambda self: self.setup.pins, doc="The scripted pins the solve moves (pins.py), or None.")
     drives_pins = property(lambda self: self.setup.pins is not None)
-    replaces_parts = property(lambda self: self.setup.replaces_parts)
-    pauses_object_faces = property(lambda self: self.setup.pauses_object_faces)
+    takeover = property(lambda self: self.setup.takeover, doc="What the solve took over (ContactTakeover).")
     work_weight = property(lambda self: self.setup.work_weight)
     capped = property(lambda self: self.cap.capped, doc="Substeps the energy cap shortened (0-d i32 field).")
     pieces = property(lambda self: self.schedule.pieces, doc="Pieces of substeps run with contact (pieces.py).")
@@ -250,22 +250,22 @@ class VBD(Integrator):
             return substeps
         return (("pace_share", 0.5 / max(self.contact.free_count, 1)),) + substeps
 
-    def attach_scene(self, scene) -> None:
-        """Put the scene's objects (and, with ``self_contact``, its mesh) in the solve
-        (:func:`~.scene.contact_setup`), and the energy cap where the scene is closed and the
-        solve has no contact. Raises ConfigError for a contact radius the mesh cannot take or a
-        start that intersects; the method is then left unattached (a later attach tries
-        again), never half-bound."""
-        if getattr(self, "_attached", None) is scene:
-            return  # already bound to it (a launcher switching methods back)
-        self._attached = None
-        setup = contact_setup(scene, self.contact_options, self.self_contact, self.delta)  # may raise
+    def bind_contact(self, inputs: ContactInputs) -> ContactTakeover:
+        """Put the scene's objects (with ``self_contact``, its cloth) from ``inputs`` in the solve
+        (:func:`~.setup.contact_setup`), or the energy cap where the scene is closed and there is
+        no contact; returns what the solve takes over. ConfigError for a contact radius the mesh
+        cannot take or a start that intersects: the method is then left unbound, never half-bound."""
+        if inputs.same_as(self._inputs):
+            return self.setup.takeover  # already bound to them (a launcher switching methods back)
+        self._inputs = None
+        setup = contact_setup(inputs, self.contact_options, self.self_contact, self.delta)  # may raise
         self.setup = setup
         # Not with contact in the solve: its penalty energy is not in E, and a vertex pushed
         # out of a contact would read as a gain (the folds measured never rose, docs/vbd.md).
-        self.cap_active = self.energy_cap and setup.contact is None and closed_scene(scene)
+        self.cap_active = self.energy_cap and setup.contact is None and inputs.closed
         self._kernels = {}  # the kernels compile the contact terms and the cap in
-        self._attached = scene
+        self._inputs = inputs
+        return setup.takeover
 
     def run_warning(self, accuracy_judged: bool = False) -> str:
         """Contact pairs found but not kept (a vertex's list of CONTACTS_PER_VERTEX, or the
