@@ -34,9 +34,24 @@ def bind_kernels(vbd, y) -> dict:
     """The kernels of ``vbd`` (a :class:`~.solver.VBD`) over the state ``y``: a whole serial
     substep, and the parts the Python loops drive (begin, sweeps, a colour, end)."""
 
+    active = vbd.active
+    has_active = active is not None
+    pairs = vbd.has_self_contact  # (its pairs couple vertices)
+
+    @ti.func
+    def serial_vertex(i, dt, t):
+        """Vertex i's step in the serial sweeps, passed by where the active set has it settled."""
+        if ti.static(not has_active):
+            vbd._solve_vertex(i, dt, t)
+        else:
+            if active.take(i):
+                active.moved(i, vbd._solve_vertex(i, dt, t), vbd.contact, pairs)
+
     @ti.kernel
     def substep(dt: float, t: float, use_acceleration: ti.i32, previous_dt: float, iterations: ti.i32) -> ti.i32:
         vbd._begin(y, dt, use_acceleration, previous_dt, t, 0)
+        if ti.static(has_active):
+            active.all_stale(vbd.system.particle_count)
         ti.loop_config(serialize=True)
         for _ in range(1):  # one serial task: every sweep, colour after colour
             omega = 1.0
@@ -44,7 +59,7 @@ def bind_kernels(vbd, y) -> dict:
             for sweep in range(iterations):
                 for c in range(vbd.colour_count):
                     for q in range(vbd.colour_start[c], vbd.colour_start[c + 1]):
-                        vbd._solve_vertex(vbd.order[q], dt, t)
+                        serial_vertex(vbd.order[q], dt, t)
                 if ti.static(vbd.has_multipliers):
                     vbd.spring_terms.update_multipliers(vbd.point.x)
                 if ti.static(vbd.chebyshev):
@@ -62,6 +77,8 @@ def bind_kernels(vbd, y) -> dict:
 
     @ti.kernel
     def sweeps(dt: float, t: float, first: ti.i32, count: ti.i32):
+        if ti.static(has_active):  # after a begin or a detection: every block has changed
+            active.all_stale(vbd.system.particle_count)
         ti.loop_config(serialize=True)
         for _ in range(1):  # one serial task: the sweeps first .. first + count - 1
             omega = 1.0
@@ -76,7 +93,7 @@ def bind_kernels(vbd, y) -> dict:
                     vbd._query_faces(t)
                     for c in range(vbd.colour_count):
                         for q in range(vbd.colour_start[c], vbd.colour_start[c + 1]):
-                            vbd._solve_vertex(vbd.order[q], dt, t)
+                            serial_vertex(vbd.order[q], dt, t)
                     vbd._after_colours(dt, t, omega, sweep)
 
     # The parallel sweep (_sweep): all colours in one launch (unrolled: the vertex solve

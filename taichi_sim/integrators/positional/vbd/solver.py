@@ -14,6 +14,7 @@ from ...base import Integrator, Status, StepReport
 from ...equation import FIXED_WORK, Equation
 from ...options import Option
 from ..colouring import colour_vertices
+from .active import ActiveSet
 from .contact_model import solve_forces
 from .energy import EnergyCap, closed_scene
 from .kernels import bind_kernels, serial_sweeps
@@ -102,6 +103,10 @@ class VBD(Integrator):
             emitter) without contact in the solve, shorten a substep that would end with more
             energy (J) than it started with toward its start until it does not
             (:mod:`.energy`); default True.
+        skip_move: where the sweeps run as one serial task, a vertex whose last step moved it
+            at most this far (m) and whose neighbours (springs, a membrane's elements, contact
+            pairs) have moved no further since is not solved again (:mod:`.active`); 0: every
+            vertex in every sweep. Default 1e-5 m.
     """
 
     name = "vbd"
@@ -159,7 +164,10 @@ class VBD(Integrator):
             contact_pieces: Annotated[int, Option("most pieces a substep with self-contact is cut into",
                                                   at_least=1)] = 16,
             object_faces: Annotated[bool, Option("the cloth's triangles against the objects too")] = True,
-            energy_cap: Annotated[bool, Option("cap a closed scene's energy per substep")] = True):
+            energy_cap: Annotated[bool, Option("cap a closed scene's energy per substep")] = True,
+            skip_move: Annotated[float, Option("the serial sweeps pass by a vertex whose last move and its "
+                                               "neighbours' since stayed below this (0: none)", unit="m",
+                                               at_least=0)] = 1e-5):
         super().__init__(system)
         # the options' types and bounds are checked from their declarations above (Integrator.__new__)
         self.iterations, self.substeps = int(iterations), int(substeps)
@@ -211,6 +219,13 @@ class VBD(Integrator):
         self.order = ti.field(ti.i32, shape=max(1, n))
         self.colour_start = ti.field(ti.i32, shape=len(self.starts))  # the serial kernels loop over colours
         field_io.write((self.order, order), (self.colour_start, self.starts))  # one kernel, not two
+        # the serial sweeps' active set (active.py): not where something moves or re-weighs every
+        # vertex after a sweep, nor with a term that reads other particles than the ones it pushes
+        self.skip_move = float(skip_move)
+        self.active = None
+        if self.skip_move > 0 and not (self.chebyshev or self.has_multipliers) \
+                and not any(term.reads_other_particles for term in self.others):
+            self.active = ActiveSet(n, ends, self.skip_move)
         self._work = n + (self.springs.spring_count if self.has_springs else 0) \
             + (self.membrane_terms.work if self.has_membrane else 0)  # a sweep's, in springs' worth
         self._serial: bool | None = None  # set: a caller's choice (tests, benchmarks) over the rule
@@ -525,7 +540,9 @@ class VBD(Integrator):
 
     @ti.func
     def _solve_vertex(self, i, dt, t):
-        """One Newton step of vertex i on its block of G (the class docstring), neighbours fixed."""
+        """One Newton step of vertex i on its block of G (the class docstring), neighbours fixed;
+        returns how far it moved the vertex (m)."""
+        moved = ti.cast(0.0, self.delta.dtype)
         if self.system.free[i]:
             m = self.system.mass[i]
             inertia = m / (dt * dt)
@@ -557,6 +574,8 @@ class VBD(Integrator):
                 self.delta[i] = delta
                 self.point.x[i] = self.start_x[i] + delta
                 self.point.v[i] = delta / dt
+                moved = (delta - old).norm()
+        return moved
 
     @ti.func
     def _accelerate(self, i, dt, omega, sweep, t):

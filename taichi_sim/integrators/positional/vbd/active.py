@@ -1,0 +1,78 @@
+"""The serial sweeps' active set: vertices whose block nothing has changed are not solved again.
+
+A vertex's Newton step reads its own displacement and those of the vertices it shares a term
+with: its springs' and a membrane's element neighbours (the pairs the colouring separates) and
+the other vertices of its contact pairs. When a vertex's last step moved it by at most
+``skip_move`` metres and none of those moved by more since, its next step would move it by
+about as little again, so the sweeps pass it by. Every vertex is solved in the first sweep of a
+piece and after each detection (its pairs are new); a vertex that moves more than
+``skip_move`` marks itself and its neighbours to be solved in their next turn (those later in
+the same sweep see the move at once, Gauss-Seidel's order). A settled pile then costs the
+sweeps little, where each of 20 sweeps solved all of it (docs/lab/vbd.md, "The fold's pace,
+cheaper").
+
+Only where the sweeps run as one serial task (a mark from a same-coloured contact partner
+could race with the vertex's own clearing in a parallel loop), without Chebyshev's
+over-relaxation or augmented springs (they move or re-weigh every vertex after each sweep),
+and where every other force term reads its own particle only (wind reads a triangle's).
+"""
+
+import numpy as np
+import taichi as ti
+
+from .... import field_io
+
+
+@ti.data_oriented
+class ActiveSet:
+    """Which vertices the serial sweeps still solve (module docstring).
+
+    Args:
+        particle_count: n.
+        ends: (P, 2) the vertex pairs that share a spring, a triangle or a bending stencil
+            (the pairs the colouring separates).
+        skip_move: the move (m, > 0) below which a vertex does not mark itself or its
+            neighbours.
+    """
+
+    def __init__(self, particle_count: int, ends: np.ndarray, skip_move: float):
+        n = particle_count
+        ends = np.asarray(ends, np.int64).reshape(-1, 2)
+        both = np.concatenate([ends, ends[:, ::-1]])
+        both = both[np.argsort(both[:, 0], kind="stable")]
+        offsets = np.searchsorted(both[:, 0], np.arange(n + 1))
+        self.skip_move = float(skip_move)
+        self.offsets = ti.field(ti.i32, shape=n + 1)
+        self.neighbours = ti.field(ti.i32, shape=max(1, len(both)))
+        self.stale = ti.field(ti.i32, shape=max(1, n))  # 1: to be solved at its next turn
+        self.solves = ti.field(ti.i64, shape=())  # vertex steps taken since construction
+        field_io.write((self.offsets, offsets), (self.neighbours, both[:, 1] if len(both) else np.zeros(1)))
+
+    @ti.func
+    def all_stale(self, n):
+        """Mark every vertex to be solved (a piece's first sweep, a new detection)."""
+        for i in range(n):
+            self.stale[i] = 1
+
+    @ti.func
+    def take(self, i) -> bool:
+        """Whether vertex i is to be solved now; clears its mark."""
+        out = self.stale[i] != 0
+        self.stale[i] = 0
+        return out
+
+    @ti.func
+    def moved(self, i, distance, contact: ti.template(), pairs: ti.template()):
+        """After vertex i's step of ``distance`` metres: above ``skip_move``, mark it, its
+        element neighbours and, where ``pairs`` (a compile-time bool), its contact pairs'
+        vertices (``contact``: the :class:`~.contact.SolveContact`, self-contact in the solve)."""
+        self.solves[None] += 1
+        if distance > self.skip_move:
+            self.stale[i] = 1
+            for e in range(self.offsets[i], self.offsets[i + 1]):
+                self.stale[self.neighbours[e]] = 1
+            if ti.static(pairs):
+                for s in range(ti.min(contact.vertex_pair_count[i], contact.per_vertex)):
+                    ids = contact.pair_ids[contact.vertex_pairs[i, s]]
+                    for k in ti.static(range(4)):
+                        self.stale[ids[k]] = 1
