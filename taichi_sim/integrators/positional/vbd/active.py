@@ -85,3 +85,14 @@ class ActiveSet:
                     ids = contact.pair_ids[contact.vertex_pairs[i, s]]
                     for k in ti.static(range(4)):
                         self.stale[ids[k]] = 1
+
+
+def active_set(particle_count: int, ends: np.ndarray, skip_move: float, every_sweep_moves: bool,
+               others: list) -> ActiveSet | None:
+    """The :class:`ActiveSet` of a solve, or None where it may not be used: ``skip_move`` 0,
+    ``every_sweep_moves`` (Chebyshev's over-relaxation or augmented springs move or re-weigh
+    every vertex after each sweep), or one of the ``others`` force terms reads particles other
+    than the one it pushes (``reads_other_particles``: wind reads a triangle's corners)."""
+    if skip_move <= 0 or every_sweep_moves or any(term.reads_other_particles for term in others):
+        return None
+    return ActiveSet(particle_count, ends, skip_move)
