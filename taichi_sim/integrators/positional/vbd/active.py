@@ -4,32 +4,31 @@ A vertex's Newton step reads its own displacement and those of the vertices it s
 with: its springs' and a membrane's element neighbours (the pairs the colouring separates) and
 the other vertices of its contact pairs. When a vertex's last step moved it by at most
 ``skip_move`` metres and none of those moved by more since, its next step would move it by
-about as little again, so the sweeps pass it by. Every vertex is solved in the first sweep of a
-piece and after each detection (its pairs are new); a vertex that moves more than
-``skip_move`` marks itself and its neighbours to be solved in their next turn (those later in
-the same sweep see the move at once, Gauss-Seidel's order). A settled pile then costs the
-sweeps little, where each of 20 sweeps solved all of it (docs/lab/vbd.md, "The fold's pace,
-cheaper").
+about as little again, so the sweeps pass it by. A vertex that moves more than ``skip_move``
+marks itself and its neighbours to be solved in their next turn (those later in the same sweep
+see the move at once, Gauss-Seidel's order). Every ``FULL_SWEEP_EVERY``-th sweep of a piece
+(its first, and the first after a detection, included) solves every vertex: a vertex whose
+steps are each below ``skip_move`` but all the same way (the slow, smooth part of the error
+Gauss-Seidel is slow on) would otherwise stop short, and many sweeps stalled 0.8 mm from their
+fixed point in a 16 x 16 pile (tests/test_error_estimate_contact.py); with the full sweeps
+they reach it. A settled pile then costs the sweeps a fraction of what 20 full sweeps did
+(docs/lab/vbd.md, "The fold, cheaper").
 
-What it gives up: a vertex whose steps are each below ``skip_move`` but all the same way (the
-slow, smooth part of the error Gauss-Seidel is slow on) stops short, so many sweeps stall
-about ten times ``skip_move`` from their fixed point (1.1e-4 m at 1e-5 m on a swinging 6 x 6
-cloth, where 3000 full sweeps reach 1e-14 m), far below what the default 20 sweeps leave on a
-contact pile (millimetres). Halving the threshold and solving every vertex again whenever a
-sweep moved none past it keeps the fixed point, but then every sweep after convergence solves
-every vertex (a 16 x 16 fold solved 45 % of the full sweeps' vertex steps instead of 18 %).
-So the active set is used where the solve holds self-contact (the piles it is for; a cloth
-without contact converges as before), where the sweeps run as one serial task (a mark from a
-same-coloured contact partner could race with the vertex's own clearing in a parallel loop),
-without Chebyshev's over-relaxation or augmented springs (they move or re-weigh every vertex
-after each sweep), and where every other force term reads its own particle only (wind reads
-a triangle's).
+Used where the solve holds self-contact (the piles it is for; a cloth without contact sweeps
+as before), where the sweeps run as one serial task (a mark from a same-coloured contact
+partner could race with the vertex's own clearing in a parallel loop), without Chebyshev's
+over-relaxation or augmented springs (they move or re-weigh every vertex after each sweep),
+and where every other force term reads its own particle only (wind reads a triangle's).
 """
 
 import numpy as np
 import taichi as ti
 
 from .... import field_io
+
+# Every this many sweeps (the first of a piece's, or of those after a detection, included) every
+# vertex is solved: the vertices passed by still converge (module docstring).
+FULL_SWEEP_EVERY = 8
 
 
 @ti.data_oriented
@@ -59,7 +58,8 @@ class ActiveSet:
 
     @ti.func
     def all_stale(self, n):
-        """Mark every vertex to be solved (a piece's first sweep, a new detection)."""
+        """Mark every vertex to be solved (every FULL_SWEEP_EVERY-th sweep); a loop inside the
+        serial task."""
         for i in range(n):
             self.stale[i] = 1
 

@@ -5,6 +5,7 @@ compile time."""
 import taichi as ti
 
 from .... import runtime
+from .active import FULL_SWEEP_EVERY
 
 # Below this many particles plus springs (times spare threads) the colour loops run on one
 # thread and a whole substep is one kernel launch: a colour of a 64 x 64 cloth is ~450
@@ -51,13 +52,14 @@ def bind_kernels(vbd, y) -> dict:
     @ti.kernel
     def substep(dt: float, t: float, use_acceleration: ti.i32, previous_dt: float, iterations: ti.i32) -> ti.i32:
         vbd._begin(y, dt, use_acceleration, previous_dt, t, 0)
-        if ti.static(has_active):
-            active.all_stale(vbd.system.particle_count)
         ti.loop_config(serialize=True)
         for _ in range(1):  # one serial task: every sweep, colour after colour
             omega = 1.0
             rho2 = vbd.chebyshev_rho ** 2
             for sweep in range(iterations):
+                if ti.static(has_active):
+                    if sweep % FULL_SWEEP_EVERY == 0:
+                        active.all_stale(vbd.system.particle_count)
                 for c in range(vbd.colour_count):
                     for q in range(vbd.colour_start[c], vbd.colour_start[c + 1]):
                         serial_vertex(vbd.order[q], dt, t)
@@ -78,8 +80,6 @@ def bind_kernels(vbd, y) -> dict:
 
     @ti.kernel
     def sweeps(dt: float, t: float, first: ti.i32, count: ti.i32):
-        if ti.static(has_active):  # after a begin or a detection: every block has changed
-            active.all_stale(vbd.system.particle_count)
         ti.loop_config(serialize=True)
         for _ in range(1):  # one serial task: the sweeps first .. first + count - 1
             omega = 1.0
@@ -91,6 +91,9 @@ def bind_kernels(vbd, y) -> dict:
                     elif sweep > 1:
                         omega = 4.0 / (4.0 - rho2 * omega)
                 if sweep >= first:
+                    if ti.static(has_active):
+                        if (sweep - first) % FULL_SWEEP_EVERY == 0:
+                            active.all_stale(vbd.system.particle_count)
                     vbd._query_faces(t)
                     for c in range(vbd.colour_count):
                         for q in range(vbd.colour_start[c], vbd.colour_start[c + 1]):
