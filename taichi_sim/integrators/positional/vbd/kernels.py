@@ -5,6 +5,7 @@ compile time."""
 import taichi as ti
 
 from .... import runtime
+from .active import FULL_SWEEP_EVERY
 
 # Below this many particles plus springs (times spare threads) the colour loops run on one
 # thread and a whole substep is one kernel launch: a colour of a 64 x 64 cloth is ~450
@@ -34,6 +35,20 @@ def bind_kernels(vbd, y) -> dict:
     """The kernels of ``vbd`` (a :class:`~.solver.VBD`) over the state ``y``: a whole serial
     substep, and the parts the Python loops drive (begin, sweeps, a colour, end)."""
 
+    # the active set where the solve holds self-contact (active.py): the piles it is for
+    active = vbd.active if vbd.has_self_contact else None
+    has_active = active is not None
+    pairs = vbd.has_self_contact  # (its pairs couple vertices)
+
+    @ti.func
+    def serial_vertex(i, dt, t):
+        """Vertex i's step in the serial sweeps, passed by where the active set has it settled."""
+        if ti.static(not has_active):
+            vbd._solve_vertex(i, dt, t)
+        else:
+            if active.take(i):
+                active.moved(i, vbd._solve_vertex(i, dt, t), vbd.contact, pairs)
+
     @ti.kernel
     def substep(dt: float, t: float, use_acceleration: ti.i32, previous_dt: float, iterations: ti.i32) -> ti.i32:
         vbd._begin(y, dt, use_acceleration, previous_dt, t, 0)
@@ -42,9 +57,12 @@ def bind_kernels(vbd, y) -> dict:
             omega = 1.0
             rho2 = vbd.chebyshev_rho ** 2
             for sweep in range(iterations):
+                if ti.static(has_active):
+                    if sweep % FULL_SWEEP_EVERY == 0:
+                        active.all_stale(vbd.system.particle_count)
                 for c in range(vbd.colour_count):
                     for q in range(vbd.colour_start[c], vbd.colour_start[c + 1]):
-                        vbd._solve_vertex(vbd.order[q], dt, t)
+                        serial_vertex(vbd.order[q], dt, t)
                 if ti.static(vbd.has_multipliers):
                     vbd.spring_terms.update_multipliers(vbd.point.x)
                 if ti.static(vbd.chebyshev):
@@ -73,10 +91,13 @@ def bind_kernels(vbd, y) -> dict:
                     elif sweep > 1:
                         omega = 4.0 / (4.0 - rho2 * omega)
                 if sweep >= first:
+                    if ti.static(has_active):
+                        if (sweep - first) % FULL_SWEEP_EVERY == 0:
+                            active.all_stale(vbd.system.particle_count)
                     vbd._query_faces(t)
                     for c in range(vbd.colour_count):
                         for q in range(vbd.colour_start[c], vbd.colour_start[c + 1]):
-                            vbd._solve_vertex(vbd.order[q], dt, t)
+                            serial_vertex(vbd.order[q], dt, t)
                     vbd._after_colours(dt, t, omega, sweep)
 
     # The parallel sweep (_sweep): all colours in one launch (unrolled: the vertex solve

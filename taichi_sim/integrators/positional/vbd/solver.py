@@ -15,6 +15,7 @@ from ...base import Integrator, Status, StepReport
 from ...equation import FIXED_WORK, Equation
 from ...options import Option
 from ..colouring import colour_vertices
+from .active import active_set
 from .contact_model import solve_forces
 from .energy import EnergyCap
 from .kernels import bind_kernels, serial_sweeps
@@ -100,6 +101,8 @@ class VBD(Integrator):
             emitter) without contact in the solve, shorten a substep that would end with more
             energy (J) than it started with toward its start until it does not
             (:mod:`.energy`); default True.
+        skip_move: with self-contact in the solve and serial sweeps, a vertex whose last step and
+            its neighbours' since moved at most this far (m) is passed by (:mod:`.active`; 1e-5).
     """
 
     name = "vbd"
@@ -128,8 +131,9 @@ class VBD(Integrator):
     def scratch_bytes(cls, particles: int, springs: int, real_bytes: int, linear_solver: str = "cg") -> int:
         """Start positions and velocities, the displacement, two earlier ones (Chebyshev), the
         last acceleration along gravity, the colour order per particle; a penalty and a multiplier
-        per spring (the augmented option)."""
-        return particles * (16 * real_bytes + 4) + springs * 2 * real_bytes
+        per spring (the augmented option); the active set's marks and neighbour lists (two i32
+        per particle, two per spring)."""
+        return particles * (16 * real_bytes + 12) + springs * (2 * real_bytes + 8)
 
     def __init__(
             self, system: System, *,
@@ -160,7 +164,10 @@ class VBD(Integrator):
             pace_share: Annotated[float, Option("share of the vertices a piece may cut to their contact bounds",
                                                 at_least=0, below=1)] = PACE_SHARE,
             object_faces: Annotated[bool, Option("the cloth's triangles against the objects too")] = True,
-            energy_cap: Annotated[bool, Option("cap a closed scene's energy per substep")] = True):
+            energy_cap: Annotated[bool, Option("cap a closed scene's energy per substep")] = True,
+            skip_move: Annotated[float, Option("with self-contact, the serial sweeps pass by a vertex whose "
+                                               "move and its neighbours' stayed below this (0: none)",
+                                               unit="m", at_least=0)] = 1e-5):
         super().__init__(system)
         # the options' types and bounds are checked from their declarations above (Integrator.__new__)
         self.iterations, self.substeps = int(iterations), int(substeps)
@@ -212,6 +219,8 @@ class VBD(Integrator):
         self.order = ti.field(ti.i32, shape=max(1, n))
         self.colour_start = ti.field(ti.i32, shape=len(self.starts))  # the serial kernels loop over colours
         field_io.write((self.order, order), (self.colour_start, self.starts))  # one kernel, not two
+        self.skip_move = float(skip_move)  # the serial sweeps' active set, where it may be used
+        self.active = active_set(n, ends, self.skip_move, self.chebyshev or self.has_multipliers, self.others)
         self._work = n + (self.springs.spring_count if self.has_springs else 0) \
             + (self.membrane_terms.work if self.has_membrane else 0)  # a sweep's, in springs' worth
         self._serial: bool | None = None  # set: a caller's choice (tests, benchmarks) over the rule
@@ -537,7 +546,9 @@ class VBD(Integrator):
 
     @ti.func
     def _solve_vertex(self, i, dt, t):
-        """One Newton step of vertex i on its block of G (the class docstring), neighbours fixed."""
+        """One Newton step of vertex i on its block of G (the class docstring), neighbours fixed;
+        returns how far it moved the vertex (m)."""
+        moved = ti.cast(0.0, self.delta.dtype)
         if self.system.free[i]:
             m = self.system.mass[i]
             inertia = m / (dt * dt)
@@ -569,6 +580,8 @@ class VBD(Integrator):
                 self.delta[i] = delta
                 self.point.x[i] = self.start_x[i] + delta
                 self.point.v[i] = delta / dt
+                moved = (delta - old).norm()
+        return moved
 
     @ti.func
     def _accelerate(self, i, dt, omega, sweep, t):
