@@ -112,7 +112,7 @@ def test_identical_runs_with_self_contact_give_identical_answers_and_estimates(f
 def test_with_self_contact_a_tolerance_lowers_the_share_of_vertices_a_piece_cuts(f32):
     # A 16 x 16 twist at 0.9 s: a few vertices whose start guesses leave their contact bounds
     # are cut to them rather than given a shorter piece (pace_share), which holds the step
-    # 0.7 mm from its solution; with no vertex cut it is within 0.02 mm. So under a tolerance
+    # 0.7 mm from its solution; with no vertex cut it is within 0.1 mm. So under a tolerance
     # vbd lowers that share first, before its substeps.
     scene = ts.build_scene("cloth-twist", {"nx": 16, "ny": 16})
     integrator = ts.create_integrator("vbd", scene.system)
@@ -130,4 +130,4 @@ def test_with_self_contact_a_tolerance_lowers_the_share_of_vertices_a_piece_cuts
         stepper.monitor.before_step(scene.state)
         integrator.step(scene.state, t, 1 / 60)
         distances.append(stepper.monitor.measure(scene.state, t + 1 / 60, 1 / 60)[1])
-    assert distances[0] > 5e-4 and distances[1] < 5e-5
+    assert distances[0] > 5e-4 and distances[1] < 1e-4
