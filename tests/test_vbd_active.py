@@ -50,6 +50,11 @@ def test_a_vertex_that_moves_marks_itself_its_element_neighbours_and_its_contact
     np.testing.assert_array_equal(active.stale.to_numpy().astype(bool), expected)
     move(i, 0.5 * vbd.skip_move)  # a settled step marks nothing
     assert not active.stale.to_numpy().any()
+    # the threshold is read as the sweeps run (a run's tolerance lowers it): the same move
+    # marks once it is lowered below it
+    vbd.skip_move = 0.25 * vbd.skip_move
+    move(i, 2 * vbd.skip_move)
+    np.testing.assert_array_equal(active.stale.to_numpy().astype(bool), expected)
 
 
 def test_the_active_set_passes_settled_vertices_by_and_keeps_the_fold(f32):

@@ -360,7 +360,7 @@ CLOTH_SCENES = (
                 # in 42 s, symplectic Euler's first second in 65 s; docs/lab/vbd.md, "The fold's pace").
                 build_cloth, default_dt=1 / 60, default_integrator="vbd", explicit_dt=1e-3, **_CLOTH_SIZE,
                 # A pile of layers a thickness (1 cm) apart: positions within half of it draw the
-                # same pile; held to 1 mm the fold takes 1.8 times the sweeps (docs/integrators.md,
+                # same pile; held to 1 mm the fold takes 1.6 times the sweeps (docs/integrators.md,
                 # "--tolerance").
                 default_tolerance=5e-3),
     # vbd at one step a frame: it moves the turning pins inside its solve, under its contact

@@ -29,6 +29,9 @@ from .... import field_io
 # Every this many sweeps (the first of a piece's, or of those after a detection, included) every
 # vertex is solved: the vertices passed by still converge (module docstring).
 FULL_SWEEP_EVERY = 8
+# m: the least threshold a run's tolerance lowers skip_move to (every vertex that moves at all
+# then marks itself: the sweeps solve nearly every vertex)
+SKIP_MOVE_FLOOR = 1e-7
 
 
 @ti.data_oriented
@@ -40,7 +43,7 @@ class ActiveSet:
         ends: (P, 2) the vertex pairs that share a spring, a triangle or a bending stencil
             (the pairs the colouring separates).
         skip_move: the move (m, > 0) below which a vertex does not mark itself or its
-            neighbours.
+            neighbours (kept in :attr:`threshold`, a 0-d field, so that it may change).
     """
 
     def __init__(self, particle_count: int, ends: np.ndarray, skip_move: float):
@@ -49,7 +52,9 @@ class ActiveSet:
         both = np.concatenate([ends, ends[:, ::-1]])
         both = both[np.argsort(both[:, 0], kind="stable")]
         offsets = np.searchsorted(both[:, 0], np.arange(n + 1))
-        self.skip_move = float(skip_move)
+        # a field, not a constant compiled in: a run's tolerance lowers it (VBD.work_options)
+        self.threshold = ti.field(ti.f64, shape=())
+        self.threshold[None] = float(skip_move)
         self.offsets = ti.field(ti.i32, shape=n + 1)
         self.neighbours = ti.field(ti.i32, shape=max(1, len(both)))
         self.stale = ti.field(ti.i32, shape=max(1, n))  # 1: to be solved at its next turn
@@ -76,7 +81,7 @@ class ActiveSet:
         element neighbours and, where ``pairs`` (a compile-time bool), its contact pairs'
         vertices (``contact``: the :class:`~.contact.SolveContact`, self-contact in the solve)."""
         self.solves[None] += 1
-        if distance > self.skip_move:
+        if distance > self.threshold[None]:
             self.stale[i] = 1
             for e in range(self.offsets[i], self.offsets[i + 1]):
                 self.stale[self.neighbours[e]] = 1

@@ -15,7 +15,7 @@ from ...base import Integrator, Status, StepReport
 from ...equation import FIXED_WORK, Equation
 from ...options import Option
 from ..colouring import colour_vertices
-from .active import active_set
+from .active import SKIP_MOVE_FLOOR, active_set
 from .contact_model import solve_forces
 from .energy import EnergyCap
 from .kernels import bind_kernels, serial_sweeps
@@ -118,7 +118,8 @@ class VBD(Integrator):
     # the stiffness ratio k dt^2 / m, where more sweeps stall on stiff cloth (16 x 16, k = 1e6:
     # 20 -> 40 sweeps 3.6 -> 2.9 mm, 1 -> 8 substeps 2.9 mm -> 0.23 mm; docs/integrators.md).
     work_option, work_cap = "substeps", 64
-    work_note = "with self-contact in its solve, first --option pace_share divided by ten to none"
+    work_note = ("with self-contact in its solve, first --option pace_share divided by ten to none, then "
+                 "skip_move to 1e-7")
     tracks_solved_start = True
     # No step-size limit: each sweep lowers the incremental potential at any step. An unconverged
     # step may still gain energy, which the energy cap takes back on closed scenes (energy.py).
@@ -219,8 +220,8 @@ class VBD(Integrator):
         self.order = ti.field(ti.i32, shape=max(1, n))
         self.colour_start = ti.field(ti.i32, shape=len(self.starts))  # the serial kernels loop over colours
         field_io.write((self.order, order), (self.colour_start, self.starts))  # one kernel, not two
-        self.skip_move = float(skip_move)  # the serial sweeps' active set, where it may be used
-        self.active = active_set(n, ends, self.skip_move, self.chebyshev or self.has_multipliers, self.others)
+        self._skip_move = float(skip_move)  # the serial sweeps' active set, where it may be used
+        self.active = active_set(n, ends, self._skip_move, self.chebyshev or self.has_multipliers, self.others)
         self._work = n + (self.springs.spring_count if self.has_springs else 0) \
             + (self.membrane_terms.work if self.has_membrane else 0)  # a sweep's, in springs' worth
         self._serial: bool | None = None  # set: a caller's choice (tests, benchmarks) over the rule
@@ -250,14 +251,26 @@ class VBD(Integrator):
                           lambda self, share: setattr(self.schedule, "pace_share", float(share)))
 
     @property
+    def skip_move(self) -> float:
+        """The active set's threshold (m; :mod:`.active`), read at every sweep."""
+        return self._skip_move
+
+    @skip_move.setter
+    def skip_move(self, value: float) -> None:
+        self._skip_move = float(value)
+        if self.active is not None:
+            self.active.threshold[None] = self._skip_move
+
+    @property
     def work_options(self) -> tuple:
         """With self-contact, a tolerance first lowers the share of vertices a piece cuts to
-        their bounds (to none: below half a vertex), which holds a step back most, then doubles
-        the substeps."""
+        their bounds (to none: below half a vertex), which holds a step back most, then the
+        active set's threshold (to 0.1 um), then doubles the substeps."""
         substeps = ((self.work_option, self.work_cap),)
         if not self.has_self_contact:
             return substeps
-        return (("pace_share", 0.5 / max(self.contact.free_count, 1)),) + substeps
+        skip = (("skip_move", SKIP_MOVE_FLOOR),) if self.active is not None and self._skip_move > SKIP_MOVE_FLOOR else ()
+        return (("pace_share", 0.5 / max(self.contact.free_count, 1)),) + skip + substeps
 
     def bind_contact(self, inputs: ContactInputs) -> ContactTakeover:
         """Put the scene's objects (with ``self_contact``, its cloth) from ``inputs`` in the solve
