@@ -51,6 +51,12 @@ def test_many_sweeps_give_the_exact_backward_euler_step(f64):
     variants = create_integrator("vbd", scene.system, chebyshev_rho=0.9, augmented=True)
     variants.serial = False  # one kernel per sweep, the colours as top-level parallel loops
     assert error(variants, 3000) < 1e-6
+    # Chebyshev's weights are the same in the serial kernel and in the parallel sweeps
+    serial, parallel = (create_integrator("vbd", scene.system, chebyshev_rho=0.9) for _ in range(2))
+    parallel.serial = False
+    assert error(serial, 3000) < 1e-6
+    errors = [error(serial, 7), error(parallel, 7)]
+    assert errors[0] == pytest.approx(errors[1], rel=1e-9) and errors[0] < error(vbd, 7)
 
 
 def test_energy_never_rises_above_the_start_on_conservative_cloths(f64):

@@ -13,6 +13,7 @@ from ...systems.base import System
 from ..base import Integrator, Status, StepReport
 from ..equation import FIXED_WORK, Equation
 from ..options import Option
+from .chebyshev import chebyshev_weight
 from .external import ExplicitForces
 from .global_matrix import GlobalMatrix
 
@@ -166,8 +167,7 @@ class ProjectiveDynamics(Integrator):
             iterations += 1
             solved = self.matrix.solve(self.rhs)
             if self.chebyshev_rho > 0.0:
-                rho2 = self.chebyshev_rho ** 2
-                omega = 1.0 if k == 0 else (2.0 / (2.0 - rho2) if k == 1 else 4.0 / (4.0 - rho2 * omega))
+                omega = chebyshev_weight(self.chebyshev_rho ** 2, k, omega)
             last = k == self.iterations - 1
             # One launch per iteration: the solution is accepted and, unless this was the last
             # iteration, the next local step runs in the same kernel.

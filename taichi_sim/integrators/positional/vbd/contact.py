@@ -458,6 +458,16 @@ class SolveContact(ObjectFaces):
     # Read-only views of the pairs the last detection kept, for drawing and scripts: nothing
     # here changes the solve.
 
+    def warning(self) -> str:
+        """The run's line for the pairs found but not kept (a vertex's list, or the pair list,
+        full): their repulsion was left out of the solve ("" for none)."""
+        dropped = getattr(self, "dropped_total", 0)  # (self-contact keeps lists; objects do not)
+        if not dropped:
+            return ""
+        return (f"vbd: {dropped} contact pair(s) found but dropped from the solve (a vertex keeps "
+                f"{self.per_vertex} between detections): the cloth may intersect itself (taichi-sim check "
+                "FILE.npz tells)")
+
     def forget(self) -> None:
         """Drop the pairs of the last detection (after a reset or a jump of the positions they
         were found at, so a viewer does not show stale pairs). The solve loses nothing: every

@@ -39,6 +39,17 @@ class EnergyCap:
         self.capped = ti.field(ti.i32, shape=())  # substeps the cap shortened
         self.tolerance = CAP_TOLERANCE * runtime.machine_epsilon()
 
+    def warning(self, accuracy_judged: bool = False) -> str:
+        """The run's line for the substeps the cap shortened ("" for none): they stopped short
+        of the solved step, unless ``accuracy_judged`` (the error estimate measured them against
+        their solution and warns itself where they are off)."""
+        capped = int(self.capped[None])
+        if not capped or accuracy_judged:
+            return ""
+        return (f"vbd: {capped} substep(s) would have ended with more energy than they started with and were "
+                "shortened toward their start (energy_cap); many mean the sweeps stop short: raise --iterations "
+                "or --substeps, or lower --dt")
+
     @ti.func
     def apply(self, y, point, start_x, delta, dt, serial: ti.template()):
         """Shorten the substep of dt seconds toward its start ``y`` (still x0, v0) until its

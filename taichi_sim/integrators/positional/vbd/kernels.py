@@ -5,6 +5,7 @@ compile time."""
 import taichi as ti
 
 from .... import runtime
+from ..chebyshev import chebyshev_weight
 from .active import FULL_SWEEP_EVERY
 
 # Below this many particles plus springs (times spare threads) the colour loops run on one
@@ -66,10 +67,7 @@ def bind_kernels(vbd, y) -> dict:
                 if ti.static(vbd.has_multipliers):
                     vbd.spring_terms.update_multipliers(vbd.point.x)
                 if ti.static(vbd.chebyshev):
-                    if sweep == 1:
-                        omega = 2.0 / (2.0 - rho2)
-                    elif sweep > 1:
-                        omega = 4.0 / (4.0 - rho2 * omega)
+                    omega = chebyshev_weight(rho2, sweep, omega)
                     for i in range(vbd.system.particle_count):
                         vbd._accelerate(i, dt, omega, sweep, t)
         return vbd._finish(y, dt)
@@ -86,10 +84,7 @@ def bind_kernels(vbd, y) -> dict:
             rho2 = vbd.chebyshev_rho ** 2
             for sweep in range(first + count):
                 if ti.static(vbd.chebyshev):
-                    if sweep == 1:
-                        omega = 2.0 / (2.0 - rho2)
-                    elif sweep > 1:
-                        omega = 4.0 / (4.0 - rho2 * omega)
+                    omega = chebyshev_weight(rho2, sweep, omega)
                 if sweep >= first:
                     if ti.static(has_active):
                         if (sweep - first) % FULL_SWEEP_EVERY == 0:

@@ -15,6 +15,7 @@ from ...base import Integrator, Status, StepReport
 from ...equation import FIXED_WORK, Equation
 from ...options import Option
 from ..colouring import colour_vertices
+from ..chebyshev import ChebyshevHistory, chebyshev_weight
 from .active import SKIP_MOVE_FLOOR, active_set
 from .contact_model import solve_forces
 from .energy import EnergyCap
@@ -71,38 +72,26 @@ class VBD(Integrator):
             Diaz & Yuksel 2025, "Augmented Vertex Block Descent"); off by default.
         penalty: the augmented form's penalty rho at the start of each substep (N/m, > 0).
         penalty_growth: its ramp: rho grows by this times |C| after each sweep (N/m^2, >= 0).
-        contact: the scene's objects (plane, spheres, capsules, boxes) in the solve as contact
-            energies (:class:`~.contact.SolveContact`), once :meth:`bind_contact` has
-            been given the scene's inputs (the Stepper does); default True.
-        self_contact: the cloth against itself in the solve. None (default): when the scene
-            has a post-step self-collision stage (``self_collision=1``), which the solve then
-            replaces (the scene leaves the stage out: :attr:`takeover`). True: in the solve
-            on any scene, the scene's stage (if any) still runs after each step as a fail-safe.
-            False: not in the solve (the scene's stage, if any, runs after each step).
-        contact_radius: contact radius (m, > 0); None: the scene's ``thickness`` (0.005 m
-            without one). With self_contact it must be below the rest mesh's smallest distance
-            between non-adjacent parts.
+        The contact in the solve (:mod:`.setup`; the manual: docs/vbd-contact.md):
+        contact: the scene's objects in the solve as contact energies (default True).
+        self_contact: the cloth against itself in the solve: None (default) where the scene has
+            a self-collision stage, which the solve then takes over (:attr:`takeover`); True on
+            any scene (a stage still runs after each step); False never.
+        contact_radius: contact radius (m, > 0); None: the scene's ``thickness``.
         contact_stiffness: the penalty's stiffness in units of the vertex's m / dt^2 (> 0).
-        bound_fraction: each vertex's displacement cap as a fraction of its distance to the
-            nearest object or contact partner, in (0, 0.5).
+        bound_fraction: a vertex's move cap, a fraction of its distance to its nearest contact,
+            in (0, 0.5).
         friction_epsilon: the slip speed (m/s) below which friction is smoothed (IPC's eps_v).
-        contact_refresh: sweeps between self-contact detections; 0 (default): once per piece of
-            a substep (:mod:`.pieces`).
-        contact_pieces: with self-contact, the most pieces (default 16) a substep may be cut
-            into so that the start guesses of all but ``pace_share`` (default 0.005) of the
-            free vertices stay within their bounds, the others cut to them (:mod:`.pieces`; the
-            scripted pins may need more, up to 256); 1: one piece, every guess cut.
-        object_faces: the cloth's triangles against the objects in the solve too
-            (:mod:`.faces`; default True), where the scene's ``object_faces`` is on: a box's
-            edge, a thin object or a collider mesh's sharp edges (:mod:`.mesh_faces`) cannot
-            come between the vertices into a face. Off, the objects meet vertices only, which
-            costs less where the cloth lies across a box's edges (docs/vbd.md).
-        energy_cap: on a closed scene (no wind, turbulence, moving object, kinematic pin or
-            emitter) without contact in the solve, shorten a substep that would end with more
-            energy (J) than it started with toward its start until it does not
-            (:mod:`.energy`); default True.
-        skip_move: with self-contact in the solve and serial sweeps, a vertex whose last step and
-            its neighbours' since moved at most this far (m) is passed by (:mod:`.active`; 1e-5).
+        contact_refresh: sweeps between self-contact detections; 0 (default): once a piece.
+        contact_pieces: with self-contact, the most pieces (default 16) a substep is cut into
+            so that the start guesses of all but ``pace_share`` (default 0.005) of the free
+            vertices stay within their bounds, the others cut to them (:mod:`.pieces`).
+        object_faces: the cloth's triangles against the objects and a collider mesh's sharp
+            features too (:mod:`.faces`, :mod:`.mesh_faces`; default True).
+        energy_cap: without contact in the solve, on a closed scene, shorten a substep that
+            would end with more energy (J) than it started with (:mod:`.energy`; default True).
+        skip_move: with self-contact and serial sweeps, a vertex whose last step and its
+            neighbours' since moved at most this far (m) is passed by (:mod:`.active`; 1e-5).
     """
 
     name = "vbd"
@@ -207,9 +196,7 @@ class VBD(Integrator):
         # x - x0 (m), kept apart from x so that v = delta / dt carries no cancellation in f32.
         self.delta = ti.Vector.field(3, real, shape=n)
         self.chebyshev = self.chebyshev_rho > 0.0
-        if self.chebyshev:
-            self.earlier = ti.Vector.field(3, real, shape=n)  # delta two sweeps back
-            self.last = ti.Vector.field(3, real, shape=n)  # delta one sweep back
+        self.history = ChebyshevHistory(n, real) if self.chebyshev else None
         self.has_multipliers = self.augmented and self.has_springs
         self.spring_terms = SpringTerms(self.springs, augmented=self.augmented, penalty=self.penalty,
                                         penalty_growth=self.penalty_growth) if self.has_springs else None
@@ -290,23 +277,10 @@ class VBD(Integrator):
         return setup.takeover
 
     def run_warning(self, accuracy_judged: bool = False) -> str:
-        """Contact pairs found but not kept (a vertex's list of CONTACTS_PER_VERTEX, or the
-        pair list, full): their repulsion was left out of the solve; substeps the energy cap
-        shortened: they stopped short of the solved step (unless ``accuracy_judged``: the
-        error estimate measured the shortened steps against their solution and warns itself
-        where they are off)."""
-        capped = int(self.cap.capped[None])
-        lines = []
-        if capped and not accuracy_judged:
-            lines.append(f"vbd: {capped} substep(s) would have ended with more energy than they started with and "
-                         "were shortened toward their start (energy_cap); many mean the sweeps stop short: raise "
-                         "--iterations or --substeps, or lower --dt")
-        dropped = getattr(self.contact, "dropped_total", 0)  # (self-contact keeps lists; objects do not)
-        if dropped:
-            lines.append(f"vbd: {dropped} contact pair(s) found but dropped from the solve (a vertex keeps "
-                         f"{self.contact.per_vertex} between detections): the cloth may intersect itself "
-                         "(taichi-sim check FILE.npz tells)")
-        return "; ".join(lines)
+        """The energy cap's and the contact lists' lines (:meth:`.energy.EnergyCap.warning`,
+        :meth:`.contact.SolveContact.warning`), joined."""
+        lines = (self.cap.warning(accuracy_judged), self.contact.warning() if self.contact is not None else "")
+        return "; ".join(line for line in lines if line)
 
     def solve_forces(self, state, t: float, h: float):
         """The in-solve contact's forces at ``state`` (the result of a piece of ``h`` s ending at
@@ -388,13 +362,6 @@ class VBD(Integrator):
         self.solved_start.copy_from(state)
         self.solved_h = h
 
-    def _omega(self, sweep: int, omega: float) -> float:
-        """Chebyshev weight of sweep ``sweep`` (0-based) given the last one's (1 when off)."""
-        if not self.chebyshev or sweep == 0:
-            return 1.0
-        rho2 = self.chebyshev_rho ** 2
-        return 2.0 / (2.0 - rho2) if sweep == 1 else 4.0 / (4.0 - rho2 * omega)
-
     # -- kernels (kernels.py: closures made once per state) -------------------------------------
 
     def _bound(self, y) -> dict:
@@ -412,7 +379,7 @@ class VBD(Integrator):
             return
         omega = 1.0
         for sweep in range(first + count):
-            omega = self._omega(sweep, omega)
+            omega = chebyshev_weight(self.chebyshev_rho ** 2, sweep, omega) if self.chebyshev else 1.0
             if sweep >= first:
                 self._sweep(kernels, dt, t, omega, sweep)
 
@@ -514,8 +481,7 @@ class VBD(Integrator):
                 self.point.x[i] = self.start_x[i] + delta
                 self.point.v[i] = delta / dt
             if ti.static(self.chebyshev):
-                self.earlier[i] = delta
-                self.last[i] = delta
+                self.history.start(i, delta)
         if ti.static(self.has_multipliers):
             self.spring_terms.begin_penalties()
 
@@ -604,14 +570,13 @@ class VBD(Integrator):
             delta = self.delta[i]
             if sweep >= 1:
                 old = delta
-                delta = omega * (delta - self.earlier[i]) + self.earlier[i]
+                delta = self.history.relaxed(i, delta, omega)
                 if ti.static(self.has_contact):
                     delta = self.contact.limit(i, old, delta, self.start_x[i], t, self.point.x)
                 self.delta[i] = delta
                 self.point.x[i] = self.start_x[i] + delta
                 self.point.v[i] = delta / dt
-            self.earlier[i] = self.last[i]
-            self.last[i] = delta
+            self.history.shift(i, delta)
 
     @ti.func
     def _finish(self, y, dt):
