@@ -330,8 +330,7 @@ class MeshContact:
     def crowding(self, refreshes: int) -> float:
         """The largest share of its bound (its self-contact ball, moved on ``refreshes`` times
         in the piece, where the solve has ``self_nearest``; else its own) that a vertex must move
-        this piece to get out to the skin where the body's move over the piece put it (the
-        move's part along the vertex's normal, at most its depth below the skin; 0: none must). Above 1
+        this piece to get out to the skin where the body's move put it (0: none must). Above 1
         the piece's sweeps cannot push it out; pieces.py shortens the piece, since that push
         shrinks with it."""
         self.has_self_nearest = self.self_nearest is not None
@@ -342,11 +341,7 @@ class MeshContact:
         most = 0.0
         for i in range(self.system.particle_count):
             if self.state[i] == FOUND:
-                # only the push the body's move over the piece adds (n . u) shrinks with the
-                # piece; a vertex already in the skin at its start is pushed out over the pieces
-                # whatever their length, and a shorter piece would only cost more of them
-                push = ti.min(self.skin - self.normal[i].dot(self.anchor[i] - self.point[i]),
-                              self.normal[i].dot(self.moved[i]))
+                push = self.skin - self.normal[i].dot(self.anchor[i] - self.point[i])
                 if push > 0.0:
                     bound = self.ball[i]
                     if ti.static(self.has_self_nearest):
