@@ -4,8 +4,9 @@ a body whose right leg kicks forward 60 degrees in 1/3 s, and a paddle turning t
 hanging sheet faster than the sheet's spacing a step; and, through the API, a thin plate on a
 fast rigid path lifting a free cloth. The CLI tests judge the vertices and the faces (the
 coarse body's and the paddle's edges against the cloth's triangles: mesh_faces.py).
-The CLI tests fail with the mesh met after the step instead (its post-step pass), and all three
-without the contact planes carried to the piece's end."""
+The CLI tests fail with the mesh met after the step instead (its post-step pass), and the first
+three without the contact planes carried to the piece's end; the plate coming at a sheet past a
+nearer wall fails with the body's pace taken from each vertex's nearest triangle alone."""
 import kicking_body as body
 import numpy as np
 
@@ -79,3 +80,29 @@ def test_a_thin_plate_on_a_fast_path_lifts_a_cloth_in_the_solve(f64):
     top = path.at(stepper.t)[0][1] + 0.01
     # carried on the plate (its free sides trail and wrap round the plate's edges)
     assert x[:, 1].max() > top + SKIN and x[:, 1].mean() > 0.5 + 0.3
+
+
+def test_a_plate_coming_at_a_sheet_past_a_nearer_wall_pushes_it(tmp_path, capsys):
+    """A static wall 30 mm behind a hanging sheet and a 20 mm plate 40 mm in front of it that
+    comes at it at 3 m/s (50 mm, 1.5 spacings, in the first step) and stops 20 mm before the
+    wall, in one mesh: every sheet vertex has the wall nearest, so a pace judged on the nearest
+    triangle alone lets the plate pass over the sheet in one piece (vertices left inside it);
+    the pace over every triangle within reach pushes the sheet into the gap."""
+    import trimesh
+
+    wall = trimesh.creation.box(extents=(0.3, 0.3, 0.03))
+    wall.apply_translation((0.0, 0.75, -0.045))  # its front face at z = -0.03
+    plate = trimesh.creation.box(extents=(0.12, 0.12, 0.02))
+    plate.apply_translation((0.0, 0.75, 0.05))  # its back face at z = 0.04, then at -0.01
+    triangles = np.concatenate([wall.faces, plate.faces + len(wall.vertices)])
+    frames = [np.concatenate([wall.vertices, plate.vertices + (0.0, 0.0, dz)]) for dz in (0.0, -0.05, -0.05, -0.05)]
+    pattern = body.write_frames(str(tmp_path / "wall"), np.stack(frames), triangles, name="wall")
+    sheet = str(tmp_path / "sheet.obj")
+    body.write_sheet(sheet, n=16)  # 33 mm apart
+    report = simulate_and_check(capsys, [
+        "mesh", "--set", f"file={sheet}", "--set", "pin=top:0.005", "--set", f"collider_mesh={pattern}",
+        "--set", "collider_mesh_fps=60", "--option", "object_faces=0", "--t-end", "0.05"], str(tmp_path / "w.npz"))
+    assert "no vertex inside the collider mesh in any frame" in report
+    x = np.load(tmp_path / "w.npz")["x_history"]
+    behind = (np.abs(x[0][:, 0]) < 0.05) & (np.abs(x[0][:, 1] - 0.75) < 0.05)  # under the plate's middle
+    assert behind.any() and (x[1][behind, 2] < -0.01).all()  # in the gap behind the plate after one step

@@ -46,9 +46,11 @@ from ....collide.closest_points import closest_barycentric
 # A triangle whose corners lie no further than this share of the skin in front of a vertex's
 # contact plane counts as behind it (round-off of corners on the plane itself).
 BEHIND_TOLERANCE = 1e-4
-# The body's largest move over a piece, near the cloth, is held to this share of bound_fraction
-# x the room a vertex is given (pieces.py cuts the piece): a vertex the body pushes then has a
-# short way out, and a thin part of the body (a paddle) cannot move past a vertex in one piece.
+# The body's largest move over a piece within reach of any cloth vertex is held to this share of
+# bound_fraction x the room a vertex is given (pieces.py cuts the piece): a vertex the body
+# pushes then has a short way out, and a thin part of the body (a paddle) cannot move past a
+# vertex in one piece. Judged per vertex over the triangles within its reach (``pace``), so a
+# limb moving fast away from the cloth does not cut the pieces of the whole step.
 MESH_PACE = 0.8
 FOUND = 1  # a vertex's state: a contact plane within reach
 
@@ -123,6 +125,8 @@ class MeshContact:
         self.centre = ti.Vector.field(3, real, shape=2)  # the mesh's origin at the piece's start, end (m)
         self.span = ti.field(real, shape=())  # the piece's length (s)
         self.motion = ti.field(real, shape=())  # the body's largest move near the cloth over the piece (m)
+        # the largest move over the piece (m) of a triangle within reach of a free vertex at t0
+        self.local_motion = ti.field(real, shape=())
         self.faces = None  # the cloth's triangles against the sharp features (mesh_faces.py), if any
         self.detections = 0
         self.last_t = None
@@ -136,25 +140,32 @@ class MeshContact:
     # -- the piece schedule's questions (host) ----------------------------------------------------
 
     def piece_length(self, x: np.ndarray, t: float, length: float, shortest: float) -> float:
-        """How long (s, <= ``length``) a piece from t may be: it ends at the next frame's time
-        when it would pass one (the motion is then linear over the piece), and the body's largest
-        move within reach of the cloth (``x`` (n, 3) m) stays below ``MESH_PACE`` x
-        ``bound_fraction`` x the room, or x the skin and the contact radius where the mesh has
-        sharp features (mesh_faces.py; not below ``shortest`` s)."""
+        """How long (s, <= ``length``) a piece from t may be before its detection: it ends at the
+        next frame's time when it would pass one (the motion is then linear over the piece), and,
+        where the mesh has sharp features (mesh_faces.py), the body's largest move within reach
+        of the cloth (``x`` (n, 3) m) stays below ``MESH_PACE`` x ``bound_fraction`` x the skin
+        and the contact radius (not below ``shortest`` s). The vertices' own pace, judged per
+        vertex, is :meth:`pace` after the detection."""
         player = self.player
         if player.animated and t * player.fps < player.count - 1:
             frame_end = (np.floor(t * player.fps * (1 + 1e-12) + 1e-9) + 1) / player.fps
             if frame_end < t + length * (1 - 1e-9):
                 length = frame_end - t
-        speed = self.near_speed(x, t, length)
-        allowed = MESH_PACE * self.fraction * self.room
         if self.faces is not None:
             # a sharp feature moves less than the distance a face keeps from it (the skin and
-            # the contact radius) in a piece: it cannot pass a face between two queries
-            allowed = min(allowed, MESH_PACE * self.fraction * (self.skin + self.radius))
-        if speed * length > allowed:
-            length = max(allowed / speed, min(shortest, length))
+            # the contact radius) in a piece: it cannot pass a face between two queries. The
+            # faces' query is not per vertex, so this pace stays the whole cloth's.
+            speed = self.near_speed(x, t, length)
+            allowed = MESH_PACE * self.fraction * min(self.room, self.skin + self.radius)
+            if speed * length > allowed:
+                length = max(allowed / speed, min(shortest, length))
         return length
+
+    def pace(self) -> float:
+        """The last detection's largest move of the body within reach of a free vertex, as a
+        share of ``MESH_PACE`` x ``bound_fraction`` x the room (above 1: pieces.py shortens the
+        piece by it; the move shrinks with the piece)."""
+        return float(self.local_motion[None]) / (MESH_PACE * self.fraction * self.room)
 
     def near_speed(self, x: np.ndarray, t: float, length: float) -> float:
         """The largest speed (m/s) of the mesh's triangles within reach of the cloth at ``x``
@@ -214,10 +225,11 @@ class MeshContact:
 
     @ti.func
     def _nearest(self, corners, q, radius):
-        """(distance (m), triangle, barycentric weights) of the mesh at ``corners`` ((V,) field,
-        mesh frame) nearest to q within ``radius``; triangle -1 when none is."""
+        """(distance (m), triangle, barycentric weights, the largest corner move (m, mesh frame,
+        ``before`` to ``after``) of the triangles within ``radius``) of the mesh at ``corners``
+        ((V,) field, mesh frame) nearest to q within ``radius``; triangle -1 when none is."""
         c = self.collider
-        best, face, weights = radius, -1, 0.0 * q
+        best, face, weights, moved = radius, -1, 0.0 * q, 0.0 * radius
         first, last = c._cells(q - radius, q + radius)
         span = ti.max(last - first + 1, 0)
         for k in range(span[0] * span[1] * span[2]):
@@ -228,9 +240,12 @@ class MeshContact:
                 a, b, d = corners[tri[0]], corners[tri[1]], corners[tri[2]]
                 w = closest_barycentric(q, a, b, d)
                 dist = (q - w[0] * a - w[1] * b - w[2] * d).norm()
+                if dist < radius:
+                    for j in ti.static(range(3)):
+                        moved = ti.max(moved, (self.after[tri[j]] - self.before[tri[j]]).norm())
                 if dist < best:
                     best, face, weights = dist, f, w
-        return best, face, weights
+        return best, face, weights, moved
 
     @ti.func
     def _clear_distance(self, q, p, n, radius):
@@ -272,6 +287,7 @@ class MeshContact:
         self.centre[0], self.centre[1] = c0, c1
         self.span[None] = span
         self.motion[None] = motion
+        self.local_motion[None] = 0.0
         for i in range(self.system.particle_count):
             self.state[i] = 0
             self.anchor[i] = x[i]
@@ -279,8 +295,11 @@ class MeshContact:
             ball = 0.0 * reach
             if self.system.free[i]:
                 q0 = x[i] - c0
-                d0, face, w = self._nearest(self.before, q0, reach)
+                d0, face, w, moved = self._nearest(self.before, q0, reach)
                 if face >= 0:
+                    # the pace: every triangle within reach (not only the nearest: another part
+                    # of the body may come at the vertex), the mesh's origin moving too
+                    ti.atomic_max(self.local_motion[None], moved + (c1 - c0).norm())
                     tri = self.triangles[face]
                     p0 = w[0] * self.before[tri[0]] + w[1] * self.before[tri[1]] + w[2] * self.before[tri[2]]
                     p1 = w[0] * self.after[tri[0]] + w[1] * self.after[tri[1]] + w[2] * self.after[tri[2]]

@@ -124,8 +124,10 @@ class PieceSchedule:
                 if piece <= 0.0:
                     return 0.0
             body.detect(state.x, t, t + piece, speed * piece, x)
-            for _ in range(MESH_RETRIES):  # the body pushes a vertex further than its bounds allow
-                over = body.crowding(self.refreshes)
+            # the body moves further near a vertex than its pace, or pushes one further than
+            # its bounds allow: both shrink with the piece
+            for _ in range(MESH_RETRIES):
+                over = max(body.crowding(self.refreshes), body.pace())
                 shorter = max(piece * PACE_FIT / max(over, 1e-30), remaining / pieces_left)
                 if over <= 1.0 or shorter >= piece:
                     break
