@@ -15,7 +15,9 @@ they reach it. A settled pile then costs the sweeps a fraction of what 20 full s
 (docs/lab/vbd.md, "The fold, cheaper").
 
 Used where the solve holds self-contact (the piles it is for; a cloth without contact sweeps
-as before), where the sweeps run as one serial task (a mark from a same-coloured contact
+as before) on a closed scene (a moving object, a scripted pin or wind changes a vertex's block
+with no cloth vertex moving: a kicking leg reached 0.38 mm into a skirt's faces past vertices
+passed by), where the sweeps run as one serial task (a mark from a same-coloured contact
 partner could race with the vertex's own clearing in a parallel loop), without Chebyshev's
 over-relaxation or augmented springs (they move or re-weigh every vertex after each sweep),
 and where every other force term reads its own particle only (wind reads a triangle's).

@@ -36,8 +36,8 @@ def bind_kernels(vbd, y) -> dict:
     """The kernels of ``vbd`` (a :class:`~.solver.VBD`) over the state ``y``: a whole serial
     substep, and the parts the Python loops drive (begin, sweeps, a colour, end)."""
 
-    # the active set where the solve holds self-contact (active.py): the piles it is for
-    active = vbd.active if vbd.has_self_contact else None
+    # the active set where the solve holds self-contact on a closed scene (active.py)
+    active = vbd.active if vbd.uses_active_set else None
     has_active = active is not None
     pairs = vbd.has_self_contact  # (its pairs couple vertices)
 
