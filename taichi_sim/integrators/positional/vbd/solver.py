@@ -14,8 +14,8 @@ from ....systems.base import System
 from ...base import Integrator, Status, StepReport
 from ...equation import FIXED_WORK, Equation
 from ...options import Option
-from ..colouring import colour_vertices
 from ..chebyshev import ChebyshevHistory, chebyshev_weight
+from ..colouring import colour_vertices
 from .active import SKIP_MOVE_FLOOR, active_set
 from .contact_model import solve_forces
 from .energy import EnergyCap
