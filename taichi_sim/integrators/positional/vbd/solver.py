@@ -41,20 +41,16 @@ class VBD(Integrator):
         H_i = m_i / dt^2 I - df_i/dx_i - df_i/dv_i / dt,       x_i -= H_i^-1 r_i,
 
     with every force term of the scene (gravity, drag, springs with their dashpots, the grab, a
-    membrane's triangles with their viscous stress and its bending: :mod:`.membranes`)
-    evaluated at the iterate, exactly as :class:`~taichi_sim.integrators.ImplicitEuler` does,
-    and each spring's and triangle's 3x3 block kept positive semi-definite (a compressed
-    spring's transverse stiffness clamped at 0, a triangle's block projected). The vertices are
-    coloured once so that no two of a colour share a spring, a triangle or a bending stencil
-    (:func:`colour_vertices`); a sweep solves one colour after the other, each colour one
+    membrane and its bending: :mod:`.membranes`) at the iterate, as
+    :class:`~taichi_sim.integrators.ImplicitEuler` takes them, each spring's and element's 3x3
+    block kept positive semi-definite. The vertices are coloured once so that no two of a colour
+    share a term (:func:`colour_vertices`); a sweep solves one colour after the other, each one
     parallel loop (Gauss-Seidel). ``iterations`` sweeps per substep.
 
     Where a sweep starts: with ``warm_start`` the paper's adaptive initialisation, x0 + dt v0 +
-    dt^2 a, a the last substep's acceleration projected on gravity and clamped between 0 and g
-    (a cloth at rest starts where it is, a falling one where it keeps falling); else x0 + dt v0.
-    The sweeps start from that guess or from x0 (V = 0), whichever has the lower G (one pass
-    over the particles each): a guess that stretches stiff springs by more energy than the
-    motion carries is not one a few sweeps undo.
+    dt^2 a, a the last substep's acceleration projected on gravity and clamped between 0 and g;
+    else x0 + dt v0; or x0 (V = 0) where that has the lower G: a guess that stretches stiff
+    springs by more energy than the motion carries is not one a few sweeps undo.
     ``chebyshev_rho`` > 0 over-relaxes each sweep with Chebyshev weights (Wang 2015; the paper's
     acceleration) for that estimated spectral radius.
 
@@ -240,28 +236,22 @@ class VBD(Integrator):
 
     @property
     def uses_active_set(self) -> bool:
-        """Whether the serial sweeps pass settled vertices by (:mod:`.active`): with self-contact
-        in the solve, on a closed scene (a moving object, a scripted pin or wind changes a
-        vertex's block without any cloth vertex moving: a kicking leg reached 0.38 mm into a
-        skirt's faces past vertices passed by)."""
+        """Whether the serial sweeps pass settled vertices by: with self-contact in the solve,
+        on a closed scene (:mod:`.active` says why)."""
         return self.active is not None and self.has_self_contact and self.scene_closed
 
-    @property
-    def skip_move(self) -> float:
-        """The active set's threshold (m; :mod:`.active`), read at every sweep."""
-        return self._skip_move
-
-    @skip_move.setter
-    def skip_move(self, value: float) -> None:
+    def _set_skip_move(self, value: float) -> None:
         self._skip_move = float(value)
         if self.active is not None:
             self.active.threshold[None] = self._skip_move
 
+    skip_move = property(lambda self: self._skip_move, _set_skip_move,
+                         doc="The active set's threshold (m; :mod:`.active`), read at every sweep.")
+
     @property
     def work_options(self) -> tuple:
         """With self-contact, a tolerance first lowers the share of vertices a piece cuts to
-        their bounds (to none: below half a vertex), which holds a step back most, then the
-        active set's threshold (to 0.1 um), then doubles the substeps."""
+        their bounds (to none), then the active set's threshold, then doubles the substeps."""
         substeps = ((self.work_option, self.work_cap),)
         if not self.has_self_contact:
             return substeps
