@@ -99,9 +99,8 @@ class VBD(Integrator):
     description = "vertex block descent: backward Euler by per-vertex Newton steps, Gauss-Seidel over a colouring"
     equation = Equation("backward_euler", FIXED_WORK,
                         advice="raise --iterations or --substeps, or lower --dt")
-    # Under a --tolerance it takes more substeps, not sweeps: a substep of dt / 2 has a quarter of
-    # the stiffness ratio k dt^2 / m, where more sweeps stall on stiff cloth (16 x 16, k = 1e6:
-    # 20 -> 40 sweeps 3.6 -> 2.9 mm, 1 -> 8 substeps 2.9 mm -> 0.23 mm; docs/integrators.md).
+    # Under a --tolerance substeps, not sweeps: a substep of dt / 2 has a quarter of k dt^2 / m,
+    # where sweeps stall on stiff cloth (docs/integrators.md); with self-contact, work_options.
     work_option, work_cap = "substeps", 64
     work_note = ("with self-contact in its solve, first --option pace_share divided by ten to none, then "
                  "skip_move to 1e-7")
@@ -115,10 +114,9 @@ class VBD(Integrator):
 
     @classmethod
     def scratch_bytes(cls, particles: int, springs: int, real_bytes: int, linear_solver: str = "cg") -> int:
-        """Start positions and velocities, the displacement, two earlier ones (Chebyshev), the
-        last acceleration along gravity, the colour order per particle; a penalty and a multiplier
-        per spring (the augmented option); the active set's marks and neighbour lists (two i32
-        per particle, two per spring)."""
+        """Per particle: x0, v0, the displacement, two earlier ones (Chebyshev), the acceleration
+        along gravity, the colour order, the active set's marks; per spring: a penalty and a
+        multiplier (augmented), two neighbour entries of the active set."""
         return particles * (16 * real_bytes + 12) + springs * (2 * real_bytes + 8)
 
     def __init__(
@@ -218,8 +216,7 @@ class VBD(Integrator):
         self._last_dt = 0.0
         self.sweeps = 0  # sweeps run since construction (all substeps)
 
-    # -- what the bound scene put in the solve (ContactSetup), read by the run, the convergence
-    # monitor and the kernels (ti.static) ----------------------------------------------------------
+    # -- what the bound scene put in the solve (ContactSetup): the run, the monitor, the kernels --
 
     contact = property(lambda self: self.setup.contact,
                        doc="The contact terms in the solve (SolveContact), None where the scene gives it none.")
