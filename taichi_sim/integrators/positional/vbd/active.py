@@ -56,12 +56,12 @@ class ActiveSet:
         offsets = np.searchsorted(both[:, 0], np.arange(n + 1))
         # a field, not a constant compiled in: a run's tolerance lowers it (VBD.work_options)
         self.threshold = ti.field(ti.f64, shape=())
-        self.threshold[None] = float(skip_move)
         self.offsets = ti.field(ti.i32, shape=n + 1)
         self.neighbours = ti.field(ti.i32, shape=max(1, len(both)))
         self.stale = ti.field(ti.i32, shape=max(1, n))  # 1: to be solved at its next turn
         self.solves = ti.field(ti.i64, shape=())  # vertex steps taken since construction
-        field_io.write((self.offsets, offsets), (self.neighbours, both[:, 1] if len(both) else np.zeros(1)))
+        field_io.write((self.offsets, offsets), (self.neighbours, both[:, 1] if len(both) else np.zeros(1)),
+                       (self.threshold, float(skip_move)))
 
     @ti.func
     def all_stale(self, n):

@@ -240,7 +240,7 @@ class VBD(Integrator):
     def _set_skip_move(self, value: float) -> None:
         self._skip_move = float(value)
         if self.active is not None:
-            self.active.threshold[None] = self._skip_move
+            field_io.write((self.active.threshold, self._skip_move))
 
     skip_move = property(lambda self: self._skip_move, _set_skip_move,
                          doc="The active set's threshold (m; :mod:`.active`), read at every sweep.")
